@@ -1,0 +1,28 @@
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install train test lint bench clean
+
+$(STAMP): pyproject.toml constraints.txt
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -c constraints.txt -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# Main job: default embedded task (hook vs loop), GWT -> latency -> tempotron, prints test accuracy.
+train: $(STAMP)
+	$(BIN)/tactilesnn train
+
+test: $(STAMP)
+	$(BIN)/ruff check tactilesnn tests train.py benchmarks
+	$(BIN)/ruff format --check tactilesnn tests train.py benchmarks
+	$(BIN)/pytest
+
+bench: $(STAMP)
+	$(BIN)/tactilesnn bench gwt-vs-stft --seeds 5 --out bench_out/gwt_vs_stft
+
+clean:
+	rm -rf $(VENV) runs bench_out

@@ -1,0 +1,58 @@
+"""Input validation shared by every stage: clear, specific errors instead of silent wrong answers."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+
+def as_float_array(x: object, name: str, ndim: int | Sequence[int] | None = None) -> np.ndarray:
+    """Return ``x`` as a float ndarray (float32/float64 kept, other real types -> float64).
+
+    Raises TypeError for non-numeric data and ValueError for a wrong number of dimensions.
+    """
+    arr = np.asarray(x)
+    if arr.dtype.kind not in "fiub":
+        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float64)
+    if ndim is not None:
+        allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
+        if arr.ndim not in allowed:
+            raise ValueError(
+                f"{name} must have {' or '.join(map(str, allowed))} dimensions, "
+                f"got shape {arr.shape}"
+            )
+    return arr
+
+
+def check_finite(x: np.ndarray, name: str) -> None:
+    """Refuse NaN/Inf, naming the index (for ``[..., channels, samples]``: channel and sample)."""
+    finite = np.isfinite(x)
+    if finite.all():
+        return
+    idx = tuple(int(i) for i in np.argwhere(~finite)[0])
+    value = x[idx]
+    if x.ndim >= 2:
+        where = f"channel {idx[-2]}, sample {idx[-1]}"
+        if x.ndim > 2:
+            where = f"batch index {idx[:-2]}, " + where
+    else:
+        where = f"sample {idx[-1]}"
+    raise ValueError(f"{name} contains a non-finite value ({value}) at {where}")
+
+
+def check_positive(value: float, name: str) -> float:
+    """Return ``value`` as float, or raise ValueError if it is not a finite positive number."""
+    v = float(value)
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+    return v
+
+
+def check_choice(value: str, name: str, choices: Sequence[str]) -> str:
+    """Raise ValueError listing the valid choices when ``value`` is not one of them."""
+    if value not in choices:
+        raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(choices)}")
+    return value

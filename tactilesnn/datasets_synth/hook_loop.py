@@ -1,0 +1,151 @@
+"""Hook-vs-loop texture task (seed 001): 200 closed-loop scans -> 100-sample windows.
+
+Each scan is rendered by :class:`SlidingScanScene` over both textures (visiting order drawn per
+scan) and read by :class:`CapacitivePiezoStack`. Scans are split 160 / 40 at random (from the seed)
+into train / test; every window of ``window`` samples (hop ``hop``) lying entirely inside one
+texture's labelled interval becomes a classification sample.
+
+Array contract of :class:`WindowDataset`: ``X`` ``[N, 2, window]`` float32 (channels ``static``,
+``dynamic`` in relative units, 200 samples/s), ``y`` ``[N]`` int64 (0 = hook, 1 = loop),
+``scan`` ``[N]`` int64 scan index.
+
+Difficulty knob: ``difficulty`` multiplies every source of variability (pressure set-point range,
+coupling-gain spread, speed spread and jitter, normal-load ripple, texture irregularity) and the
+electronic noise. 1.0 is the default; 0 gives idealised, noise-free scans.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+
+from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
+
+TASK_ID = 1  # mixed into every seed so different tasks never share random streams
+
+
+@dataclass(frozen=True)
+class WindowDataset:
+    """Windows of one split: ``X [N, C, W]`` float32, ``y [N]`` int64, ``scan [N]`` int64."""
+
+    X: np.ndarray
+    y: np.ndarray
+    scan: np.ndarray
+    fs_hz: float
+    class_names: tuple[str, ...]
+    channel_names: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class HookLoopTask:
+    """Seed 001's hook-vs-loop task; deterministic given ``seed`` and the scan index."""
+
+    seed: int = 0
+    n_planar: int = 100
+    n_concave: int = 50
+    n_convex: int = 50
+    n_test: int = 40
+    window: int = 100
+    hop: int = 50
+    difficulty: float = 1.0
+    protocol: ScanProtocol = field(default_factory=ScanProtocol)
+    name: str = "hook_loop"
+    class_names: tuple[str, ...] = ("hook", "loop")
+
+    def __post_init__(self) -> None:
+        if self.difficulty < 0 or not np.isfinite(self.difficulty):
+            raise ValueError(f"difficulty must be a finite number >= 0, got {self.difficulty}")
+        if self.window < 8 or self.hop < 1:
+            raise ValueError(f"window must be >= 8 and hop >= 1, got {self.window}, {self.hop}")
+        if not 0 < self.n_test < self.n_scans:
+            raise ValueError(f"n_test must be in (0, {self.n_scans}), got {self.n_test}")
+
+    @property
+    def n_scans(self) -> int:
+        return self.n_planar + self.n_concave + self.n_convex
+
+    @property
+    def fs_hz(self) -> float:
+        return self.sensor.fs_hz
+
+    @property
+    def sensor(self) -> CapacitivePiezoStack:
+        d = self.difficulty
+        base = CapacitivePiezoParams()
+        return CapacitivePiezoStack(
+            replace(
+                base,
+                static_noise_rel=base.static_noise_rel * d,
+                dynamic_noise_rel=base.dynamic_noise_rel * d,
+            )
+        )
+
+    def surface(self, index: int) -> str:
+        """Surface of scan ``index``: the first 100 planar, then 50 concave, then 50 convex."""
+        if not 0 <= index < self.n_scans:
+            raise IndexError(f"scan index {index} out of range [0, {self.n_scans})")
+        if index < self.n_planar:
+            return "planar"
+        return "concave" if index < self.n_planar + self.n_concave else "convex"
+
+    def scene(self, index: int) -> SlidingScanScene:
+        d = self.difficulty
+        v = ScanVariability()
+        var = ScanVariability(**{k: val * d for k, val in asdict(v).items()})
+        return SlidingScanScene(
+            textures=self.class_names,
+            surface=self.surface(index),
+            protocol=self.protocol,
+            variability=var,
+        )
+
+    def scan(self, index: int) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Scan ``index`` -> ``(stream [2, samples] float32 @ 200 Hz, labels [samples] int8, info)``.
+
+        Labels are the scene's per-sample labels taken at each readout sample (-1 = null).
+        """
+        rng = np.random.default_rng([TASK_ID, self.seed, index])
+        scene = self.scene(index)
+        order = tuple(rng.permutation(len(self.class_names)).tolist())
+        pressure, labels_sim, info = scene.render(rng, order)
+        stream = self.sensor.read(pressure, self.protocol.fs_sim_hz, rng)
+        decim = round(self.protocol.fs_sim_hz / self.fs_hz)
+        labels = labels_sim[::decim][: stream.shape[1]]
+        info["order"] = [self.class_names[i] for i in order]
+        return stream, labels, info
+
+    def windows(self, stream: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cut windows lying wholly inside one label -> ``(X [n, C, W], y [n])``."""
+        w, h = self.window, self.hop
+        starts = np.arange(0, stream.shape[1] - w + 1, h)
+        lab = np.lib.stride_tricks.sliding_window_view(labels, w)[starts]
+        keep = (lab == lab[:, :1]).all(axis=1) & (lab[:, 0] >= 0)
+        starts = starts[keep]
+        X = np.stack([stream[:, s : s + w] for s in starts]) if starts.size else None
+        if X is None:
+            return np.zeros((0, stream.shape[0], w), np.float32), np.zeros(0, np.int64)
+        return X.astype(np.float32), lab[keep, 0].astype(np.int64)
+
+    def split(self) -> tuple[np.ndarray, np.ndarray]:
+        """Random train / test scan indices (160 / 40 by default), deterministic from the seed."""
+        perm = np.random.default_rng([TASK_ID, self.seed, 2**31]).permutation(self.n_scans)
+        return np.sort(perm[self.n_test :]), np.sort(perm[: self.n_test])
+
+    def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
+        """Generate every scan and return the ``(train, test)`` window datasets."""
+        from tqdm.auto import tqdm
+
+        per_scan = {}
+        for i in tqdm(range(self.n_scans), desc=f"{self.name} scans", disable=not progress):
+            stream, labels, _ = self.scan(i)
+            per_scan[i] = self.windows(stream, labels)
+        train_idx, test_idx = self.split()
+        return self._gather(per_scan, train_idx), self._gather(per_scan, test_idx)
+
+    def _gather(self, per_scan: dict, idx: np.ndarray) -> WindowDataset:
+        X = np.concatenate([per_scan[i][0] for i in idx])
+        y = np.concatenate([per_scan[i][1] for i in idx])
+        scan = np.concatenate([np.full(per_scan[i][1].size, i, np.int64) for i in idx])
+        return WindowDataset(X, y, scan, self.fs_hz, self.class_names, self.sensor.channel_names)

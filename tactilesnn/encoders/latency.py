@@ -1,0 +1,109 @@
+"""Latency code (seed 001): one spike per (channel, band) per window, stronger -> earlier.
+
+Input: a scalogram ``[batch, channels, bands, frames]`` of one window. Each band is summarised over
+the window's frames by one or more statistics (``stats``): ``"mean"`` (the band's average magnitude,
+seed 001's code) and ``"std"`` (its fluctuation over time inside the window: bursts and
+stick-slip events raise it; a single-frame STFT has none, so those neurons stay silent). Every
+(channel, statistic, band) is one afferent neuron. Normalisation (``normalize``):
+
+* ``"window"`` (default): divide by the window's strongest band mean, per channel. The code then
+  carries the spectral (and modulation) shape, independent of the overall gain (force, coupling);
+* ``"none"``: use amplitudes as they are (in the scalogram's units; ``reference`` sets full scale).
+
+Mapping (``mapping``) of normalised amplitude ``a`` in (0, 1] to a spike time in ``[0, duration_ms]``:
+
+* ``"log"`` (default): ``t = duration * (-20 log10 a) / dynamic_range_db``: every dB below the
+  strongest band delays the spike by the same time; no spike below ``-dynamic_range_db``;
+* ``"linear"``: ``t = duration * (1 - a)``; no spike below ``floor``.
+
+Output: spike times ``[batch, channels * stats * bands]`` float32 in ms from the window start,
+``+inf`` where a neuron stays silent (neuron index = (channel * n_stats + stat) * bands + band).
+:func:`to_dense` converts to a dense ``[batch, neurons, steps]`` 0/1 raster.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .._checks import check_choice, check_positive
+
+MAPPINGS = ("log", "linear")
+STATS = ("mean", "std", "max")
+NORMALIZATIONS = ("window", "none")
+
+
+class LatencyCode:
+    """Scalogram -> one latency-coded spike per (channel, band)."""
+
+    def __init__(
+        self,
+        duration_ms: float = 500.0,
+        mapping: str = "log",
+        normalize: str = "window",
+        stats: tuple[str, ...] = ("mean",),
+        dynamic_range_db: float = 30.0,
+        floor: float = 0.05,
+        reference: float = 1.0,
+        eps: float = 1e-12,
+    ) -> None:
+        self.duration_ms = check_positive(duration_ms, "duration_ms")
+        self.mapping = check_choice(mapping, "mapping", MAPPINGS)
+        self.normalize = check_choice(normalize, "normalize", NORMALIZATIONS)
+        if not stats:
+            raise ValueError("stats must name at least one statistic")
+        self.stats = tuple(check_choice(s, "statistic", STATS) for s in stats)
+        self.dynamic_range_db = check_positive(dynamic_range_db, "dynamic_range_db")
+        if not 0 <= floor < 1:
+            raise ValueError(f"floor must be in [0, 1), got {floor}")
+        self.floor = float(floor)
+        self.reference = check_positive(reference, "reference")
+        self.eps = float(eps)
+
+    def amplitudes(self, scalogram: torch.Tensor) -> torch.Tensor:
+        """Normalised amplitudes ``[batch, channels, stats, bands]`` in [0, 1]."""
+        if scalogram.ndim != 4:
+            raise ValueError(
+                "expected a scalogram [batch, channels, bands, frames], "
+                f"got shape {tuple(scalogram.shape)}"
+            )
+        mean = scalogram.mean(-1)
+        parts = {
+            "mean": mean,
+            "std": scalogram.std(-1, correction=0) if scalogram.shape[-1] > 1 else 0 * mean,
+            "max": scalogram.amax(-1),
+        }
+        amp = torch.stack([parts[s] for s in self.stats], dim=2)  # [B, C, S, F]
+        if self.normalize == "window":
+            peak = mean.amax(-1)[:, :, None, None]
+            # an all-zero channel has no spectral shape: it stays silent instead of dividing 0/0
+            amp = torch.where(
+                peak > self.eps, amp / peak.clamp_min(self.eps), torch.zeros_like(amp)
+            )
+        else:
+            amp = amp / self.reference
+        return amp.clamp(0.0, 1.0)
+
+    def __call__(self, scalogram: torch.Tensor) -> torch.Tensor:
+        """Scalogram ``[B, C, F, T]`` -> spike times ``[B, C*S*F]`` in ms (``inf`` = no spike)."""
+        a = self.amplitudes(scalogram)
+        if self.mapping == "log":
+            db_below = -20.0 * torch.log10(a.clamp_min(1e-30))
+            t = self.duration_ms * db_below / self.dynamic_range_db
+            silent = (a <= 0) | (db_below > self.dynamic_range_db)
+        else:
+            t = self.duration_ms * (1.0 - a)
+            silent = a < max(self.floor, 1e-30)
+        t = torch.where(silent, torch.full_like(t, float("inf")), t)
+        return t.flatten(1).to(torch.float32)
+
+
+def to_dense(spike_times: torch.Tensor, duration_ms: float, dt_ms: float) -> torch.Tensor:
+    """Spike times ``[B, N]`` (ms, inf = none) -> dense 0/1 raster ``[B, N, steps]`` float32."""
+    steps = int(np.ceil(duration_ms / dt_ms)) + 1
+    idx = torch.round(spike_times / dt_ms)
+    ok = torch.isfinite(idx) & (idx >= 0) & (idx < steps)
+    out = torch.zeros(*spike_times.shape, steps)
+    b, n = torch.nonzero(ok, as_tuple=True)
+    out[b, n, idx[ok].long()] = 1.0
+    return out

@@ -1,0 +1,206 @@
+"""Tempotron (Gutig & Sompolinsky 2006; seed 001 eqs. 2-4) with an exact membrane maximum.
+
+One tempotron per class. Membrane potential of class ``c`` (SPEC 4):
+
+    V_c(t) = V_rest + sum_i w_ci sum_{t_i <= t} K(t - t_i),
+    K(s) = V0 (exp(-s / tau) - exp(-s / tau_s)),  V0 normalises max_s K(s) to 1.
+
+Exact maximum: after sorting the input spikes, on the interval after spike ``k`` the potential is
+``V0 (a_k exp(-s/tau) - b_k exp(-s/tau_s))`` with ``s = t - t_k`` and the *rescaled* state
+``a_k = sum_{j: t_j <= t_k} w_j exp(-(t_k - t_j)/tau)`` (and ``b_k`` with ``tau_s``). Every exponent is
+<= 0, so nothing overflows in float32 however long the window (a naive ``exp(t/tau_s)`` running sum
+overflows after ~88 tau_s). ``V`` has an interior maximum at
+``s* = tau tau_s / (tau - tau_s) * ln(tau b_k / (tau_s a_k))`` when ``a_k, b_k > 0`` and the log is
+positive; a candidate is kept only if it lies inside its own interval. The other candidates are the
+spike times themselves, the window start (``V = V_rest``) and end.
+
+Decision rule: the tempotron of class ``c`` fires if ``max_t V_c >= theta``. The predicted class is
+the one with the largest ``V_max``: among fired classes that is the tie-break by largest ``V_max``,
+and when none fired it is the class closest to firing (``fired`` tells which actually fired).
+
+Learning rule (seed 001 eq. 4): on an error, ``dw_ci = +-lambda sum_{t_i < t_max} K(t_max - t_i)``,
+``+`` when the target class did not fire, ``-`` when a non-target class fired; ``lambda`` = 0.005.
+
+Array contract: ``spike_times`` ``[batch, inputs]`` (one spike per input) or
+``[batch, inputs, k]`` (up to ``k`` spikes per input), float, in ms from the window start; ``+inf``
+(or any time outside ``[0, duration_ms]``) means no spike. Outputs ``[batch, classes]``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+def psp_norm(tau_ms: float, tau_s_ms: float) -> float:
+    """V0 such that the peak of ``exp(-s/tau) - exp(-s/tau_s)`` times V0 is exactly 1."""
+    if not tau_ms > tau_s_ms > 0:
+        raise ValueError(f"need tau > tau_s > 0, got tau={tau_ms}, tau_s={tau_s_ms}")
+    s_peak = tau_ms * tau_s_ms / (tau_ms - tau_s_ms) * math.log(tau_ms / tau_s_ms)
+    return 1.0 / (math.exp(-s_peak / tau_ms) - math.exp(-s_peak / tau_s_ms))
+
+
+class Tempotron(nn.Module):
+    """Bank of ``n_classes`` tempotrons over ``n_inputs`` afferents; times in ms.
+
+    Args:
+        n_inputs: number of afferent neurons.
+        n_classes: one tempotron per class.
+        duration_ms: window length; spikes outside ``[0, duration_ms]`` are ignored.
+        tau_ms / tau_s_ms: membrane and synaptic time constants (tau_s defaults to tau / 4).
+        theta: firing threshold (relative to ``v_rest``).
+        seed: seeds the weight initialisation.
+    """
+
+    def __init__(
+        self,
+        n_inputs: int,
+        n_classes: int,
+        duration_ms: float,
+        tau_ms: float = 40.0,
+        tau_s_ms: float | None = None,
+        theta: float = 1.0,
+        v_rest: float = 0.0,
+        init_std: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        if n_inputs < 1 or n_classes < 1:
+            raise ValueError(f"need n_inputs >= 1 and n_classes >= 1, got {n_inputs}, {n_classes}")
+        if not duration_ms > 0:
+            raise ValueError(f"duration_ms must be positive, got {duration_ms}")
+        self.n_inputs, self.n_classes = int(n_inputs), int(n_classes)
+        self.duration_ms = float(duration_ms)
+        self.tau_ms = float(tau_ms)
+        self.tau_s_ms = float(tau_s_ms) if tau_s_ms is not None else self.tau_ms / 4
+        self.v0 = psp_norm(self.tau_ms, self.tau_s_ms)
+        self.theta = float(theta)
+        self.v_rest = float(v_rest)
+        std = init_std if init_std is not None else 0.5 * self.theta / math.sqrt(self.n_inputs)
+        g = torch.Generator().manual_seed(int(seed))
+        self.weight = nn.Parameter(torch.randn(self.n_classes, self.n_inputs, generator=g) * std)
+
+    # ------------------------------------------------------------------ kernel and potential
+    def kernel(self, s: torch.Tensor) -> torch.Tensor:
+        """PSP kernel K(s) for lags ``s`` (ms); 0 for s < 0 and for non-finite lags."""
+        ok = torch.isfinite(s) & (s >= 0)
+        sc = torch.where(ok, s, torch.zeros_like(s))
+        k = self.v0 * (torch.exp(-sc / self.tau_ms) - torch.exp(-sc / self.tau_s_ms))
+        return torch.where(ok, k, torch.zeros_like(k))
+
+    def _events(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Flatten to events: times ``[B, M]`` (invalid -> duration), weights ``[B, C, M]``, valid."""
+        if spike_times.ndim == 2:
+            spike_times = spike_times.unsqueeze(-1)
+        if spike_times.ndim != 3 or spike_times.shape[1] != self.n_inputs:
+            raise ValueError(
+                f"expected spike times [batch, {self.n_inputs}] or [batch, {self.n_inputs}, k], "
+                f"got shape {tuple(spike_times.shape)}"
+            )
+        if torch.isnan(spike_times).any():
+            raise ValueError("spike times contain NaN; use +inf for 'no spike'")
+        b, n, k = spike_times.shape
+        t = spike_times.reshape(b, n * k).to(self.weight.dtype)
+        valid = torch.isfinite(t) & (t >= 0) & (t <= self.duration_ms)
+        t = torch.where(valid, t, torch.full_like(t, self.duration_ms))
+        w = self.weight.repeat_interleave(k, dim=1)  # [C, M]
+        w = torch.where(valid.unsqueeze(1), w.unsqueeze(0), torch.zeros(()))  # [B, C, M]
+        return t, w, valid
+
+    def potential(self, spike_times: torch.Tensor, t_ms: torch.Tensor) -> torch.Tensor:
+        """V at the given times ``t_ms [T]`` -> ``[batch, classes, T]`` (direct sum; for checks)."""
+        t, w, _ = self._events(spike_times)
+        lag = t_ms.to(t.dtype)[None, None, :] - t[:, :, None]  # [B, M, T]
+        return self.v_rest + torch.einsum("bcm,bmt->bct", w, self.kernel(lag))
+
+    # ------------------------------------------------------------------ exact maximum
+    def forward(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Exact ``(v_max, t_max)``, each ``[batch, classes]``; t_max in ms."""
+        t, w, _ = self._events(spike_times)
+        bsz = t.shape[0]
+        # a sentinel at the window end makes V(duration) one of the spike-time candidates
+        t = torch.cat([t, torch.full((bsz, 1), self.duration_ms, dtype=t.dtype)], dim=1)
+        w = torch.cat([w, torch.zeros(bsz, self.n_classes, 1, dtype=w.dtype)], dim=2)
+        t, order = torch.sort(t, dim=1)
+        w = torch.gather(w, 2, order.unsqueeze(1).expand_as(w))
+        lag = t.unsqueeze(2) - t.unsqueeze(1)  # [B, k, j] = t_k - t_j
+        causal = lag >= 0
+        lag = torch.where(causal, lag, torch.zeros_like(lag))
+        e_m = torch.where(causal, torch.exp(-lag / self.tau_ms), torch.zeros_like(lag))
+        e_s = torch.where(causal, torch.exp(-lag / self.tau_s_ms), torch.zeros_like(lag))
+        a = torch.einsum("bkj,bcj->bck", e_m, w)  # rescaled state just after spike k
+        b = torch.einsum("bkj,bcj->bck", e_s, w)
+        v_at = self.v0 * (a - b)
+        gap = torch.diff(t, dim=1, append=t[:, -1:]).unsqueeze(1)  # interval after spike k
+        # interior maxima, in the rescaled (overflow-free) form
+        tau, tau_s = self.tau_ms, self.tau_s_ms
+        pos = (a > 0) & (b > 0)
+        ratio = torch.where(pos, (tau * b) / (tau_s * a).clamp_min(1e-30), torch.ones_like(a))
+        s_star = tau * tau_s / (tau - tau_s) * torch.log(ratio.clamp_min(1e-30))
+        inside = pos & (s_star > 0) & (s_star < gap)
+        s_safe = torch.where(inside, s_star, torch.zeros_like(s_star))
+        v_int = self.v0 * (a * torch.exp(-s_safe / tau) - b * torch.exp(-s_safe / tau_s))
+        v_int = torch.where(inside, v_int, torch.full_like(v_int, -math.inf))
+        # the window start comes first so that ties resolve to the earliest time
+        cand_v = torch.cat([torch.zeros_like(v_at[..., :1]), v_at, v_int], dim=2)
+        tt = t.unsqueeze(1).expand_as(v_at)
+        cand_t = torch.cat([torch.zeros_like(tt[..., :1]), tt, tt + s_safe], dim=2)
+        v_max, idx = cand_v.max(dim=2)
+        t_max = torch.gather(cand_t, 2, idx.unsqueeze(2)).squeeze(2)
+        return v_max + self.v_rest, t_max
+
+    def fired(self, v_max: torch.Tensor) -> torch.Tensor:
+        return v_max >= self.theta + self.v_rest
+
+    def predict(self, spike_times: torch.Tensor) -> torch.Tensor:
+        """Class index per sample (largest V_max; see the module docstring)."""
+        v_max, _ = self(spike_times)
+        return v_max.argmax(dim=1)
+
+    # ------------------------------------------------------------------ learning rule
+    @torch.no_grad()
+    def rule_update(
+        self,
+        spike_times: torch.Tensor,
+        y: torch.Tensor,
+        lr: float = 0.005,
+        momentum: float = 0.0,
+        margin: float = 0.0,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Apply the tempotron rule for one mini-batch (updates summed over its samples).
+
+        With ``momentum`` mu > 0 the step is ``dw(n) = lr * rule + mu * dw(n - 1)`` (Gutig &
+        Sompolinsky 2006 used mu = 0.99 with per-sample updates); the previous step is kept in
+        ``self.velocity``. With ``margin`` kappa > 0 the rule also acts on near misses: a target
+        tempotron with ``V_max < theta + kappa`` is potentiated and a non-target one with
+        ``V_max >= theta - kappa`` is depressed, which keeps decisions away from the threshold
+        (kappa = 0 is the seed's rule).
+
+        Returns ``(n_errors, predictions)``: tempotron errors (missed target fires plus false
+        fires, over samples x classes) and the predicted classes before the update.
+        """
+        v_max, t_max = self(spike_times)
+        thr = self.theta + self.v_rest
+        target = nn.functional.one_hot(y, self.n_classes).bool()
+        fired = self.fired(v_max)
+        n_err = ((target & ~fired) | (~target & fired)).sum()
+        up = target & (v_max < thr + margin)
+        down = ~target & (v_max >= thr - margin)
+        sign = up.to(v_max.dtype) - down.to(v_max.dtype)  # [B, C]
+        if spike_times.ndim == 2:
+            spike_times = spike_times.unsqueeze(-1)
+        bsz, n, k = spike_times.shape
+        ts = spike_times.reshape(bsz, 1, n * k).to(v_max.dtype)
+        lag = t_max.unsqueeze(2) - ts  # [B, C, M]
+        ok = torch.isfinite(ts) & (ts >= 0) & (ts <= self.duration_ms) & (lag > 0)
+        kern = torch.where(ok, self.kernel(lag), torch.zeros_like(lag))
+        dw = lr * torch.einsum("bc,bcm->cm", sign, kern).reshape(self.n_classes, n, k).sum(-1)
+        if momentum:
+            if getattr(self, "velocity", None) is None or self.velocity.shape != dw.shape:
+                self.velocity = torch.zeros_like(dw)
+            dw = dw + momentum * self.velocity
+            self.velocity = dw
+        self.weight += dw
+        return n_err, v_max.argmax(dim=1)

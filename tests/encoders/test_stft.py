@@ -1,0 +1,56 @@
+"""STFT scalogram against SciPy and the Gabor band convention."""
+
+import numpy as np
+import pytest
+import torch
+from scipy import signal
+
+from tactilesnn.encoders.gwt import log_bands
+from tactilesnn.encoders.stft import STFTScalogram
+
+FS = 200.0
+
+
+@pytest.mark.parametrize("hop", [100, 25])
+def test_spectrum_matches_scipy_stft(hop):
+    x = np.random.default_rng(0).standard_normal((2, 3, 400))
+    st = STFTScalogram(FS, [10.0], nperseg=100, hop=hop, detrend=False)
+    ours = st.spectrum(torch.from_numpy(x)).numpy()
+    _, _, ref = signal.stft(
+        x, fs=FS, window="hann", nperseg=100, noverlap=100 - hop, boundary=None, padded=False
+    )
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+
+
+def test_detrend_matches_scipy_constant_detrend():
+    x = np.random.default_rng(1).standard_normal((1, 1, 300)) + 5.0
+    st = STFTScalogram(FS, [10.0], nperseg=100, hop=50, detrend=True)
+    ours = st.spectrum(torch.from_numpy(x)).numpy()
+    _, _, ref = signal.stft(
+        x, fs=FS, nperseg=100, noverlap=50, boundary=None, padded=False, detrend="constant"
+    )
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("f", [10.0, 30.0, 64.0])
+def test_unit_sinusoid_at_band_centre_gives_one(f):
+    t = np.arange(100) / FS
+    x = np.cos(2 * np.pi * f * t + 0.3)[None, None]
+    st = STFTScalogram(FS, [f], nperseg=100)
+    assert st.transform(x, np.float64)[0, 0, 0, 0] == pytest.approx(1.0, rel=1e-6)
+
+
+def test_contract_and_float32():
+    x = np.random.default_rng(2).standard_normal((5, 2, 100))
+    st = STFTScalogram(FS, log_bands(3, 90, 20), nperseg=100)
+    a32, a64 = st.transform(x), st.transform(x, np.float64)
+    assert a32.shape == (5, 2, 20, 1) and a32.dtype == np.float32
+    assert np.abs(a32 - a64).max() <= 1e-5 * a64.max()
+
+
+def test_rejects_short_input_and_bad_bands():
+    st = STFTScalogram(FS, [10.0], nperseg=100)
+    with pytest.raises(ValueError, match="nperseg"):
+        st.transform(np.zeros((1, 1, 50)))
+    with pytest.raises(ValueError, match="Nyquist"):
+        STFTScalogram(FS, [100.0])
