@@ -35,7 +35,16 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--f-lo-hz", type=float, default=d.f_lo_hz)
     p.add_argument("--f-hi-hz", type=float, default=d.f_hi_hz)
     p.add_argument(
-        "--difficulty", type=float, default=1.0, help="task variability and noise multiplier"
+        "--difficulty",
+        type=float,
+        default=1.0,
+        help="multiplier of noise, speed variation, Z ripple and texture irregularity",
+    )
+    p.add_argument(
+        "--amplitude-spread",
+        type=float,
+        default=1.0,
+        help="multiplier of the force set-point range and coupling-gain spread",
     )
 
 
@@ -66,7 +75,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         if args.out
         else default_run_dir(Path("runs"), args.task, config.encoder, config.model)
     )
-    task_kwargs = {"seed": args.seed, "difficulty": args.difficulty}
+    task_kwargs = {
+        "seed": args.seed,
+        "difficulty": args.difficulty,
+        "amplitude_spread": args.amplitude_spread,
+    }
     path, m = train_run(
         args.task, task_kwargs, config, out, overwrite=args.overwrite, progress=not args.quiet
     )

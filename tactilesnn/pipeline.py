@@ -38,14 +38,17 @@ class PipelineConfig:
     stats: tuple[str, ...] = ("mean", "std")
     mapping: str = "log"
     dynamic_range_db: float = 30.0
-    tau_ms: float = 40.0
-    tau_s_ms: float = 10.0
+    clock_afferents: int = 5  # afferents firing at fixed times in every window (time reference)
+    tau_ms: float = 2000.0  # long membrane memory: integrates the whole 500 ms window
+    tau_s_ms: float = 50.0
     theta: float = 1.0
-    lr: float = 0.005
+    lr: float = 0.002
     momentum: float = 0.0
-    lr_decay: float = 0.0  # lr_epoch = lr / (1 + lr_decay * epoch)
-    epochs: int = 60
-    batch_size: int = 16
+    margin: float = 0.2
+    lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
+    keep_best: bool = True  # "pocket": keep the weights with the lowest training error
+    epochs: int = 40
+    batch_size: int = 32
     seed: int = 0
     extra: dict = field(default_factory=dict)
 
@@ -96,6 +99,7 @@ class SpikePipeline:
             dynamic_range_db=config.dynamic_range_db,
         )
         n_inputs = len(self.channel_idx) * len(config.stats) * config.n_bands
+        n_inputs += config.clock_afferents
         self.model = Tempotron(
             n_inputs,
             len(self.class_names),
@@ -127,7 +131,13 @@ class SpikePipeline:
             out.append(self.code(self.encoder(x)))
         if not out:
             return torch.zeros(0, self.model.n_inputs)
-        return torch.cat(out)
+        spikes = torch.cat(out)
+        if self.config.clock_afferents:
+            # a clock population gives the tempotron a time-dependent bias (its threshold is fixed)
+            n = self.config.clock_afferents
+            clock = torch.arange(n, dtype=spikes.dtype) * (self.duration_ms / n)
+            spikes = torch.cat([spikes, clock.expand(spikes.shape[0], n)], dim=1)
+        return spikes
 
     # ------------------------------------------------------------------ training / inference
     @torch.no_grad()
@@ -152,18 +162,26 @@ class SpikePipeline:
             raise ValueError(f"labels must be in [0, {len(self.class_names)}), got {yt.unique()}")
         gen = torch.Generator().manual_seed(cfg.seed)
         history: list[float] = []
+        best = (math.inf, self.model.weight.detach().clone())
         bar = tqdm(range(cfg.epochs), desc=f"train {cfg.encoder}+{cfg.model}", disable=not progress)
         for epoch in bar:
             lr = cfg.lr / (1.0 + cfg.lr_decay * epoch)
             perm = torch.randperm(spikes.shape[0], generator=gen)
             for i in range(0, perm.numel(), cfg.batch_size):
                 idx = perm[i : i + cfg.batch_size]
-                self.model.rule_update(spikes[idx], yt[idx], lr=lr, momentum=cfg.momentum)
+                self.model.rule_update(
+                    spikes[idx], yt[idx], lr=lr, momentum=cfg.momentum, margin=cfg.margin
+                )
             err = float((self.scores(spikes).argmax(1) != yt).float().mean())
             history.append(err)
+            if err < best[0]:
+                best = (err, self.model.weight.detach().clone())
             bar.set_postfix(train_error=f"{err:.4f}")
             if on_epoch is not None:
                 on_epoch(epoch, err)
+        if cfg.keep_best:
+            with torch.no_grad():
+                self.model.weight.copy_(best[1])
         return history
 
     def fit(self, X: np.ndarray, y: np.ndarray, progress: bool = False) -> list[float]:

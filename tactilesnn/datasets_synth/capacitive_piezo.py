@@ -65,8 +65,8 @@ class CapacitivePiezoParams:
     amplifier_pole_hz: float = 90.0  # output pole of the common-source stage
     amplifier_bias_V: float = 1.65  # relative units are (V - bias) / bias
     # --- noise (relative units, rms) ---
-    static_noise_rel: float = 3e-4
-    dynamic_noise_rel: float = 3e-3
+    static_noise_rel: float = 2e-4
+    dynamic_noise_rel: float = 1.5e-3  # ~0.8 LSB of the 10-bit ADC
     # --- sampling ---
     fs_hz: float = 200.0
     baseline_s: float = 1.5

@@ -9,14 +9,15 @@ Array contract of :class:`WindowDataset`: ``X`` ``[N, 2, window]`` float32 (chan
 ``dynamic`` in relative units, 200 samples/s), ``y`` ``[N]`` int64 (0 = hook, 1 = loop),
 ``scan`` ``[N]`` int64 scan index.
 
-Difficulty knob: ``difficulty`` multiplies every source of variability (pressure set-point range,
-coupling-gain spread, speed spread and jitter, normal-load ripple, texture irregularity) and the
-electronic noise. 1.0 is the default; 0 gives idealised, noise-free scans.
+Difficulty knobs: ``difficulty`` multiplies the spectral nuisances (speed spread and jitter,
+normal-load ripple, texture irregularity) and the electronic noise; ``amplitude_spread`` multiplies
+the amplitude nuisances (pressure set-point range and coupling-gain spread) that keep overall
+amplitude from identifying the texture. Both default to 1.0; 0 gives idealised scans.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -50,13 +51,16 @@ class HookLoopTask:
     window: int = 100
     hop: int = 50
     difficulty: float = 1.0
+    amplitude_spread: float = 1.0
     protocol: ScanProtocol = field(default_factory=ScanProtocol)
     name: str = "hook_loop"
     class_names: tuple[str, ...] = ("hook", "loop")
 
     def __post_init__(self) -> None:
-        if self.difficulty < 0 or not np.isfinite(self.difficulty):
-            raise ValueError(f"difficulty must be a finite number >= 0, got {self.difficulty}")
+        for knob in ("difficulty", "amplitude_spread"):
+            v = getattr(self, knob)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{knob} must be a finite number >= 0, got {v}")
         if self.window < 8 or self.hop < 1:
             raise ValueError(f"window must be >= 8 and hop >= 1, got {self.window}, {self.hop}")
         if not 0 < self.n_test < self.n_scans:
@@ -91,9 +95,7 @@ class HookLoopTask:
         return "concave" if index < self.n_planar + self.n_concave else "convex"
 
     def scene(self, index: int) -> SlidingScanScene:
-        d = self.difficulty
-        v = ScanVariability()
-        var = ScanVariability(**{k: val * d for k, val in asdict(v).items()})
+        var = ScanVariability().scaled(self.difficulty, self.amplitude_spread)
         return SlidingScanScene(
             textures=self.class_names,
             surface=self.surface(index),

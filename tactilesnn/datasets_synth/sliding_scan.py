@@ -36,29 +36,45 @@ class ScanProtocol:
     stride_mm: float = 60.0
     n_strides: int = 9
     speed_mm_s: float = 100.0
-    accel_mm_s2: float = 2000.0
-    dwell_s: float = 0.05  # pause at each turnaround
+    accel_mm_s2: float = 3000.0  # stride reversal: 33 ms to reach 10 cm/s
+    dwell_s: float = 0.03  # pause at each turnaround
     null_band_s: float = 0.25  # seed 001: 250 ms null labels at texture on/offsets
     dx_mm: float = 0.02  # spatial grid of texture profiles
 
 
 @dataclass(frozen=True)
 class ScanVariability:
-    """Scan-to-scan and within-scan variability, all multiplied by the task's ``difficulty``.
+    """Scan-to-scan and within-scan variability.
 
-    ``pressure_log_range``: set point = 1 kPa * exp(U(-r, r)) (closed loop holds it per scan);
-    ``gain_log_sd``: sd of the log coupling gain (mounting, curvature, fastener wear);
-    ``speed_sd``: stride-to-stride speed sd, fraction; ``speed_jitter``: within-stride PID jitter;
-    ``ripple``: normal-pressure ripple of the Z loop, fraction, on planar / curved surfaces.
+    Amplitude nuisances (what defeats an amplitude-only classifier; scaled by the task's
+    ``amplitude_spread``): ``pressure_log_range``: set point = 1 kPa * exp(U(-r, r)), held per scan
+    by the closed loop; ``gain_log_sd``: sd of the log coupling gain (mounting, curvature, wear).
+
+    Spectral nuisances (scaled by the task's ``difficulty``): ``speed_sd``: stride-to-stride speed
+    sd, fraction (UR5 trajectory); ``speed_jitter``: within-stride PID jitter; ``ripple``: normal
+    load ripple of the Z loop, fraction, planar / curved; ``irregularity``: texture irregularity
+    (hook-row jitter and amplitude spread, pile roughness).
     """
 
     pressure_log_range: float = 0.7
     gain_log_sd: float = 0.35
-    speed_sd: float = 0.08
-    speed_jitter: float = 0.04
-    ripple_planar: float = 0.02
-    ripple_curved: float = 0.08
-    irregularity: float = 1.0
+    speed_sd: float = 0.04
+    speed_jitter: float = 0.02
+    ripple_planar: float = 0.01
+    ripple_curved: float = 0.04
+    irregularity: float = 0.5
+
+    def scaled(self, difficulty: float, amplitude_spread: float) -> ScanVariability:
+        """Copy with spectral nuisances times ``difficulty``, amplitude ones times the spread."""
+        return ScanVariability(
+            pressure_log_range=self.pressure_log_range * amplitude_spread,
+            gain_log_sd=self.gain_log_sd * amplitude_spread,
+            speed_sd=self.speed_sd * difficulty,
+            speed_jitter=self.speed_jitter * difficulty,
+            ripple_planar=self.ripple_planar * difficulty,
+            ripple_curved=self.ripple_curved * difficulty,
+            irregularity=self.irregularity * difficulty,
+        )
 
 
 @dataclass(frozen=True)

@@ -119,7 +119,7 @@ class LoopTexture:
             starts = rng.uniform(0, length_mm, count)
             lo, hi = self.catch_mm
             lengths = rng.uniform(lo, hi, count)
-            k = self.amp_shape / max(irregularity, 1e-3)
+            k = self.amp_shape
             amps = self.mean_amp * rng.gamma(k, 1.0 / k, count)
             saw = _sawtooth_events(n, dx_mm, starts, lengths, amps)
             out.append(saw + pile)

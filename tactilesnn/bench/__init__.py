@@ -1,0 +1,1 @@
+"""Benchmarks (``tactilesnn bench ...``)."""

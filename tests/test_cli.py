@@ -1,0 +1,72 @@
+"""CLI: train writes a complete run folder, refuses overwrites, evaluate reloads it."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from tactilesnn.cli import main
+from tactilesnn.training import load_run
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "r1"
+    rc = main(["train", "--epochs", "2", "--out", str(out), "--quiet", "--seed", "3"])
+    assert rc == 0
+    return out
+
+
+def test_train_writes_run_folder(run_dir, capsys):
+    names = {p.name for p in run_dir.iterdir()}
+    assert {"config.json", "weights.npz", "metrics.json", "confusion_matrix.json"} <= names
+    assert "confusion_matrix.png" in names
+    m = json.loads((run_dir / "metrics.json").read_text())
+    assert 0.5 <= m["test_accuracy"] <= 1.0 and len(m["train_error_history"]) == 2
+    cm = json.loads((run_dir / "confusion_matrix.json").read_text())
+    assert np.array(cm["matrix"]).sum() == m["n_test_windows"]
+    # weights load without pickle
+    with np.load(run_dir / "weights.npz", allow_pickle=False) as f:
+        assert f["tempotron.weight"].shape[0] == 2
+
+
+def test_refuses_to_overwrite(run_dir, capsys):
+    before = (run_dir / "metrics.json").read_text()
+    rc = main(["train", "--epochs", "1", "--out", str(run_dir), "--quiet"])
+    assert rc == 2
+    assert "already exists" in capsys.readouterr().err
+    assert (run_dir / "metrics.json").read_text() == before
+
+
+def test_evaluate_reproduces_metrics(run_dir, capsys):
+    assert main(["evaluate", str(run_dir), "--quiet"]) == 0
+    got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    saved = json.loads((run_dir / "metrics.json").read_text())
+    assert got["test_accuracy"] == pytest.approx(saved["test_accuracy"])
+
+
+def test_pipeline_refuses_bad_windows(run_dir):
+    pipe, _ = load_run(run_dir)
+    x = np.zeros((2, 2, 100), np.float32)
+    x[1, 1, 42] = np.inf
+    with pytest.raises(ValueError, match="channel 1, sample 42"):
+        pipe.predict(x)
+    with pytest.raises(ValueError, match=r"\[N, 2 channels, 100 samples\]"):
+        pipe.predict(np.zeros((2, 2, 50)))
+
+
+def test_unknown_names_are_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--encoder", "wavelet"])
+    assert "invalid choice" in capsys.readouterr().err
+    assert main(["evaluate", str(tmp_path)]) == 2
+    assert "not a run folder" in capsys.readouterr().err
+
+
+def test_train_py_is_the_same_cli():
+    out = subprocess.run(
+        [sys.executable, "train.py", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "--encoder" in out and "--task" in out
