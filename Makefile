@@ -17,8 +17,8 @@ train: $(STAMP)
 	$(BIN)/tactilesnn train
 
 test: $(STAMP)
-	$(BIN)/ruff check tactilesnn tests train.py benchmarks
-	$(BIN)/ruff format --check tactilesnn tests train.py benchmarks
+	$(BIN)/ruff check tactilesnn tests train.py
+	$(BIN)/ruff format --check tactilesnn tests train.py
 	$(BIN)/pytest
 
 bench: $(STAMP)
