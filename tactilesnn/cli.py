@@ -105,11 +105,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+BENCHMARKS = ("gwt-vs-stft", "encoders")
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name == "encoders":
+        from .bench import encoders
+
+        out = Path(args.out) / "encoders.json" if args.out else None
+        encoders.run(out, repeats=args.repeats, sparse=args.sparse)
+        return 0
     from .bench import gwt_vs_stft
 
-    if args.name != "gwt-vs-stft":
-        raise ValueError(f"unknown benchmark {args.name!r}; available: gwt-vs-stft")
+    if args.out is None:
+        raise ValueError("gwt-vs-stft needs --out DIR")
     gwt_vs_stft.run(
         seeds=args.seeds,
         out=Path(args.out),
@@ -139,9 +148,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="benchmarks")
-    p.add_argument("name", help="gwt-vs-stft")
-    p.add_argument("--seeds", type=int, default=5)
-    p.add_argument("--out", required=True)
+    p.add_argument("name", choices=BENCHMARKS)
+    p.add_argument("--seeds", type=int, default=5, help="gwt-vs-stft: dataset/training seeds")
+    p.add_argument("--out", help="output folder")
+    p.add_argument("--repeats", type=int, default=7, help="encoders: timed runs per case")
+    p.add_argument("--sparse", action="store_true", help="encoders: activity-gate benchmark")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--epochs", type=int, default=PipelineConfig().epochs)
     p.add_argument("--difficulty", type=float, default=1.0)

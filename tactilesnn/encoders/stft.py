@@ -53,7 +53,7 @@ class STFTScalogram(nn.Module):
         win = torch.hann_window(self.nperseg, periodic=True, dtype=torch.float64)
         self.register_buffer("window", win, persistent=False)
         bins = np.fft.rfftfreq(self.nperseg, 1.0 / self.fs_hz)
-        h = gabor_response(self.freqs_hz, bins, bandwidth, center)
+        h = gabor_response(self.freqs_hz, bins, bandwidth, center, self.fs_hz / 2)
         # response of each bin to a unit sinusoid at each band centre (one-sided, SciPy scaling)
         w = win.numpy()
         n = np.arange(self.nperseg)
