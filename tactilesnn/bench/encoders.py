@@ -179,7 +179,7 @@ def bench_gwt(w: Workload, repeats: int, hop: int, threads_list: list[int]) -> l
         for name, g in ours.items():
             out = g.transform(x, np.float32, workers=threads)
             err = float(np.abs(out - ref[..., :: g.hop]).max() / peak)
-            t = median_time(lambda g=g: g.transform(x, np.float32, workers=threads), repeats)
+            t = median_time(lambda g=g, th=threads: g.transform(x, np.float32, workers=th), repeats)
             rows.append(_row(w, name, threads, t, err, "abs", g.hop))
         for name, factory in _peers(w, x).items():
             if name.startswith("pywt") and threads > 1:
@@ -212,7 +212,7 @@ def bench_stft(
         xt = torch.from_numpy(x.astype(np.float32))
         with torch.no_grad():
             out = ours(xt).numpy()
-            t = median_time(lambda: ours(xt), repeats)
+            t = median_time(lambda o=ours, v=xt: o(v), repeats)
         err = float(np.abs(out - ref).max() / np.abs(ref).max())
         rows.append(_row(w, "tactilesnn-stft bands f32", threads, t, err, "abs", hop))
         win = torch.hann_window(nperseg)

@@ -36,9 +36,8 @@ Two implementations of the same transform:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.fft
