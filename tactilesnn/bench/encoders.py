@@ -218,7 +218,7 @@ def bench_stft(
         win = torch.hann_window(nperseg)
         flat = xt.reshape(-1, x.shape[-1])
 
-        def tstft():
+        def tstft(flat=flat, win=win):
             return torch.stft(
                 flat, nperseg, hop, window=win, center=False, return_complex=True
             ).abs()
