@@ -68,12 +68,15 @@ class LatencyCode:
                 f"got shape {tuple(scalogram.shape)}"
             )
         mean = scalogram.mean(-1)
-        parts = {
-            "mean": mean,
-            "std": scalogram.std(-1, correction=0) if scalogram.shape[-1] > 1 else 0 * mean,
-            "max": scalogram.amax(-1),
-        }
-        amp = torch.stack([parts[s] for s in self.stats], dim=2)  # [B, C, S, F]
+        parts = []
+        for s in self.stats:
+            if s == "mean":
+                parts.append(mean)
+            elif s == "std":  # population sd, written out so it exports to ONNX
+                parts.append(((scalogram - mean.unsqueeze(-1)) ** 2).mean(-1).sqrt())
+            else:
+                parts.append(scalogram.amax(-1))
+        amp = torch.stack(parts, dim=2)  # [B, C, S, F]
         if self.normalize == "window":
             peak = mean.amax(-1)[:, :, None, None]
             # an all-zero channel has no spectral shape: it stays silent instead of dividing 0/0

@@ -1,0 +1,95 @@
+"""LIF converter against the closed-form solution; delta / sigma-delta reconstruction; utilities."""
+
+import math
+
+import numpy as np
+import pytest
+
+from tactilesnn.encoders.spiking import (
+    contact_onset,
+    delta_encode,
+    lif_convert,
+    sigma_delta_encode,
+    spike_rate,
+)
+
+FS = 1000.0  # 1 ms samples
+
+
+def isi_closed_form(v_inf, theta, tau, t_ref=0.0, v_reset=0.0):
+    return t_ref + tau * math.log((v_inf - v_reset) / (v_inf - theta))
+
+
+@pytest.mark.parametrize("current", [1.5, 3.0, 10.0])
+@pytest.mark.parametrize("t_ref", [0.0, 2.5])
+def test_constant_current_matches_analytic_isi(current, t_ref):
+    x = np.full((1, 1, 500), current)
+    ev = lif_convert(x, FS, tau_ms=10.0, threshold=1.0, refractory_ms=t_ref)
+    t = ev.times(0, 0)
+    first = 10.0 * math.log(current / (current - 1.0))
+    assert t[0] == pytest.approx(first, abs=1e-9), "first spike is interpolated inside a sample"
+    np.testing.assert_allclose(np.diff(t), isi_closed_form(current, 1.0, 10.0, t_ref), atol=1e-9)
+
+
+def test_subthreshold_never_fires_and_step_onset():
+    assert len(lif_convert(np.full((1, 1, 1000), 0.99), FS, tau_ms=5.0)) == 0
+    x = np.zeros((1, 1, 300))
+    x[..., 100:] = 2.0
+    t = lif_convert(x, FS, tau_ms=5.0).times(0, 0)
+    assert t[0] == pytest.approx(100 + 5.0 * math.log(2.0), abs=1e-9)
+
+
+def test_reset_by_subtraction_keeps_the_overshoot():
+    # with a huge drive several spikes fall in one sample; subtraction keeps rate ~ drive / theta
+    x = np.full((1, 1, 50), 1000.0)
+    n_sub = len(lif_convert(x, FS, tau_ms=1000.0, threshold=1.0, reset="subtract"))
+    n_rest = len(lif_convert(x, FS, tau_ms=1000.0, threshold=1.0, reset="rest"))
+    assert n_sub >= n_rest > 0
+    assert n_sub == pytest.approx(50 * 1000.0 / 1000.0, rel=0.05)  # ~ drive * dt / (tau * theta)
+
+
+def test_batches_and_channels_are_independent():
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 3, (2, 3, 200))
+    ev = lif_convert(x, FS)
+    for b in range(2):
+        for c in range(3):
+            single = lif_convert(x[b : b + 1, c : c + 1], FS).times(0, 0)
+            np.testing.assert_allclose(ev.times(b, c), single)
+    dense = ev.to_dense(1.0)
+    assert dense.shape == (2, 3, 200) and dense.sum() == len(ev)
+
+
+def test_delta_and_sigma_delta_reconstruct_within_one_step():
+    t = np.arange(2000) / FS
+    x = (np.sin(2 * np.pi * 3 * t) + 0.3 * np.sin(2 * np.pi * 17 * t))[None, None]
+    step = 0.05
+    ev = delta_encode(x, FS, step)
+    dense = ev.to_dense(1.0)[0]
+    recon = x[0, 0, 0] + step * np.cumsum(dense[0] - dense[1])
+    assert np.abs(recon - x[0, 0]).max() <= step * (1 + 1e-6)  # float32 raster
+    ev = sigma_delta_encode(x, FS, step)
+    dense = ev.to_dense(1.0)[0]
+    assert np.abs(step * np.cumsum(dense[0] - dense[1]) - np.cumsum(x[0, 0])).max() <= step + 1e-9
+
+
+def test_rate_and_onset():
+    x = np.zeros((1, 1, 1000))
+    x[..., 400:] = np.linspace(0, 1, 600) * 5 + 2.0  # contact at 400 ms: jump then ramp
+    ev = lif_convert(x, FS, tau_ms=5.0)
+    t, rate = spike_rate(ev, bin_ms=100.0, step_ms=10.0)
+    assert rate[0, 0, t <= 400].max() == 0 and rate[0, 0, -1] > 0
+    assert contact_onset(x, FS, smooth_ms=3.0)[0, 0] == pytest.approx(400, abs=3)
+
+
+def test_refuses_bad_input():
+    x = np.zeros((1, 2, 10))
+    x[0, 1, 3] = np.nan
+    with pytest.raises(ValueError, match="channel 1, sample 3"):
+        lif_convert(x, FS)
+    with pytest.raises(ValueError, match="reset"):
+        lif_convert(np.zeros((1, 1, 5)), FS, reset="zero")
+    with pytest.raises(ValueError, match="threshold"):
+        lif_convert(np.zeros((1, 1, 5)), FS, threshold=-1.0)
+    with pytest.raises(ValueError, match="step"):
+        delta_encode(np.zeros((1, 1, 5)), FS, 0.0)
