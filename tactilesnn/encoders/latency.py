@@ -101,10 +101,26 @@ class LatencyCode:
         return t.flatten(1).to(torch.float32)
 
 
+def to_events(spike_times: torch.Tensor, duration_ms: float):
+    """Spike times ``[B, N]`` (ms, inf = none) -> :class:`~tactilesnn.encoders.spiking.SpikeEvents`."""
+    from .spiking import SpikeEvents
+
+    t = spike_times.detach().cpu().numpy()
+    b, n = np.nonzero(np.isfinite(t))
+    return SpikeEvents(
+        batch=b.astype(np.int64),
+        neuron=n.astype(np.int64),
+        time_ms=t[b, n].astype(np.float64),
+        polarity=np.ones(b.size, np.int8),
+        shape=(t.shape[0], t.shape[1]),
+        duration_ms=float(duration_ms),
+    )
+
+
 def to_dense(spike_times: torch.Tensor, duration_ms: float, dt_ms: float) -> torch.Tensor:
     """Spike times ``[B, N]`` (ms, inf = none) -> dense 0/1 raster ``[B, N, steps]`` float32."""
     steps = int(np.ceil(duration_ms / dt_ms)) + 1
-    idx = torch.round(spike_times / dt_ms)
+    idx = torch.floor(spike_times / dt_ms)  # same binning as SpikeEvents.to_dense
     ok = torch.isfinite(idx) & (idx >= 0) & (idx < steps)
     out = torch.zeros(*spike_times.shape, steps)
     b, n = torch.nonzero(ok, as_tuple=True)

@@ -75,12 +75,17 @@ class STFTScalogram(nn.Module):
         if x.shape[-1] < self.nperseg:
             raise ValueError(f"need at least nperseg={self.nperseg} samples, got {x.shape[-1]}")
         b, c, n = x.shape
-        frames = x.reshape(b * c, n).unfold(-1, self.nperseg, self.hop)  # [BC, T, nperseg]
-        if self.detrend:
-            frames = frames - frames.mean(-1, keepdim=True)
+        flat = x.reshape(b * c, n)
         win = self.window.to(x.dtype)
-        spec = torch.fft.rfft(frames * win, dim=-1) / win.sum()
-        return spec.transpose(-1, -2).reshape(b, c, -1, frames.shape[1])
+        spec = torch.stft(
+            flat, self.nperseg, self.hop, window=win, center=False, return_complex=True
+        )  # [BC, K, T]
+        if self.detrend:
+            # removing each frame's mean before windowing = subtracting mean * DFT(window)
+            mean = flat.unfold(-1, self.nperseg, self.hop).mean(-1)  # [BC, T]
+            spec = spec - mean.unsqueeze(1) * torch.fft.rfft(win).unsqueeze(-1)
+        spec = spec / win.sum()
+        return spec.reshape(b, c, spec.shape[-2], spec.shape[-1])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``[batch, channels, samples]`` -> band magnitudes ``[batch, channels, bands, frames]``."""

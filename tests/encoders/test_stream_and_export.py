@@ -110,3 +110,21 @@ def test_onnx_export_matches_torch(encoder, tmp_path):
     inner = sess.get_outputs()[0].name
     assert inner == "spike_times_ms"
     assert np.isfinite(scal).all()
+
+
+def test_continuous_gwt_of_a_million_samples_in_chunks_equals_one_shot():
+    x = np.random.default_rng(5).standard_normal((1, 1, 1_000_000)).astype(np.float32)
+    g = GaborScalogram(FS, log_bands(3, 90, 8), hop=10)
+    one = g.transform(x)
+    chunked = g.transform_chunked(x, chunk_samples=65_536)
+    assert chunked.shape == one.shape == (1, 1, 8, 100_000)
+    assert np.abs(chunked - one).max() <= 1e-5 * one.max()
+
+
+def test_latency_times_to_events_and_dense_agree():
+    from tactilesnn.encoders.latency import to_dense, to_events
+
+    t = torch.tensor([[0.0, 12.0, float("inf")], [3.0, float("inf"), 499.0]])
+    ev = to_events(t, 500.0)
+    assert len(ev) == 4
+    np.testing.assert_array_equal(ev.to_dense(1.0), to_dense(t, 500.0, 1.0).numpy()[..., :500])
