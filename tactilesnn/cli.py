@@ -105,10 +105,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders")
+BENCHMARKS = ("gwt-vs-stft", "encoders", "snn")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name == "snn":
+        from .bench import snn
+
+        res = snn.run(repeats=args.repeats)
+        if args.out:
+            _write_json(Path(args.out) / "snn.json", res)
+        return 0
     if args.name == "encoders":
         from .bench import encoders
 
@@ -128,6 +135,16 @@ def cmd_bench(args: argparse.Namespace) -> int:
         progress=not args.quiet,
     )
     return 0
+
+
+def _write_json(path: Path, obj: dict) -> None:
+    import os
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+    print(f"results: {path}")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -164,6 +181,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .perf import tune_allocator
+
+    tune_allocator()
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(message)s",

@@ -114,14 +114,14 @@ def format_table(summary: dict, seeds: int) -> str:
     }
     lines = [
         f"test accuracy over {seeds} seeds (hook vs loop, 100-sample windows)",
-        f"| {'pipeline':<30} | mean %  | sd %  | min %  | max %  | seed 001 % |",
-        f"|{'-' * 32}|---------|-------|--------|--------|------------|",
+        f"| {'pipeline':<32} | mean %  | sd %  | min %  | max %  | seed 001 % |",
+        f"|{'-' * 34}|---------|-------|--------|--------|------------|",
     ]
     for key, name in names.items():
         s = summary[key]
         ref = f"{100 * SEED_001[key]:.2f}" if key in SEED_001 else "-"
         lines.append(
-            f"| {name:<30} | {100 * s['mean']:7.2f} | {100 * s['sd']:5.2f} | "
+            f"| {name:<32} | {100 * s['mean']:7.2f} | {100 * s['sd']:5.2f} | "
             f"{100 * s['min']:6.2f} | {100 * s['max']:6.2f} | {ref:>10} |"
         )
     return "\n".join(lines)

@@ -63,6 +63,11 @@ class STFTScalogram(nn.Module):
         resp = np.abs((phase * w).sum(-1)) / w.sum()  # [F, K]
         gain = (h * resp).sum(axis=1, keepdims=True)
         self.register_buffer("bands", torch.from_numpy(h / gain), persistent=False)
+        # per-frame detrend correction: the periodic Hann window's DFT is non-zero at bins 0, 1
+        wf = torch.fft.rfft(win)
+        self._n_detrend = int((wf.abs() > 1e-9 * wf.abs().max()).nonzero().max()) + 1
+        self.register_buffer("window_dft", wf[: self._n_detrend], persistent=False)
+        self._cast: dict[torch.dtype, tuple[torch.Tensor, ...]] = {}
 
     @property
     def n_bands(self) -> int:
@@ -76,21 +81,34 @@ class STFTScalogram(nn.Module):
             raise ValueError(f"need at least nperseg={self.nperseg} samples, got {x.shape[-1]}")
         b, c, n = x.shape
         flat = x.reshape(b * c, n)
-        win = self.window.to(x.dtype)
+        win, wdft, _ = self._tensors(x.dtype)
         spec = torch.stft(
             flat, self.nperseg, self.hop, window=win, center=False, return_complex=True
-        )  # [BC, K, T]
+        )  # [BC, K, T], already divided by sum(window) through the window's scaling
         if self.detrend:
             # removing each frame's mean before windowing = subtracting mean * DFT(window)
             mean = flat.unfold(-1, self.nperseg, self.hop).mean(-1)  # [BC, T]
-            spec = spec - mean.unsqueeze(1) * torch.fft.rfft(win).unsqueeze(-1)
-        spec = spec / win.sum()
+            spec[:, : self._n_detrend] -= mean.unsqueeze(1) * wdft.unsqueeze(-1)
         return spec.reshape(b, c, spec.shape[-2], spec.shape[-1])
+
+    def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
+        """Window / sum(window), its DFT, and 2 x band weights, cast once per dtype."""
+        if dtype not in self._cast:
+            w = self.window / self.window.sum()
+            self._cast[dtype] = (
+                w.to(dtype),
+                (self.window_dft / self.window.sum()).to(
+                    torch.complex64 if dtype == torch.float32 else torch.complex128
+                ),
+                (2.0 * self.bands).to(dtype),
+            )
+        return self._cast[dtype]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``[batch, channels, samples]`` -> band magnitudes ``[batch, channels, bands, frames]``."""
-        mag = 2.0 * self.spectrum(x).abs()  # one-sided: unit sinusoid -> 1 at its bin
-        return torch.einsum("fk,bckt->bcft", self.bands.to(mag.dtype), mag)
+        spec = self.spectrum(x)
+        # one-sided: x2 so that a unit sinusoid gives 1 at its bin; folded into the band weights
+        return torch.matmul(self._tensors(x.dtype)[2], spec.abs())
 
     def transform(self, x: np.ndarray, dtype: np.dtype | type = np.float32) -> np.ndarray:
         """NumPy entry point with validation."""
