@@ -10,7 +10,10 @@ import json
 import logging
 import sys
 from collections.abc import Sequence
+from dataclasses import MISSING, fields
 from pathlib import Path
+
+import numpy as np
 
 from .datasets_synth import TASKS
 from .pipeline import ENCODERS, MODELS, PipelineConfig
@@ -19,21 +22,21 @@ from .runs import RunExistsError
 log = logging.getLogger("tactilesnn")
 
 
+_SKIP = {"extra"}
+_HELP = {
+    "encoder": "gwt | stft (scalogram -> latency code) or lif (LIF converter population)",
+    "model": "tempotron or snn (surrogate-gradient LIF network)",
+    "seed": "dataset split, generation and initialisation seed",
+    "lr": "tempotron learning rate lambda (seed 001: 0.005)",
+    "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
+}
+
+
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
-    d = PipelineConfig()
+    """One flag per :class:`PipelineConfig` field, so every setting is also a TOML key."""
+    p.add_argument("--config", help="TOML file of settings (flag names as keys); flags win")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
-    p.add_argument("--encoder", default=d.encoder, choices=ENCODERS)
-    p.add_argument("--model", default=d.model, choices=MODELS)
-    p.add_argument("--seed", type=int, default=0, help="dataset split, generation and init seed")
-    p.add_argument("--epochs", type=int, default=d.epochs)
-    p.add_argument("--lr", type=float, default=d.lr, help="tempotron learning rate lambda")
-    p.add_argument("--momentum", type=float, default=d.momentum)
-    p.add_argument("--batch-size", type=int, default=d.batch_size)
-    p.add_argument("--tau-ms", type=float, default=d.tau_ms, help="membrane time constant")
-    p.add_argument("--tau-s-ms", type=float, default=d.tau_s_ms, help="synaptic time constant")
-    p.add_argument("--n-bands", type=int, default=d.n_bands)
-    p.add_argument("--f-lo-hz", type=float, default=d.f_lo_hz)
-    p.add_argument("--f-hi-hz", type=float, default=d.f_hi_hz)
+    p.add_argument("--data", help="real recordings .npz (X [N,C,S], y, fs, class_names)")
     p.add_argument(
         "--difficulty",
         type=float,
@@ -46,23 +49,63 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         default=1.0,
         help="multiplier of the force set-point range and coupling-gain spread",
     )
-
-
-def _config(args: argparse.Namespace, seed: int | None = None, encoder: str | None = None):
-    return PipelineConfig(
-        encoder=encoder or args.encoder,
-        model=args.model,
-        seed=args.seed if seed is None else seed,
-        epochs=args.epochs,
-        lr=args.lr,
-        momentum=args.momentum,
-        batch_size=args.batch_size,
-        tau_ms=args.tau_ms,
-        tau_s_ms=args.tau_s_ms,
-        n_bands=args.n_bands,
-        f_lo_hz=args.f_lo_hz,
-        f_hi_hz=args.f_hi_hz,
+    p.add_argument(
+        "--val-fraction",
+        type=float,
+        default=0.0,
+        help="fraction of training scans held out for early stopping / best weights",
     )
+    for f in fields(PipelineConfig):
+        if f.name in _SKIP:
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+        kw: dict = {"default": default, "help": _HELP.get(f.name)}
+        if f.name == "encoder":
+            kw["choices"] = ENCODERS
+        elif f.name == "model":
+            kw["choices"] = MODELS
+        if isinstance(default, bool):
+            kw["action"] = argparse.BooleanOptionalAction
+        elif isinstance(default, tuple):
+            kw["nargs"] = "+"
+        else:
+            kw["type"] = type(default)
+        p.add_argument(flag, **kw)
+
+
+def _config(args: argparse.Namespace) -> PipelineConfig:
+    values = {f.name: getattr(args, f.name) for f in fields(PipelineConfig) if f.name not in _SKIP}
+    return PipelineConfig(**values)
+
+
+def _apply_toml(parser: argparse.ArgumentParser, sub: argparse.ArgumentParser, argv) -> str | None:
+    """Load ``--config`` (if given) into the train parser's defaults; returns the file's text."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--config")
+    known, _ = pre.parse_known_args(argv)
+    if not known.config:
+        return None
+    import tomllib
+
+    path = Path(known.config)
+    if not path.is_file():
+        raise ValueError(f"config file {path} does not exist")
+    text = path.read_text()
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"{path}: not valid TOML: {e}") from e
+    table = table.get("train", table)
+    dests = {a.dest: a for a in sub._actions}
+    defaults = {}
+    for key, value in table.items():
+        dest = key.replace("-", "_")
+        if dest not in dests or dest in ("help", "config"):
+            raise ValueError(f"{path}: unknown setting {key!r}")
+        defaults[dest] = tuple(value) if isinstance(value, list) else value
+    sub.set_defaults(**defaults)
+    return text
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -70,23 +113,35 @@ def cmd_train(args: argparse.Namespace) -> int:
     from .training import train_run
 
     config = _config(args)
+    source = Path(args.data).stem if args.data else args.task
     out = (
         Path(args.out)
         if args.out
-        else default_run_dir(Path("runs"), args.task, config.encoder, config.model)
+        else default_run_dir(Path("runs"), source, config.encoder, config.model)
     )
+    if args.resume and not args.out:
+        raise ValueError("--resume needs the --out folder of the interrupted run")
     task_kwargs = {
         "seed": args.seed,
         "difficulty": args.difficulty,
         "amplitude_spread": args.amplitude_spread,
     }
     path, m = train_run(
-        args.task, task_kwargs, config, out, overwrite=args.overwrite, progress=not args.quiet
+        args.task,
+        task_kwargs,
+        config,
+        out,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        data=Path(args.data) if args.data else None,
+        resume=args.resume,
+        val_fraction=args.val_fraction,
+        config_text=getattr(args, "_config_text", None),
     )
     print(
-        f"{args.task} {config.encoder}+{config.model}: test accuracy "
+        f"{source} {config.encoder}+{config.model}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "
-        f"{m['n_test_windows']} windows from {m['n_test_scans']} scans); "
+        f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
     )
     print(f"run folder: {path}")
@@ -95,11 +150,27 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .datasets_synth import get_task
-    from .training import load_run
+    from .training import load_data_file, load_run
 
     pipe, cfg = load_run(Path(args.run_dir))
-    task = get_task(cfg["task"], **cfg["task_kwargs"])
-    _, test = task.build(progress=not args.quiet)
+    if args.data:
+        _, test = load_data_file(Path(args.data), pipe.config.seed)
+        if args.all:
+            tr, te = load_data_file(Path(args.data), pipe.config.seed)
+            test = type(te)(
+                np.concatenate([tr.X, te.X]),
+                np.concatenate([tr.y, te.y]),
+                np.concatenate([tr.scan, te.scan]),
+                te.fs_hz,
+                te.class_names,
+                te.channel_names,
+            )
+        if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
+            raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")
+    elif cfg.get("data"):
+        _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
+    else:
+        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
     acc = pipe.score(test.X, test.y)
     print(json.dumps({"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size)}))
     return 0
@@ -156,11 +227,14 @@ def build_parser() -> argparse.ArgumentParser:
     _add_pipeline_args(p)
     p.add_argument("--out", help="run folder (default runs/<task>-<encoder>-<model>-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("evaluate", help="evaluate a run folder on its task's test split")
+    p = sub.add_parser("evaluate", help="evaluate a run folder on its test split or --data")
     p.add_argument("run_dir")
+    p.add_argument("--data", help="recordings .npz to evaluate on (its test split)")
+    p.add_argument("--all", action="store_true", help="with --data: evaluate on every recording")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
 
@@ -180,7 +254,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    config_text = None
+    if argv and argv[0] == "train":
+        sub = next(
+            a
+            for a in parser._subparsers._group_actions
+            if isinstance(a, argparse._SubParsersAction)
+        ).choices["train"]
+        try:
+            config_text = _apply_toml(parser, sub, argv[1:])
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
     args = parser.parse_args(argv)
+    args._config_text = config_text
     from .perf import tune_allocator
 
     tune_allocator()

@@ -1,0 +1,93 @@
+"""Training runs: resume after an interruption, TOML configs, real recordings (--data)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tactilesnn.training as training
+from tactilesnn.cli import main
+from tactilesnn.pipeline import PipelineConfig
+from tactilesnn.runs import load_arrays
+
+SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+ICUB = Path(__file__).resolve().parents[2] / "shared" / "data" / "braille_icub_abc" / "braille_abc_icub.npz"
+
+
+@pytest.mark.parametrize("model", ["tempotron", "snn"])
+def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, model):
+    cfg = PipelineConfig(model=model, epochs=4, snn_hidden=16)
+    ref_dir, _ = training.train_run("hook_loop", SMALL, cfg, tmp_path / "ref", progress=False)
+
+    real_save = training.save_checkpoint
+    calls = {"n": 0}
+
+    def crash_after_two(folder, state):
+        real_save(folder, state)
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt  # the session is cut mid-run
+
+    monkeypatch.setattr(training, "save_checkpoint", crash_after_two)
+    out = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        training.train_run("hook_loop", SMALL, cfg, out, progress=False)
+    assert not out.exists() and (tmp_path / "run.partial" / "checkpoint.json").is_file()
+    monkeypatch.setattr(training, "save_checkpoint", real_save)
+    with pytest.raises(FileExistsError, match="--resume"):
+        training.train_run("hook_loop", SMALL, cfg, out, progress=False)
+    with pytest.raises(ValueError, match="same settings"):
+        training.train_run(
+            "hook_loop", SMALL, PipelineConfig(model=model, epochs=5), out, progress=False, resume=True
+        )
+    path, m = training.train_run("hook_loop", SMALL, cfg, out, progress=False, resume=True)
+    assert not (tmp_path / "run.partial").exists()
+    a, b = load_arrays(ref_dir / "weights.npz"), load_arrays(path / "weights.npz")
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    assert len(m["train_error_history"]) == 4
+
+
+def test_toml_config_and_flag_override(tmp_path, capsys):
+    toml = tmp_path / "exp.toml"
+    toml.write_text('[train]\nencoder = "stft"\nepochs = 2\nn_bands = 12\nseed = 1\n')
+    out = tmp_path / "r"
+    assert main(["train", "--config", str(toml), "--epochs", "1", "--out", str(out), "--quiet",
+                 "--difficulty", "1.0"]) == 0
+    cfg = json.loads((out / "config.json").read_text())["pipeline"]
+    assert cfg["encoder"] == "stft" and cfg["n_bands"] == 12 and cfg["epochs"] == 1
+    assert (out / "config.toml").read_text() == toml.read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("epochz = 3\n")
+    assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
+    assert "unknown setting 'epochz'" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not ICUB.is_file(), reason="real iCub recordings not available")
+def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
+    raw = np.load(ICUB, allow_pickle=False)
+    fs = 1.0 / float(np.median(np.diff(raw["t"], axis=1)))
+    data = tmp_path / "braille.npz"
+    np.savez(
+        data,
+        X=raw["X"].transpose(0, 2, 1).astype(np.float32),  # trials x taxels x samples
+        y=raw["y"],
+        fs=fs,
+        class_names=np.array(["A", "B", "C"]),
+        channel_names=np.array([f"taxel{i}" for i in range(12)]),
+    )
+    out = tmp_path / "braille_run"
+    channels = [f"taxel{i}" for i in range(12)]
+    rc = main(["train", "--data", str(data), "--channels", *channels, "--encoder", "gwt",
+               "--f-lo-hz", "0.5", "--epochs", "30", "--out", str(out), "--quiet"])
+    assert rc == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["n_test_windows"] == 9 and m["test_accuracy"] > 1 / 3  # above chance on 3 letters
+    assert main(["evaluate", str(out), "--data", str(data), "--all", "--quiet"]) == 0
+    got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert got["n"] == 45
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, X=np.zeros((3, 100)), y=np.zeros(3), fs=100.0, class_names=np.array(["a"]))
+    assert main(["train", "--data", str(bad), "--out", str(tmp_path / "b"), "--quiet"]) == 2
+    assert "X must be [N, channels, samples]" in capsys.readouterr().err
