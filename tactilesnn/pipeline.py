@@ -65,6 +65,7 @@ class PipelineConfig:
     margin: float = 0.2
     lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
     keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
+    tempotron_train: str = "rule"  # "rule" (seed 001) or "gradient" (Adam on a V_max hinge)
     # snn
     snn_hidden: int = 64
     snn_dt_ms: float = 5.0
@@ -82,6 +83,7 @@ class PipelineConfig:
     def __post_init__(self) -> None:
         check_choice(self.encoder, "encoder", ENCODERS)
         check_choice(self.model, "model", MODELS)
+        check_choice(self.tempotron_train, "tempotron_train", ("rule", "gradient"))
         self.channels = tuple(self.channels)
         self.stats = tuple(self.stats)
         if self.epochs < 1 or self.batch_size < 1 or self.n_bands < 1:
@@ -285,9 +287,8 @@ class SpikePipeline:
         if yt.numel() and (yt.min() < 0 or yt.max() >= len(self.class_names)):
             raise ValueError(f"labels must be in [0, {len(self.class_names)}), got {yt.unique()}")
         gen = torch.Generator().manual_seed(cfg.seed)
-        opt = (
-            torch.optim.Adam(self.model.parameters(), lr=cfg.snn_lr) if cfg.model == "snn" else None
-        )
+        by_rule = cfg.model == "tempotron" and cfg.tempotron_train == "rule"
+        opt = None if by_rule else torch.optim.Adam(self.model.parameters(), lr=cfg.snn_lr)
         st = {"epoch": 0, "history": [], "val_history": [], "best_score": -math.inf, "stale": 0}
         best_w = {k: v.detach().clone() for k, v in self.model.state_dict().items()}
         if resume is not None:
@@ -302,7 +303,7 @@ class SpikePipeline:
         )
         for epoch in bar:
             perm = torch.randperm(spikes.shape[0], generator=gen)
-            if cfg.model == "tempotron":
+            if by_rule:
                 lr = cfg.lr / (1.0 + cfg.lr_decay * epoch)
                 for i in range(0, perm.numel(), cfg.batch_size):
                     idx = perm[i : i + cfg.batch_size]
@@ -313,8 +314,21 @@ class SpikePipeline:
                 self.model.train()
                 for i in range(0, perm.numel(), cfg.batch_size):
                     idx = perm[i : i + cfg.batch_size]
-                    scores = self.model(self.raster(spikes[idx]))[0]
-                    loss = nn.functional.cross_entropy(scores, yt[idx])
+                    if cfg.model == "snn":
+                        scores = self.model(self.raster(spikes[idx]))[0]
+                        loss = nn.functional.cross_entropy(scores, yt[idx])
+                    else:  # differentiable exact V_max: hinge around theta with the margin
+                        v = self.model(spikes[idx])[0]
+                        tgt = nn.functional.one_hot(yt[idx], len(self.class_names)).to(v.dtype)
+                        thr = cfg.theta
+                        loss = (
+                            (
+                                tgt * torch.relu(thr + cfg.margin - v)
+                                + (1 - tgt) * torch.relu(v - thr + cfg.margin)
+                            )
+                            .sum(1)
+                            .mean()
+                        )
                     opt.zero_grad()
                     loss.backward()
                     opt.step()

@@ -90,6 +90,9 @@ def fit_and_evaluate(
     )
     t_fit = time.perf_counter() - t0 - t_enc
     pred = pipe.scores(s_test).argmax(1).numpy()
+    early = (
+        early_decision_metrics(pipe, s_test, test.y, pred) if config.model == "tempotron" else None
+    )
     acc = float((pred == test.y).mean())
     cm = confusion_matrix(test.y, pred, labels=np.arange(len(test.class_names)))
     metrics = {
@@ -109,7 +112,31 @@ def fit_and_evaluate(
         "encode_seconds": t_enc,
         "fit_seconds": t_fit,
     }
+    if early is not None:
+        metrics["early_decision"] = early
     return TrainResult(pipe, history, metrics, cm)
+
+
+@torch.no_grad()
+def early_decision_metrics(pipe: SpikePipeline, spikes: torch.Tensor, y, full_pred) -> dict:
+    """Tempotron deciding at the first class to fire: accuracy, window and spikes skipped."""
+    classes, t_dec = [], []
+    batch = max(8, min(1024, (1 << 22) // (spikes.shape[1] * spikes.shape[2] + 1) ** 2))
+    for i in range(0, spikes.shape[0], batch):
+        c, t = pipe.model.predict_early(spikes[i : i + batch])
+        classes.append(c)
+        t_dec.append(t)
+    cls, t = torch.cat(classes).numpy(), torch.cat(t_dec).numpy()
+    times = spikes.numpy()
+    finite = np.isfinite(times)
+    after = finite & (times > t[:, None, None])
+    return {
+        "accuracy": float((cls == np.asarray(y)).mean()),
+        "agrees_with_full_window": float((cls == full_pred).mean()),
+        "mean_decision_ms": float(t.mean()),
+        "window_skipped_fraction": float(1 - t.mean() / pipe.duration_ms),
+        "input_spikes_skipped_fraction": float(after.sum() / max(finite.sum(), 1)),
+    }
 
 
 def load_data_file(path: Path, seed: int, test_fraction: float = 0.2):

@@ -12,7 +12,13 @@ from tactilesnn.pipeline import PipelineConfig
 from tactilesnn.runs import load_arrays
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
-ICUB = Path(__file__).resolve().parents[2] / "shared" / "data" / "braille_icub_abc" / "braille_abc_icub.npz"
+ICUB = (
+    Path(__file__).resolve().parents[2]
+    / "shared"
+    / "data"
+    / "braille_icub_abc"
+    / "braille_abc_icub.npz"
+)
 
 
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
@@ -39,7 +45,12 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
         training.train_run("hook_loop", SMALL, cfg, out, progress=False)
     with pytest.raises(ValueError, match="same settings"):
         training.train_run(
-            "hook_loop", SMALL, PipelineConfig(model=model, epochs=5), out, progress=False, resume=True
+            "hook_loop",
+            SMALL,
+            PipelineConfig(model=model, epochs=5),
+            out,
+            progress=False,
+            resume=True,
         )
     path, m = training.train_run("hook_loop", SMALL, cfg, out, progress=False, resume=True)
     assert not (tmp_path / "run.partial").exists()
@@ -53,8 +64,23 @@ def test_toml_config_and_flag_override(tmp_path, capsys):
     toml = tmp_path / "exp.toml"
     toml.write_text('[train]\nencoder = "stft"\nepochs = 2\nn_bands = 12\nseed = 1\n')
     out = tmp_path / "r"
-    assert main(["train", "--config", str(toml), "--epochs", "1", "--out", str(out), "--quiet",
-                 "--difficulty", "1.0"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--config",
+                str(toml),
+                "--epochs",
+                "1",
+                "--out",
+                str(out),
+                "--quiet",
+                "--difficulty",
+                "1.0",
+            ]
+        )
+        == 0
+    )
     cfg = json.loads((out / "config.json").read_text())["pipeline"]
     assert cfg["encoder"] == "stft" and cfg["n_bands"] == 12 and cfg["epochs"] == 1
     assert (out / "config.toml").read_text() == toml.read_text()
@@ -79,8 +105,24 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     )
     out = tmp_path / "braille_run"
     channels = [f"taxel{i}" for i in range(12)]
-    rc = main(["train", "--data", str(data), "--channels", *channels, "--encoder", "gwt",
-               "--f-lo-hz", "0.5", "--epochs", "30", "--out", str(out), "--quiet"])
+    rc = main(
+        [
+            "train",
+            "--data",
+            str(data),
+            "--channels",
+            *channels,
+            "--encoder",
+            "gwt",
+            "--f-lo-hz",
+            "0.5",
+            "--epochs",
+            "30",
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["n_test_windows"] == 9 and m["test_accuracy"] > 1 / 3  # above chance on 3 letters

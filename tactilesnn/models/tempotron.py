@@ -116,8 +116,8 @@ class Tempotron(nn.Module):
         return self.v_rest + torch.einsum("bcm,bmt->bct", w, self.kernel(lag))
 
     # ------------------------------------------------------------------ exact maximum
-    def forward(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Exact ``(v_max, t_max)``, each ``[batch, classes]``; t_max in ms."""
+    def _intervals(self, spike_times: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Sorted events and, per inter-spike interval, the rescaled state and maxima."""
         t, w, _ = self._events(spike_times)
         bsz = t.shape[0]
         # a sentinel at the window end makes V(duration) one of the spike-time candidates
@@ -143,13 +143,65 @@ class Tempotron(nn.Module):
         s_safe = torch.where(inside, s_star, torch.zeros_like(s_star))
         v_int = self.v0 * (a * torch.exp(-s_safe / tau) - b * torch.exp(-s_safe / tau_s))
         v_int = torch.where(inside, v_int, torch.full_like(v_int, -math.inf))
+        return {"t": t, "a": a, "b": b, "v_at": v_at, "v_int": v_int, "s": s_safe, "gap": gap}
+
+    def forward(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Exact ``(v_max, t_max)``, each ``[batch, classes]``; t_max in ms."""
+        iv = self._intervals(spike_times)
+        v_at, v_int = iv["v_at"], iv["v_int"]
         # the window start comes first so that ties resolve to the earliest time
         cand_v = torch.cat([torch.zeros_like(v_at[..., :1]), v_at, v_int], dim=2)
-        tt = t.unsqueeze(1).expand_as(v_at)
-        cand_t = torch.cat([torch.zeros_like(tt[..., :1]), tt, tt + s_safe], dim=2)
+        tt = iv["t"].unsqueeze(1).expand_as(v_at)
+        cand_t = torch.cat([torch.zeros_like(tt[..., :1]), tt, tt + iv["s"]], dim=2)
         v_max, idx = cand_v.max(dim=2)
         t_max = torch.gather(cand_t, 2, idx.unsqueeze(2)).squeeze(2)
         return v_max + self.v_rest, t_max
+
+    @torch.no_grad()
+    def decision_times(self, spike_times: torch.Tensor, iterations: int = 40) -> torch.Tensor:
+        """Exact first threshold-crossing time per class ``[batch, classes]`` (ms; inf = never).
+
+        The first interval whose maximum reaches theta is found from the same closed form; on it
+        V rises monotonically up to its maximum, so the crossing is located by bisection.
+        """
+        iv = self._intervals(spike_times)
+        thr = self.theta  # relative to v_rest
+        v_at, v_int, s_hi_int, gap = iv["v_at"], iv["v_int"], iv["s"], iv["gap"]
+        v_end = torch.cat([v_at[..., 1:], v_at[..., -1:]], dim=2)  # V at the interval's end
+        reaches = (v_int >= thr) | (v_end >= thr)
+        any_k = reaches.any(dim=2)
+        k = reaches.to(torch.int8).argmax(dim=2, keepdim=True)  # first interval reaching theta
+
+        def pick(x: torch.Tensor) -> torch.Tensor:
+            return torch.gather(x.expand_as(v_at), 2, k).squeeze(2)
+
+        a, b = pick(iv["a"]), pick(iv["b"])
+        hi = torch.where(pick(v_int) >= thr, pick(s_hi_int), pick(gap))
+        lo = torch.zeros_like(hi)
+        start_v = pick(v_at)
+        for _ in range(iterations):
+            mid = 0.5 * (lo + hi)
+            v = self.v0 * (a * torch.exp(-mid / self.tau_ms) - b * torch.exp(-mid / self.tau_s_ms))
+            up = v >= thr
+            hi = torch.where(up, mid, hi)
+            lo = torch.where(up, lo, mid)
+        t_k = pick(iv["t"].unsqueeze(1))
+        t_cross = torch.where(start_v >= thr, t_k, t_k + hi)
+        return torch.where(any_k, t_cross, torch.full_like(t_cross, math.inf))
+
+    def predict_early(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Decide at the first class to fire, skipping the rest of the window.
+
+        Returns ``(classes [batch], decision_ms [batch])``; a sample where no class fires falls
+        back to the largest V_max at the window end (``decision_ms`` = duration).
+        """
+        t_fire = self.decision_times(spike_times)
+        first, cls = t_fire.min(dim=1)
+        fallback = self(spike_times)[0].argmax(dim=1)
+        fired = torch.isfinite(first)
+        return torch.where(fired, cls, fallback), torch.where(
+            fired, first, torch.full_like(first, self.duration_ms)
+        )
 
     def fired(self, v_max: torch.Tensor) -> torch.Tensor:
         return v_max >= self.theta + self.v_rest

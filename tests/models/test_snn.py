@@ -1,5 +1,6 @@
 """Surrogate-gradient LIF layers: exact discretisation, resets, gradients, explicit state."""
 
+import itertools
 import math
 
 import pytest
@@ -29,13 +30,15 @@ def test_subthreshold_membrane_matches_closed_form():
 def test_spike_times_for_a_constant_current(reset):
     beta, c = 0.9, 0.3  # steady state 3.0 > theta = 1
     cur = torch.full((100, 1, 1), c, dtype=torch.float64)
-    spikes, _ = _LIFScan.apply(cur, torch.zeros(1, 1, dtype=torch.float64), beta, 1.0, reset, "arctan", 5.0)
+    spikes, _ = _LIFScan.apply(
+        cur, torch.zeros(1, 1, dtype=torch.float64), beta, 1.0, reset, "arctan", 5.0
+    )
     t = torch.nonzero(spikes[:, 0, 0]).flatten().tolist()
     # first crossing: smallest t with c (1 - beta^(t+1)) / (1 - beta) >= 1
     first = math.ceil(math.log(1 - (1 - beta) / c) / math.log(beta)) - 1
     assert t[0] == first
     if reset == "zero":  # after each reset the same trajectory repeats: period first + 1
-        assert all(b - a == first + 1 for a, b in zip(t, t[1:], strict=False))
+        assert all(b - a == first + 1 for a, b in itertools.pairwise(t))
     ref, _ = lif_scan_reference(cur, torch.zeros(1, 1, dtype=torch.float64), beta, 1.0, reset)
     assert torch.equal(spikes, ref)
 

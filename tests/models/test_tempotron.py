@@ -138,3 +138,32 @@ def test_rejects_bad_spike_input():
         m(torch.tensor([[1.0, float("nan"), 2.0]]))
     with pytest.raises(ValueError, match="tau > tau_s"):
         Tempotron(3, 2, 100.0, tau_ms=5.0, tau_s_ms=10.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_decision_time_is_the_first_dense_grid_crossing(seed):
+    g = torch.Generator().manual_seed(seed)
+    m = Tempotron(10, 2, 100.0, tau_ms=15.0, tau_s_ms=3.75)
+    with torch.no_grad():
+        m.weight.copy_(torch.randn(2, 10, generator=g) * 0.8)
+    times = torch.rand(16, 10, 2, generator=g) * 100
+    t_dec = m.decision_times(times)
+    grid = torch.arange(0, 100.0 + 1e-9, 0.001, dtype=torch.float64)
+    with torch.no_grad():
+        v = m.double().potential(times.double(), grid)
+    above = v >= 1.0
+    first = torch.where(
+        above.any(2), grid[above.to(torch.int8).argmax(2)], torch.full(above.shape[:2], math.inf)
+    )
+    fin = torch.isfinite(first)
+    assert torch.equal(fin, torch.isfinite(t_dec))
+    np.testing.assert_allclose(t_dec[fin].numpy(), first[fin].numpy(), atol=2e-3)
+
+
+def test_early_decision_agrees_when_one_class_dominates():
+    m = Tempotron(4, 2, 200.0, tau_ms=20.0, tau_s_ms=5.0)
+    with torch.no_grad():
+        m.weight.copy_(torch.tensor([[0.8, 0.8, 0.0, 0.0], [0.0, 0.0, 0.8, 0.8]]))
+    times = torch.tensor([[10.0, 11.0, 150.0, 151.0]])  # class 0 fires ~ 15 ms, class 1 later
+    cls, t = m.predict_early(times)
+    assert int(cls) == 0 and 10 < float(t) < 30
