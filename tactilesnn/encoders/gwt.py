@@ -41,6 +41,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import scipy.fft
+import scipy.sparse
 import torch
 from torch import nn
 
@@ -267,7 +268,25 @@ class GaborScalogram(nn.Module):
             # e^{2 pi i k p / L} moves the origin to the first unpadded sample; M/L rescales
             gain = row[lo:hi] * np.exp(2j * np.pi * k[lo:hi] * p / length) * (m_len / length)
             bands.append((lo, hi, gain.astype(cdt)))
-        plan = {"length": length, "m": m_len, "frames": math.ceil(n / hop), "bands": bands}
+        # all bands' gains and their folding modulo M as one sparse [bins, bands * M] matrix:
+        # z = spec @ S places (and, for bands wider than M, alias-sums) every band at once
+        rows_i, cols_i, vals = [], [], []
+        for i, (lo, hi, gain) in enumerate(bands):
+            kk = np.arange(lo, hi)
+            rows_i.append(kk)
+            cols_i.append(i * m_len + kk % m_len)
+            vals.append(gain)
+        fold = scipy.sparse.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows_i), np.concatenate(cols_i))),
+            shape=(length // 2 + 1, self.n_bands * m_len),
+        )
+        plan = {
+            "length": length,
+            "m": m_len,
+            "frames": math.ceil(n / hop),
+            "bands": bands,
+            "fold_t": fold.T.tocsr(),  # [bands * M, bins]: z^T = S^T spec^T
+        }
         self._cache[key] = plan  # type: ignore[assignment]
         return plan
 
@@ -277,16 +296,7 @@ class GaborScalogram(nn.Module):
             rows = np.pad(rows, ((0, 0), (p, p)), mode=mode)
         spec = scipy.fft.rfft(rows, n=plan["length"], axis=-1, workers=workers)
         m_len = plan["m"]
-        z = np.zeros((rows.shape[0], self.n_bands, m_len), dtype=spec.dtype)
-        for i, (lo, hi, gain) in enumerate(plan["bands"]):
-            seg = spec[:, lo:hi] * gain
-            j0 = lo % m_len
-            if j0 + (hi - lo) <= m_len:
-                z[:, i, j0 : j0 + hi - lo] = seg
-            else:  # band wider than the folded length: alias-sum its pieces (exact decimation)
-                total = math.ceil((j0 + hi - lo) / m_len) * m_len
-                buf = np.zeros((rows.shape[0], total), dtype=spec.dtype)
-                buf[:, j0 : j0 + hi - lo] = seg
-                z[:, i] = buf.reshape(rows.shape[0], -1, m_len).sum(axis=1)
+        z = np.ascontiguousarray((plan["fold_t"] @ spec.T).T)  # [rows, bands * M]
+        z = z.reshape(rows.shape[0], self.n_bands, m_len)
         w = scipy.fft.ifft(z, axis=-1, workers=workers, overwrite_x=True)
         return np.abs(w[..., : plan["frames"]])

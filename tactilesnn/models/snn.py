@@ -50,6 +50,15 @@ class _LIFScan(torch.autograd.Function):
     def forward(ctx, cur, u0, beta, theta, reset, kind, alpha):  # type: ignore[override]
         steps = cur.shape[0]
         training = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
+        ext = _fused(cur)
+        if ext is not None:
+            spikes, post, u_all = ext.lif_forward(
+                cur.contiguous(), u0, beta, theta, reset == "subtract", training
+            )
+            if training:
+                ctx.save_for_backward(u_all, spikes)
+            ctx.cfg = (beta, theta, kind, alpha, reset, steps)
+            return spikes, post
         # membrane before reset: kept for every step only when a backward pass will need it
         u_all = torch.empty_like(cur) if training else torch.empty_like(cur[:1]).expand_as(cur)
         spikes = torch.empty_like(cur)
@@ -73,6 +82,21 @@ class _LIFScan(torch.autograd.Function):
     def backward(ctx, g_spikes, g_u_last):  # type: ignore[override]
         u_all, spikes = ctx.saved_tensors
         beta, theta, kind, alpha, reset, steps = ctx.cfg
+        ext = _fused(u_all)
+        if ext is not None:  # surrogate and reverse scan fused in one pass
+            g_last = g_u_last if g_u_last is not None else torch.zeros_like(u_all[0])
+            g_cur = ext.lif_backward(
+                g_spikes.contiguous(),
+                u_all,
+                spikes,
+                g_last.contiguous(),
+                beta,
+                theta,
+                reset == "subtract",
+                SURROGATES.index(kind),
+                alpha,
+            )
+            return g_cur, g_cur[0] * beta, None, None, None, None, None
         a = g_spikes * surrogate_grad(u_all - theta, kind, alpha)  # [T, B, H]
         g_cur = torch.empty_like(a)
         g = g_u_last if g_u_last is not None else torch.zeros_like(a[0])
@@ -88,6 +112,15 @@ class _LIFScan(torch.autograd.Function):
                 scale = carry[t] if t < steps - 1 else keep[t]
                 g = torch.addcmul(a[t], g, scale, out=g_cur[t])
         return g_cur, g_cur[0] * beta, None, None, None, None, None
+
+
+def _fused(x: torch.Tensor):
+    """The compiled recurrence for float32 CPU tensors, else None (pure torch)."""
+    if x.dtype != torch.float32 or x.device.type != "cpu":
+        return None
+    from ._lif_kernel import kernel
+
+    return kernel()
 
 
 def lif_scan_reference(cur, u0, beta, theta, reset="subtract"):

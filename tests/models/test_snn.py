@@ -110,3 +110,30 @@ def test_bad_arguments():
         SNNClassifier(2, 2, 2, readout="last")
     with pytest.raises(ValueError, match=r"\[T, batch, 3\]"):
         LIFLayer(3, 2)(torch.zeros(5, 4))
+
+
+@pytest.mark.parametrize("reset", ["subtract", "zero"])
+@pytest.mark.parametrize("kind", ["fast_sigmoid", "arctan"])
+def test_fused_kernel_equals_pure_torch(monkeypatch, reset, kind):
+    import tactilesnn.models._lif_kernel as lk
+
+    if lk.kernel() is None:
+        pytest.skip("no compiler here: only the pure-torch path exists")
+    torch.manual_seed(2)
+    cur = torch.randn(120, 4, 33) * 0.5 + 0.25
+    u0 = torch.randn(4, 33) * 0.3
+    w = torch.randn(120, 4, 33)
+
+    def run():
+        c, u = cur.clone().requires_grad_(), u0.clone().requires_grad_()
+        s, last = _LIFScan.apply(c, u, 0.93, 1.0, reset, kind, 7.0)
+        ((s * w).sum() + last.sum()).backward()
+        return s.detach(), last.detach(), c.grad, u.grad
+
+    fused = run()
+    monkeypatch.setattr(lk, "_kernel", None)
+    plain = run()
+    assert torch.equal(fused[0], plain[0])  # same spikes
+    torch.testing.assert_close(fused[1], plain[1], atol=1e-5, rtol=1e-5)  # FMA rounding only
+    torch.testing.assert_close(fused[2], plain[2], atol=1e-4, rtol=1e-4)  # f32 scan order
+    torch.testing.assert_close(fused[3], plain[3], atol=1e-4, rtol=1e-4)

@@ -1,0 +1,121 @@
+"""Fused LIF recurrence in C++ (float32, CPU), built once with the machine's compiler.
+
+The pure-torch recurrence in :mod:`tactilesnn.models.snn` launches three kernels per time step;
+for small layers the launches, not the flops, dominate. This extension runs the whole time loop in
+one call, parallel over neurons. It is compiled on first use with ``torch.utils.cpp_extension``
+(cached under ``~/.cache/torch_extensions``); if the build is impossible (no compiler, no ninja) or
+``TACTILESNN_NO_EXT=1`` is set, :func:`kernel` returns None and the pure-torch path is used. Both
+paths give identical spikes (tested).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+
+log = logging.getLogger("tactilesnn")
+
+_SOURCE = r"""
+#include <torch/extension.h>
+#include <ATen/Parallel.h>
+
+std::vector<torch::Tensor> lif_forward(torch::Tensor cur, torch::Tensor u0, double beta,
+                                       double theta, bool subtract, bool save) {
+  TORCH_CHECK(cur.scalar_type() == torch::kFloat32 && cur.is_contiguous(), "cur: contiguous f32");
+  const int64_t T = cur.size(0);
+  const int64_t N = T ? cur.numel() / T : 0;
+  auto spikes = torch::empty_like(cur);
+  auto u_all = save ? torch::empty_like(cur) : torch::empty({0}, cur.options());
+  auto post = u0.contiguous().clone();
+  const float* c = cur.data_ptr<float>();
+  float* s = spikes.data_ptr<float>();
+  float* p = post.data_ptr<float>();
+  float* ua = save ? u_all.data_ptr<float>() : nullptr;
+  const float b = (float)beta, th = (float)theta;
+  at::parallel_for(0, N, 1024, [&](int64_t lo, int64_t hi) {
+    for (int64_t t = 0; t < T; ++t) {
+      const float* ct = c + t * N;
+      float* st = s + t * N;
+      for (int64_t i = lo; i < hi; ++i) {
+        const float u = b * p[i] + ct[i];
+        if (ua) ua[t * N + i] = u;
+        const float sp = u >= th ? 1.f : 0.f;
+        st[i] = sp;
+        p[i] = subtract ? u - sp * th : (sp > 0.f ? 0.f : u);
+      }
+    }
+  });
+  return {spikes, post, u_all};
+}
+
+torch::Tensor lif_backward(torch::Tensor g_spikes, torch::Tensor u_all, torch::Tensor spikes,
+                           torch::Tensor g_last, double beta, double theta, bool subtract,
+                           int64_t kind, double alpha) {
+  // a[t] = g_s[t] * surrogate'(u[t] - theta) (kind 0: fast sigmoid, 1: arctan);
+  // g[t] = a[t] + carried; carried = g_last (t = T-1) or beta * g[t+1], gated by (1 - s[t])
+  // for a reset to zero
+  const int64_t T = g_spikes.size(0);
+  const int64_t N = T ? g_spikes.numel() / T : 0;
+  auto g = torch::empty_like(g_spikes);
+  const float* pgs = g_spikes.data_ptr<float>();
+  const float* pu = u_all.data_ptr<float>();
+  const float* ps = spikes.data_ptr<float>();
+  const float* gl = g_last.data_ptr<float>();
+  float* pg = g.data_ptr<float>();
+  const float b = (float)beta, th = (float)theta, al = (float)alpha;
+  const float half_pi_al = 1.5707963267948966f * al;
+  at::parallel_for(0, N, 1024, [&](int64_t lo, int64_t hi) {
+    std::vector<float> carry(gl + lo, gl + hi);  // time outer, neurons inner: contiguous rows
+    for (int64_t t = T - 1; t >= 0; --t) {
+      const float* gst = pgs + t * N;
+      const float* ut = pu + t * N;
+      const float* st = ps + t * N;
+      float* gt = pg + t * N;
+      for (int64_t i = lo; i < hi; ++i) {
+        const float x = ut[i] - th;
+        float sg;
+        if (kind == 0) {
+          const float d = al * (x < 0.f ? -x : x) + 1.f;
+          sg = 1.f / (d * d);
+        } else {
+          const float z = half_pi_al * x;
+          sg = 0.5f * al / (1.f + z * z);
+        }
+        const float keep = subtract ? 1.f : 1.f - st[i];
+        const float v = gst[i] * sg + carry[i - lo] * keep;
+        gt[i] = v;
+        carry[i - lo] = b * v;
+      }
+    }
+  });
+  return g;
+}
+"""
+
+_kernel = None
+_tried = False
+
+
+def kernel():
+    """The compiled module, or None when unavailable (the caller falls back to pure torch)."""
+    global _kernel, _tried
+    if _tried:
+        return _kernel
+    _tried = True
+    if os.environ.get("TACTILESNN_NO_EXT"):
+        return None
+    try:
+        from torch.utils.cpp_extension import load_inline
+
+        _kernel = load_inline(
+            name="tactilesnn_lif_v3",
+            cpp_sources=_SOURCE,
+            functions=["lif_forward", "lif_backward"],
+            extra_cflags=["-O3", "-fopenmp"],
+            extra_ldflags=["-fopenmp"],
+            verbose=False,
+        )
+    except Exception as e:  # no compiler / ninja / headers: pure torch still works
+        log.warning("fused LIF kernel unavailable (%s); using the pure-torch recurrence", e)
+        _kernel = None
+    return _kernel
