@@ -8,6 +8,8 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q -c constraints.txt -e '.[dev]'
+	# build the fused LIF kernel now (falls back to pure torch if the machine cannot compile)
+	$(BIN)/python -c "from tactilesnn.models._lif_kernel import kernel; print('fused LIF kernel:', 'built' if kernel() else 'unavailable, using pure torch')"
 	touch $(STAMP)
 
 install: $(STAMP)
