@@ -1,6 +1,7 @@
 """Training runs: resume after an interruption, TOML configs, real recordings (--data)."""
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
