@@ -1,7 +1,6 @@
 """Training runs: resume after an interruption, TOML configs, real recordings (--data)."""
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
