@@ -60,7 +60,7 @@ class PipelineConfig:
     tau_ms: float = 2000.0  # long membrane memory: integrates the whole 500 ms window
     tau_s_ms: float = 50.0
     theta: float = 1.0
-    lr: float = 0.002
+    lr: float = 0.005  # seed 001 lambda
     momentum: float = 0.0
     margin: float = 0.2
     lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
