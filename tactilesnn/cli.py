@@ -176,10 +176,51 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders", "snn")
+def cmd_export(args: argparse.Namespace) -> int:
+    from .datasets_synth import get_task
+    from .export import data_hash, export_pipeline
+    from .training import load_data_file, load_run
+
+    pipe, cfg = load_run(Path(args.run_dir))
+    if cfg.get("data"):
+        _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
+    else:
+        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
+    report = export_pipeline(
+        pipe,
+        Path(args.out),
+        test.X,
+        metadata={"training_data_sha256": data_hash(cfg), "run": str(args.run_dir)},
+        overwrite=args.overwrite,
+    )
+    print(
+        f"exported {args.out}: {report['nodes']} nodes; on {report['n_checked']} test windows "
+        f"onnxruntime vs torch max score difference {report['max_score_diff']:.2e}, "
+        f"predictions agree {100 * report['prediction_agreement']:.2f} %"
+    )
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    from .service.app import serve
+
+    serve(args.model, host=args.host, port=args.port, threads=args.threads)
+    return 0
+
+
+BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name == "serve":
+        from .bench import serve as bench_serve
+
+        if not args.model:
+            raise ValueError("bench serve needs --model model.onnx")
+        res = bench_serve.run(args.model, clients=args.clients, seconds=args.seconds)
+        if args.out:
+            _write_json(Path(args.out) / "serve.json", res)
+        return 0
     if args.name == "snn":
         from .bench import snn
 
@@ -238,12 +279,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
 
+    p = sub.add_parser("export", help="export a run folder to one ONNX graph (window -> scores)")
+    p.add_argument("run_dir")
+    p.add_argument("--out", required=True, help="model.onnx to write")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("serve", help="HTTP inference service (onnxruntime + numpy only)")
+    p.add_argument("model")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
+    p.set_defaults(func=cmd_serve)
+
     p = sub.add_parser("bench", help="benchmarks")
     p.add_argument("name", choices=BENCHMARKS)
     p.add_argument("--seeds", type=int, default=5, help="gwt-vs-stft: dataset/training seeds")
     p.add_argument("--out", help="output folder")
     p.add_argument("--repeats", type=int, default=7, help="encoders: timed runs per case")
     p.add_argument("--sparse", action="store_true", help="encoders: activity-gate benchmark")
+    p.add_argument("--model", help="serve: model.onnx to load-test")
+    p.add_argument("--clients", type=int, default=8, help="serve: concurrent clients")
+    p.add_argument("--seconds", type=float, default=10.0, help="serve: duration per case")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--epochs", type=int, default=PipelineConfig().epochs)
     p.add_argument("--difficulty", type=float, default=1.0)

@@ -99,13 +99,13 @@ class Tempotron(nn.Module):
                 f"expected spike times [batch, {self.n_inputs}] or [batch, {self.n_inputs}, k], "
                 f"got shape {tuple(spike_times.shape)}"
             )
-        if torch.isnan(spike_times).any():
+        if not torch.jit.is_tracing() and torch.isnan(spike_times).any():
             raise ValueError("spike times contain NaN; use +inf for 'no spike'")
         b, n, k = spike_times.shape
         t = spike_times.reshape(b, n * k).to(self.weight.dtype)
         valid = torch.isfinite(t) & (t >= 0) & (t <= self.duration_ms)
         t = torch.where(valid, t, torch.full_like(t, self.duration_ms))
-        w = self.weight.repeat_interleave(k, dim=1)  # [C, M]
+        w = self.weight if k == 1 else self.weight.repeat_interleave(k, dim=1)  # [C, M]
         w = torch.where(valid.unsqueeze(1), w.unsqueeze(0), torch.zeros(()))  # [B, C, M]
         return t, w, valid
 
@@ -133,7 +133,8 @@ class Tempotron(nn.Module):
         a = torch.einsum("bkj,bcj->bck", e_m, w)  # rescaled state just after spike k
         b = torch.einsum("bkj,bcj->bck", e_s, w)
         v_at = self.v0 * (a - b)
-        gap = torch.diff(t, dim=1, append=t[:, -1:]).unsqueeze(1)  # interval after spike k
+        # interval after spike k (the sentinel's is 0); slicing rather than diff exports to ONNX
+        gap = torch.cat([t[:, 1:] - t[:, :-1], torch.zeros_like(t[:, :1])], dim=1).unsqueeze(1)
         # interior maxima, in the rescaled (overflow-free) form
         tau, tau_s = self.tau_ms, self.tau_s_ms
         pos = (a > 0) & (b > 0)

@@ -1,0 +1,1 @@
+"""Inference without torch: an onnxruntime session wrapper, an HTTP service and its client."""

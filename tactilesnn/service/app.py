@@ -1,0 +1,238 @@
+"""HTTP inference service over an exported pipeline (Starlette on uvicorn).
+
+Endpoints:
+  ``POST /v1/classify``  body JSON ``{"window": [[...]] | "windows": [[[...]]], "fs_hz": 200}`` or
+                         a binary ``.npy`` (``Content-Type: application/x-npy``, header ``X-Fs-Hz``
+                         optional) of ``[channels, samples]`` or ``[batch, channels, samples]``;
+                         -> ``{"classes", "class_index", "scores"}``.
+  ``POST /v1/stream/{id}`` JSON ``{"chunk": [[...]]}`` (``[channels, n]``) or ``.npy``: appended to
+                         the stream's buffer; every completed window (hop = window / 2) is
+                         classified, SNN state carried -> ``{"results": [...]}``.
+  ``DELETE /v1/stream/{id}``, ``GET /v1/model`` (metadata), ``GET /healthz``.
+
+Bad input gets a 4xx with a specific message (400 malformed, 413 too large, 415 content type,
+422 wrong shape / dtype / rate / NaN, 429 too many streams). Concurrent single requests are
+micro-batched: requests arriving within ``batch_window_ms`` run as one onnxruntime call. uvicorn
+finishes in-flight requests on SIGTERM/SIGINT (graceful shutdown).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import time
+from collections import OrderedDict
+from contextlib import asynccontextmanager
+
+import numpy as np
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import JSONResponse
+from starlette.routing import Route
+
+from .runtime import InputError, PipelineSession, StreamState
+
+MAX_BODY_BYTES = 8 << 20
+MAX_STREAMS = 256
+
+
+class HTTPError(Exception):
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status, self.message = status, message
+
+
+class MicroBatcher:
+    """Collects concurrent window batches and runs them in one session call."""
+
+    def __init__(self, session: PipelineSession, window_ms: float = 2.0, max_batch: int = 256):
+        self.session, self.window_s, self.max_batch = session, window_ms / 1000.0, max_batch
+        self.queue: asyncio.Queue | None = None
+        self.task: asyncio.Task | None = None
+        self.calls = 0
+        self.windows = 0
+
+    async def start(self) -> None:
+        self.queue = asyncio.Queue()
+        self.task = asyncio.create_task(self._loop())
+
+    async def stop(self) -> None:
+        if self.task:
+            self.task.cancel()
+
+    async def submit(self, x: np.ndarray) -> np.ndarray:
+        fut = asyncio.get_running_loop().create_future()
+        await self.queue.put((x, fut))
+        return await fut
+
+    async def _loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            items = [await self.queue.get()]
+            deadline = time.monotonic() + self.window_s
+            size = len(items[0][0])
+            while size < self.max_batch:
+                timeout = deadline - time.monotonic()
+                if timeout <= 0:
+                    break
+                try:
+                    item = await asyncio.wait_for(self.queue.get(), timeout)
+                except asyncio.TimeoutError:
+                    break
+                items.append(item)
+                size += len(item[0])
+            batch = np.concatenate([x for x, _ in items])
+            try:
+                scores = await loop.run_in_executor(None, self.session.run, batch)
+            except Exception as e:  # the model failed: fail every request of the batch
+                for _, fut in items:
+                    if not fut.done():
+                        fut.set_exception(e)
+                continue
+            self.calls += 1
+            self.windows += len(batch)
+            start = 0
+            for x, fut in items:
+                if not fut.done():
+                    fut.set_result(scores[start : start + len(x)])
+                start += len(x)
+
+
+async def _read_body(request: Request, limit: int) -> bytes:
+    declared = request.headers.get("content-length")
+    if declared is not None and declared.isdigit() and int(declared) > limit:
+        raise HTTPError(413, f"request body of {declared} bytes exceeds the {limit}-byte limit")
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise HTTPError(413, f"request body exceeds the {limit}-byte limit")
+    if not body:
+        raise HTTPError(400, "empty request body")
+    return bytes(body)
+
+
+def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
+    if ctype.startswith("application/x-npy") or ctype.startswith("application/octet-stream"):
+        try:
+            arr = np.load(io.BytesIO(body), allow_pickle=False)
+        except Exception as e:
+            raise HTTPError(400, f"body is not a valid .npy array: {e}") from e
+        return arr, None
+    if ctype.startswith("application/json") or not ctype:
+        try:
+            doc = json.loads(body)
+        except json.JSONDecodeError as e:
+            raise HTTPError(400, f"malformed JSON: {e}") from e
+        if not isinstance(doc, dict):
+            raise HTTPError(400, "JSON body must be an object")
+        keys = [k for k in (key, key + "s") if k in doc]
+        if not keys:
+            raise HTTPError(422, f"JSON body needs a {key!r} (or {key + 's'!r}) field")
+        fs = doc.get("fs_hz")
+        if fs is not None and not isinstance(fs, int | float):
+            raise HTTPError(422, "fs_hz must be a number")
+        return doc[keys[0]], fs
+    raise HTTPError(415, f"unsupported content type {ctype!r}; use application/json or .npy")
+
+
+def create_app(
+    model_path: str,
+    threads: int = 0,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    batch_window_ms: float = 2.0,
+) -> Starlette:
+    session = PipelineSession(model_path, threads=threads)
+    batcher = MicroBatcher(session, batch_window_ms)
+    streams: OrderedDict[str, StreamState] = OrderedDict()
+    stream_lock = asyncio.Lock()
+
+    async def classify(request: Request):
+        body = await _read_body(request, max_body_bytes)
+        data, fs = _parse(body, request.headers.get("content-type", ""), "window")
+        if fs is None and request.headers.get("x-fs-hz"):
+            try:
+                fs = float(request.headers["x-fs-hz"])
+            except ValueError as e:
+                raise HTTPError(422, "X-Fs-Hz must be a number") from e
+        x = session.validate(data, fs)
+        scores = await batcher.submit(x)
+        idx = scores.argmax(1)
+        return JSONResponse(
+            {
+                "classes": [session.class_names[i] for i in idx],
+                "class_index": idx.tolist(),
+                "scores": scores.tolist(),
+            }
+        )
+
+    async def stream(request: Request):
+        sid = request.path_params["sid"]
+        if request.method == "DELETE":
+            async with stream_lock:
+                existed = streams.pop(sid, None) is not None
+            return JSONResponse({"deleted": existed}, status_code=200 if existed else 404)
+        body = await _read_body(request, max_body_bytes)
+        data, fs = _parse(body, request.headers.get("content-type", ""), "chunk")
+        if fs is not None and abs(float(fs) - session.fs_hz) > 1e-6 * session.fs_hz:
+            raise HTTPError(
+                422, f"sampling rate {fs} Hz does not match the model's {session.fs_hz}"
+            )
+        async with stream_lock:
+            state = streams.get(sid)
+            if state is None:
+                if len(streams) >= MAX_STREAMS:
+                    raise HTTPError(
+                        429, f"too many open streams ({MAX_STREAMS}); DELETE unused ones"
+                    )
+                state = streams[sid] = StreamState()
+            streams.move_to_end(sid)
+            loop = asyncio.get_running_loop()
+            results = await loop.run_in_executor(None, session.feed_stream, state, data)
+        return JSONResponse({"stream": sid, "results": results})
+
+    async def model(request: Request):
+        return JSONResponse(session.info())
+
+    async def health(request: Request):
+        return JSONResponse({"status": "ok", "batches": batcher.calls, "windows": batcher.windows})
+
+    @asynccontextmanager
+    async def lifespan(app):
+        await batcher.start()
+        yield
+        await batcher.stop()
+
+    async def on_error(request: Request, exc: Exception):
+        if isinstance(exc, HTTPError):
+            return JSONResponse({"error": exc.message}, status_code=exc.status)
+        if isinstance(exc, InputError):
+            return JSONResponse({"error": str(exc)}, status_code=422)
+        return JSONResponse({"error": f"internal error: {type(exc).__name__}"}, status_code=500)
+
+    app = Starlette(
+        routes=[
+            Route("/v1/classify", classify, methods=["POST"]),
+            Route("/v1/stream/{sid}", stream, methods=["POST", "DELETE"]),
+            Route("/v1/model", model, methods=["GET"]),
+            Route("/healthz", health, methods=["GET"]),
+        ],
+        exception_handlers={HTTPError: on_error, InputError: on_error, Exception: on_error},
+        lifespan=lifespan,
+    )
+    app.state.session = session
+    app.state.batcher = batcher
+    return app
+
+
+def serve(model_path: str, host: str = "127.0.0.1", port: int = 8000, threads: int = 0) -> None:
+    import uvicorn
+
+    uvicorn.run(
+        create_app(model_path, threads=threads),
+        host=host,
+        port=port,
+        log_level="info",
+        timeout_graceful_shutdown=10,
+    )

@@ -1,0 +1,148 @@
+"""In-process inference on an exported pipeline: imports numpy and onnxruntime only.
+
+:class:`PipelineSession` validates windows (shape, dtype, NaN/Inf, sampling rate) with specific
+errors, runs the graph and returns class names, indices and scores. SNN graphs carry state: pass a
+``stream`` (a :class:`StreamState`) to continue it across consecutive windows.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+import onnxruntime as ort
+
+
+class InputError(ValueError):
+    """The request's data is unusable (wrong shape, dtype, rate, NaN...): a client error."""
+
+
+@dataclass
+class StreamState:
+    """Per-stream SNN state and the samples not yet in a complete window."""
+
+    h: np.ndarray | None = None
+    o: np.ndarray | None = None
+    buffer: np.ndarray | None = None
+    windows_done: int = 0
+    meta: dict = field(default_factory=dict)
+
+
+class PipelineSession:
+    """onnxruntime session over an exported ``model.onnx`` with validation and metadata."""
+
+    def __init__(self, path: str, threads: int = 0) -> None:
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        meta = self.session.get_modelmeta().custom_metadata_map
+        try:
+            self.fs_hz = float(meta["fs_hz"])
+            self.window = int(meta["window_samples"])
+            self.channels = json.loads(meta["channels"])
+            self.class_names = json.loads(meta["class_names"])
+        except (KeyError, ValueError) as e:
+            raise ValueError(f"{path} is not a tactilesnn export (metadata: {e})") from e
+        self.metadata = dict(meta)
+        self.inputs = {i.name: i for i in self.session.get_inputs()}
+        self.stateful = "h_state" in self.inputs
+        if self.stateful:
+            self.h_units = self.inputs["h_state"].shape[1]
+            self.o_units = self.inputs["o_state"].shape[1]
+
+    def info(self) -> dict:
+        return {
+            "fs_hz": self.fs_hz,
+            "window_samples": self.window,
+            "channels": self.channels,
+            "class_names": self.class_names,
+            "stateful": self.stateful,
+            "metadata": self.metadata,
+        }
+
+    def validate(self, x: object, fs_hz: float | None = None) -> np.ndarray:
+        """-> float32 ``[batch, channels, window]``; a single ``[channels, window]`` is batched."""
+        if fs_hz is not None and abs(float(fs_hz) - self.fs_hz) > 1e-6 * self.fs_hz:
+            raise InputError(f"sampling rate {fs_hz} Hz does not match the model's {self.fs_hz} Hz")
+        try:
+            arr = np.asarray(x)
+        except Exception as e:  # ragged nested lists
+            raise InputError(f"window is not a rectangular array: {e}") from e
+        if arr.dtype == object or arr.dtype.kind not in "fiu":
+            raise InputError(f"window must be numeric, got dtype {arr.dtype}")
+        if arr.ndim == 2:
+            arr = arr[None]
+        want = (len(self.channels), self.window)
+        if arr.ndim != 3 or arr.shape[1:] != want:
+            raise InputError(
+                f"window must be [{want[0]} channels, {want[1]} samples] or a batch of them, "
+                f"got shape {list(arr.shape)}"
+            )
+        if arr.shape[0] == 0:
+            raise InputError("empty batch")
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            b, c, s = (int(i) for i in np.argwhere(bad)[0])
+            raise InputError(f"non-finite value at batch {b}, channel {c}, sample {s}")
+        return np.ascontiguousarray(arr, dtype=np.float32)
+
+    def run(self, x: np.ndarray, state: StreamState | None = None) -> np.ndarray:
+        """Scores ``[batch, classes]`` for validated windows (updates ``state`` if given)."""
+        feeds = {"window": x}
+        if self.stateful:
+            n = len(x)
+            zeros_h = np.zeros((n, self.h_units), np.float32)
+            zeros_o = np.zeros((n, self.o_units), np.float32)
+            feeds["h_state"] = state.h if state is not None and state.h is not None else zeros_h
+            feeds["o_state"] = state.o if state is not None and state.o is not None else zeros_o
+            scores, h, o = self.session.run(["scores", "h_state_out", "o_state_out"], feeds)
+            if state is not None:
+                state.h, state.o = h, o
+            return scores
+        return self.session.run(["scores"], feeds)[0]
+
+    def classify(self, x: object, fs_hz: float | None = None) -> dict:
+        arr = self.validate(x, fs_hz)
+        scores = self.run(arr)
+        idx = scores.argmax(1)
+        return {
+            "classes": [self.class_names[i] for i in idx],
+            "class_index": idx.tolist(),
+            "scores": scores.tolist(),
+        }
+
+    def feed_stream(self, state: StreamState, chunk: object, hop: int | None = None) -> list[dict]:
+        """Append ``[channels, n]`` samples; classify every complete window (hop = window / 2).
+
+        SNN state is carried from window to window; returns one result per completed window.
+        """
+        hop = hop or self.window // 2
+        try:
+            arr = np.asarray(chunk, dtype=np.float32)
+        except (TypeError, ValueError) as e:
+            raise InputError(f"chunk is not a numeric array: {e}") from e
+        if arr.ndim != 2 or arr.shape[0] != len(self.channels):
+            raise InputError(
+                f"chunk must be [{len(self.channels)} channels, samples], got {list(arr.shape)}"
+            )
+        if not np.isfinite(arr).all():
+            c, s = (int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+            raise InputError(f"non-finite value at channel {c}, sample {s}")
+        buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
+        results = []
+        while buf.shape[1] >= self.window:
+            scores = self.run(buf[None, :, : self.window], state if self.stateful else None)[0]
+            k = int(scores.argmax())
+            results.append(
+                {
+                    "window_index": state.windows_done,
+                    "class": self.class_names[k],
+                    "scores": scores.tolist(),
+                }
+            )
+            state.windows_done += 1
+            buf = buf[:, hop:]
+        state.buffer = buf
+        return results

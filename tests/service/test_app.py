@@ -1,0 +1,106 @@
+"""HTTP service: classify (JSON / .npy, single / batched), stream, metadata, and bad input."""
+
+import io
+import sys
+
+import numpy as np
+import pytest
+from starlette.testclient import TestClient
+
+from tactilesnn.datasets_synth import HookLoopTask
+from tactilesnn.export import export_pipeline
+from tactilesnn.pipeline import PipelineConfig
+from tactilesnn.service.app import create_app
+from tactilesnn.training import load_run, train_run
+
+SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("svc")
+    run, _ = train_run("hook_loop", SMALL, PipelineConfig(epochs=2), tmp / "r", progress=False)
+    pipe, _ = load_run(run)
+    test = HookLoopTask(**SMALL).build()[1]
+    export_pipeline(pipe, tmp / "m.onnx", test.X[:32])
+    app = create_app(str(tmp / "m.onnx"), max_body_bytes=200_000)
+    with TestClient(app) as client:
+        yield client, pipe, test
+
+
+def npy(arr):
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(arr, dtype=np.float32), allow_pickle=False)
+    return buf.getvalue()
+
+
+def test_classify_json_npy_single_and_batched(served):
+    client, pipe, test = served
+    ref = pipe.predict(test.X[:5])
+    r = client.post("/v1/classify", json={"window": test.X[0].tolist(), "fs_hz": 200})
+    assert r.status_code == 200 and r.json()["class_index"] == [int(ref[0])]
+    r = client.post("/v1/classify", json={"windows": test.X[:5].tolist()})
+    assert r.json()["class_index"] == ref.tolist()
+    r = client.post(
+        "/v1/classify", content=npy(test.X[:5]), headers={"content-type": "application/x-npy"}
+    )
+    assert r.json()["classes"] == [pipe.class_names[i] for i in ref]
+    assert client.get("/healthz").json()["status"] == "ok"
+    info = client.get("/v1/model").json()
+    assert info["fs_hz"] == 200.0 and info["window_samples"] == 100
+
+
+@pytest.mark.parametrize(
+    ("body", "ctype", "status", "message"),
+    [
+        (b"{not json", "application/json", 400, "malformed JSON"),
+        (b"", "application/json", 400, "empty"),
+        (b'{"window": [[1, 2], [3, 4]]}', "application/json", 422, "channels"),
+        (b'{"window": [["a"]]}', "application/json", 422, "numeric"),
+        (b'{"wave": []}', "application/json", 422, "window"),
+        (b'{"window": [[1]], "fs_hz": 1000}', "application/json", 422, "sampling rate"),
+        (b"\x93NUMPY garbage", "application/x-npy", 400, ".npy"),
+        (b"hello", "text/plain", 415, "content type"),
+        (b"x" * 300_000, "application/json", 413, "limit"),
+    ],
+)
+def test_bad_requests_get_specific_4xx(served, body, ctype, status, message):
+    client, _, _ = served
+    r = client.post("/v1/classify", content=body, headers={"content-type": ctype})
+    assert r.status_code == status
+    assert message in r.json()["error"]
+
+
+def test_nan_names_its_position(served):
+    client, _, test = served
+    x = test.X[:2].copy()
+    x[1, 1, 17] = np.nan
+    r = client.post("/v1/classify", content=npy(x), headers={"content-type": "application/x-npy"})
+    assert r.status_code == 422 and "batch 1, channel 1, sample 17" in r.json()["error"]
+
+
+def test_streaming_endpoint(served):
+    client, pipe, test = served
+    stream = np.concatenate(list(test.X[:3]), axis=1)  # 300 samples
+    results = []
+    for chunk in np.array_split(stream, 4, axis=1):
+        r = client.post(
+            "/v1/stream/s1", content=npy(chunk), headers={"content-type": "application/x-npy"}
+        )
+        assert r.status_code == 200
+        results += r.json()["results"]
+    assert [r["window_index"] for r in results] == list(range(5))  # hop 50 over 300 samples
+    assert results[0]["class"] == pipe.class_names[int(pipe.predict(test.X[:1])[0])]
+    assert client.delete("/v1/stream/s1").status_code == 200
+    assert client.delete("/v1/stream/s1").status_code == 404
+
+
+def test_inference_path_imports_no_torch(tmp_path, served):
+    code = (
+        "import sys; from tactilesnn.service import runtime, app, client; "
+        "print('torch' in sys.modules)"
+    )
+    import subprocess
+
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

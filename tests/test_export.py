@@ -1,0 +1,77 @@
+"""Whole-pipeline ONNX export: parity with torch for every encoder x model, metadata, state."""
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+from tactilesnn.cli import main
+from tactilesnn.datasets_synth import HookLoopTask
+from tactilesnn.export import export_pipeline
+from tactilesnn.pipeline import PipelineConfig
+from tactilesnn.service.runtime import PipelineSession, StreamState
+from tactilesnn.training import load_run, train_run
+
+SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+
+
+@pytest.fixture(scope="module")
+def test_windows():
+    return HookLoopTask(**SMALL).build()[1]
+
+
+@pytest.mark.parametrize("encoder", ["gwt", "stft"])
+@pytest.mark.parametrize("model", ["tempotron", "snn"])
+def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model):
+    cfg = PipelineConfig(encoder=encoder, model=model, epochs=2, snn_hidden=16)
+    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "run", progress=False)
+    out = tmp_path / "m.onnx"
+    assert main(["export", str(run), "--out", str(out), "--quiet"]) == 0
+    onnx.checker.check_model(str(out))
+    pipe, _ = load_run(run)
+    sess = PipelineSession(str(out))
+    got = sess.run(sess.validate(test_windows.X))
+    ref = pipe.scores(pipe.encode(test_windows.X)).numpy()
+    assert np.array_equal(got.argmax(1), ref.argmax(1))  # same predictions
+    assert np.abs(got - ref).max() <= 1e-4
+    meta = sess.metadata
+    assert json.loads(meta["class_names"]) == ["hook", "loop"] and float(meta["fs_hz"]) == 200.0
+    assert len(meta["training_data_sha256"]) == 64 and meta["encoder"] == encoder
+    with pytest.raises(FileExistsError):
+        export_pipeline(pipe, out, test_windows.X[:2])
+
+
+def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
+    nodes = []
+    for dt in (10.0, 2.5):  # 51 vs 201 time steps
+        cfg = PipelineConfig(model="snn", epochs=1, snn_hidden=8, snn_dt_ms=dt)
+        run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / f"r{dt}", progress=False)
+        pipe, _ = load_run(run)
+        rep = export_pipeline(pipe, tmp_path / f"m{dt}.onnx", test_windows.X[:16])
+        nodes.append(rep["nodes"])
+    assert nodes[0] == nodes[1] < 200
+
+
+def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
+    cfg = PipelineConfig(model="snn", epochs=1, snn_hidden=8)
+    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:8])
+    sess = PipelineSession(str(tmp_path / "m.onnx"))
+    assert sess.stateful
+    stream = np.concatenate(list(test_windows.X[:6]), axis=1)  # 6 windows back to back
+    st = StreamState()
+    out = []
+    for chunk in np.array_split(stream, 7, axis=1):  # arbitrary chunk boundaries
+        out += sess.feed_stream(st, chunk, hop=100)
+    assert [r["window_index"] for r in out] == list(range(6))
+    assert st.h is not None and np.abs(st.h).sum() >= 0
+
+
+def test_lif_encoder_export_is_refused_clearly(tmp_path, test_windows):
+    cfg = PipelineConfig(encoder="lif", epochs=1, tau_ms=200.0)
+    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    with pytest.raises(ValueError, match="not supported"):
+        export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:4])
