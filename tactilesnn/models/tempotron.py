@@ -90,7 +90,9 @@ class Tempotron(nn.Module):
         k = self.v0 * (torch.exp(-sc / self.tau_ms) - torch.exp(-sc / self.tau_s_ms))
         return torch.where(ok, k, torch.zeros_like(k))
 
-    def _events(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _events(
+        self, spike_times: torch.Tensor, weight: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Flatten to events: times ``[B, M]`` (invalid -> duration), weights ``[B, C, M]``, valid."""
         if spike_times.ndim == 2:
             spike_times = spike_times.unsqueeze(-1)
@@ -105,7 +107,8 @@ class Tempotron(nn.Module):
         t = spike_times.reshape(b, n * k).to(self.weight.dtype)
         valid = torch.isfinite(t) & (t >= 0) & (t <= self.duration_ms)
         t = torch.where(valid, t, torch.full_like(t, self.duration_ms))
-        w = self.weight if k == 1 else self.weight.repeat_interleave(k, dim=1)  # [C, M]
+        weight = self.weight if weight is None else weight
+        w = weight if k == 1 else weight.repeat_interleave(k, dim=1)  # [C, M]
         w = torch.where(valid.unsqueeze(1), w.unsqueeze(0), torch.zeros(()))  # [B, C, M]
         return t, w, valid
 
@@ -116,9 +119,11 @@ class Tempotron(nn.Module):
         return self.v_rest + torch.einsum("bcm,bmt->bct", w, self.kernel(lag))
 
     # ------------------------------------------------------------------ exact maximum
-    def _intervals(self, spike_times: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _intervals(
+        self, spike_times: torch.Tensor, weight: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor]:
         """Sorted events and, per inter-spike interval, the rescaled state and maxima."""
-        t, w, _ = self._events(spike_times)
+        t, w, _ = self._events(spike_times, weight)
         bsz = t.shape[0]
         # a sentinel at the window end makes V(duration) one of the spike-time candidates
         t = torch.cat([t, torch.full((bsz, 1), self.duration_ms, dtype=t.dtype)], dim=1)
@@ -148,7 +153,9 @@ class Tempotron(nn.Module):
 
     def forward(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Exact ``(v_max, t_max)``, each ``[batch, classes]``; t_max in ms."""
-        iv = self._intervals(spike_times)
+        return self._maximum(self._intervals(spike_times))
+
+    def _maximum(self, iv: dict) -> tuple[torch.Tensor, torch.Tensor]:
         v_at, v_int = iv["v_at"], iv["v_int"]
         # the window start comes first so that ties resolve to the earliest time
         cand_v = torch.cat([torch.zeros_like(v_at[..., :1]), v_at, v_int], dim=2)
@@ -235,6 +242,13 @@ class Tempotron(nn.Module):
         fires, over samples x classes) and the predicted classes before the update.
         """
         v_max, t_max = self(spike_times)
+        # a tempotron whose potential never rises above rest has t_max at the window start, where
+        # no input has arrived: the rule would give it no update ever again. Its potentiation is
+        # taken where its inputs coincide most (the maximum of sum |w_i| K(t - t_i)) instead.
+        silent = v_max <= self.v_rest
+        if bool(silent.any()):
+            _, t_coinc = self._maximum(self._intervals(spike_times, self.weight.abs()))
+            t_max = torch.where(silent, t_coinc, t_max)
         thr = self.theta + self.v_rest
         target = nn.functional.one_hot(y, self.n_classes).bool()
         fired = self.fired(v_max)

@@ -167,3 +167,17 @@ def test_early_decision_agrees_when_one_class_dominates():
     times = torch.tensor([[10.0, 11.0, 150.0, 151.0]])  # class 0 fires ~ 15 ms, class 1 later
     cls, t = m.predict_early(times)
     assert int(cls) == 0 and 10 < float(t) < 30
+
+
+def test_a_silenced_tempotron_recovers():
+    # all-negative weights: V never rises above rest, t_max is the window start; the rule must
+    # still potentiate the missed target instead of giving a zero update forever
+    m = Tempotron(3, 1, 100.0, tau_ms=10.0, tau_s_ms=2.5)
+    with torch.no_grad():
+        m.weight.fill_(-1.0)
+    times = torch.tensor([[10.0, 20.0, 30.0]])
+    w0 = m.weight.detach().clone()
+    for _ in range(400):
+        m.rule_update(times, torch.tensor([0]), lr=0.05)
+    assert torch.all(m.weight > w0)
+    assert bool(m.fired(m(times)[0]).all())
