@@ -1,6 +1,7 @@
 """Training runs: resume after an interruption, TOML configs, real recordings (--data)."""
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -12,13 +13,13 @@ from tactilesnn.pipeline import PipelineConfig
 from tactilesnn.runs import load_arrays
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
-ICUB = (
-    Path(__file__).resolve().parents[2]
-    / "shared"
-    / "data"
-    / "braille_icub_abc"
-    / "braille_abc_icub.npz"
-)
+_REL = Path("braille_icub_abc") / "braille_abc_icub.npz"
+_ROOTS = [
+    Path(os.environ.get("TACTILESNN_SHARED_DATA", "/nonexistent")),
+    Path(__file__).resolve().parents[2] / "shared" / "data",  # ../shared/data beside the repo
+    Path("/work/shared/data"),
+]
+ICUB = next((r / _REL for r in _ROOTS if (r / _REL).is_file()), _ROOTS[1] / _REL)
 
 
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
