@@ -51,6 +51,71 @@ class _EncoderGraph(nn.Module):
         return s
 
 
+class _LIFEncoderGraph(nn.Module):
+    """The LIF-population code as a scripted loop (samples x at most k spikes per sample).
+
+    Same arithmetic as :func:`~tactilesnn.encoders.spiking.lif_convert` with subtract reset and
+    threshold 1 (exact crossings inside each held sample); only the first ``k`` spike times of each
+    converter are kept, so at most ``k`` crossings per sample can matter.
+    """
+
+    def __init__(self, pipe: SpikePipeline) -> None:
+        super().__init__()
+        cfg = pipe.config
+        self.register_buffer("channel_idx", torch.as_tensor(pipe.channel_idx, dtype=torch.long))
+        self.register_buffer("ref", pipe.lif_ref.float())
+        thr = np.geomspace(cfg.lif_lo, cfg.lif_hi, cfg.lif_neurons)
+        self.register_buffer("inv_thr", torch.as_tensor(1.0 / thr, dtype=torch.float32))
+        self.k = int(cfg.lif_max_spikes)
+        self.dt = 1000.0 / pipe.fs_hz
+        self.tau = float(cfg.lif_tau_ms)
+        n = cfg.clock_afferents
+        clock = torch.full((n, self.k), float("inf"))
+        clock[:, 0] = torch.arange(n, dtype=torch.float32) * (pipe.duration_ms / max(n, 1))
+        self.register_buffer("clock", clock)
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = torch.index_select(x, 1, self.channel_idx) / self.ref.view(1, -1, 1)
+        drive = (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)  # [N, A, W]
+        n, a = drive.shape[0], drive.shape[1]
+        v = torch.zeros(n, a)
+        count = torch.zeros(n, a)
+        times = torch.full((n, a, self.k), float("inf"))
+        slots = torch.arange(self.k, dtype=torch.float32).view(1, 1, -1)
+        inf = torch.full((n, a), float("inf"))
+        for i in range(drive.shape[2]):
+            vi = drive[:, :, i]
+            rem = torch.full((n, a), self.dt)
+            for _ in range(self.k):
+                above = v >= 1.0
+                ratio = (v - vi) / (1.0 - vi)
+                s = torch.where(
+                    above, torch.zeros_like(v), self.tau * torch.log(ratio.clamp_min(1e-30))
+                )
+                fires = (above | (vi > 1.0)) & (s <= rem) & (rem > 0)
+                s = torch.where(fires, s, inf)
+                t_abs = i * self.dt + (self.dt - rem) + s
+                record = fires & (count < self.k)
+                hit = (slots == count.unsqueeze(-1)) & record.unsqueeze(-1)
+                times = torch.where(hit, t_abs.unsqueeze(-1), times)
+                count = count + fires.to(count.dtype)
+                quiet = (~fires) & (rem > 0)
+                decayed = vi + (v - vi) * torch.exp(-rem / self.tau)
+                v = torch.where(fires, torch.maximum(v, torch.ones_like(v)) - 1.0, v)
+                v = torch.where(quiet, decayed, v)
+                rem = torch.where(fires, rem - s, torch.where(quiet, torch.zeros_like(rem), rem))
+        return torch.cat([times, self.clock.unsqueeze(0).expand(n, -1, -1)], dim=1)
+
+
+class _ModelOnSpikes(nn.Module):
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, spikes: Tensor) -> Tensor:
+        return self.model(spikes)[0]
+
+
 class _TempotronGraph(nn.Module):
     def __init__(self, pipe: SpikePipeline) -> None:
         super().__init__()
@@ -108,9 +173,11 @@ class _SNNGraph(nn.Module):
             self.l2 = _LILoop(m.out.beta)
 
     def forward(self, spikes: Tensor, h: Tensor, o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        bins = torch.floor(spikes / self.dt)  # [B, A]; inf never matches a step
+        if spikes.dim() == 2:
+            spikes = spikes.unsqueeze(-1)
+        bins = torch.floor(spikes / self.dt)  # [B, A, K]; inf never matches a step
         steps = torch.arange(self.steps, dtype=spikes.dtype)
-        raster = (bins.unsqueeze(0) == steps.view(-1, 1, 1)).to(spikes.dtype)  # [T, B, A]
+        raster = (bins.unsqueeze(0) == steps.view(-1, 1, 1, 1)).to(spikes.dtype).sum(-1)
         hs, h_new = self.l1(self.fc1(raster), h)
         os_, o_new = self.l2(self.fc2(hs), o)
         if self.readout == "count":
@@ -152,65 +219,45 @@ def export_pipeline(
     out = Path(out)
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-    if pipe.config.encoder not in ("gwt", "stft"):
-        raise ValueError(
-            f"export of the {pipe.config.encoder!r} encoder is not supported: its LIF converter "
-            "has data-dependent spike counts per sample; use gwt or stft"
-        )
     pipe.model.eval()
     n_ch = len(pipe.channel_names)
     dummy = torch.zeros(2, n_ch, pipe.window)
     with tempfile.TemporaryDirectory() as tmp:
-        enc_path, full_path = Path(tmp) / "enc.onnx", Path(tmp) / "full.onnx"
+        enc_path = Path(tmp) / "enc.onnx"
         batch = {0: "batch"}
-        if pipe.config.model == "tempotron":
+        lif = pipe.config.encoder == "lif"
+        if pipe.config.model == "tempotron" and not lif:
+            full_path = Path(tmp) / "full.onnx"
             _torch_export(
-                _TempotronGraph(pipe),
-                (dummy,),
-                full_path,
-                ["window"],
-                ["scores"],
+                _TempotronGraph(pipe), (dummy,), full_path, ["window"], ["scores"],
                 {"window": batch, "scores": batch},
-            )
+            )  # fmt: skip
             model = onnx.load(str(full_path))
         else:
+            encoder = torch.jit.script(_LIFEncoderGraph(pipe)) if lif else _EncoderGraph(pipe)
             _torch_export(
-                _EncoderGraph(pipe),
-                (dummy,),
-                enc_path,
-                ["window"],
-                ["spikes"],
+                encoder, (dummy,), enc_path, ["window"], ["spikes"],
                 {"window": batch, "spikes": batch},
-            )
-            snn = torch.jit.script(_SNNGraph(pipe))
-            a = pipe.n_afferents
-            hid, ncls = pipe.model.hidden.fc.out_features, len(pipe.class_names)
-            snn_path = Path(tmp) / "snn.onnx"
-            _torch_export(
-                snn,
-                (torch.zeros(2, a), torch.zeros(2, hid), torch.zeros(2, ncls)),
-                snn_path,
-                ["spikes_in", "h_state", "o_state"],
-                ["scores", "h_state_out", "o_state_out"],
-                {
-                    k: batch
-                    for k in (
-                        "spikes_in",
-                        "h_state",
-                        "o_state",
-                        "scores",
-                        "h_state_out",
-                        "o_state_out",
-                    )
-                },
-            )
-            enc = onnx.compose.add_prefix(
-                onnx.load(str(enc_path)), "enc/", rename_inputs=False, rename_outputs=False
-            )
-            snn_m = onnx.compose.add_prefix(
-                onnx.load(str(snn_path)), "snn/", rename_inputs=False, rename_outputs=False
-            )
-            model = onnx.compose.merge_models(enc, snn_m, io_map=[("spikes", "spikes_in")])
+            )  # fmt: skip
+            model_path = Path(tmp) / "model.onnx"
+            shape = (2, pipe.n_afferents, pipe.max_spikes) if lif else (2, pipe.n_afferents)
+            if pipe.config.model == "tempotron":
+                spikes = torch.rand(shape) * pipe.duration_ms
+                _torch_export(
+                    _ModelOnSpikes(pipe.model), (spikes,), model_path, ["spikes_in"], ["scores"],
+                    {"spikes_in": batch, "scores": batch},
+                )  # fmt: skip
+            else:
+                hid, ncls = pipe.model.hidden.fc.out_features, len(pipe.class_names)
+                names_in = ["spikes_in", "h_state", "o_state"]
+                names_out = ["scores", "h_state_out", "o_state_out"]
+                _torch_export(
+                    torch.jit.script(_SNNGraph(pipe)),
+                    (torch.zeros(shape), torch.zeros(2, hid), torch.zeros(2, ncls)),
+                    model_path, names_in, names_out,
+                    {k: batch for k in names_in + names_out},
+                )  # fmt: skip
+            model = _merge(enc_path, model_path)
     meta = {
         "tactilesnn_version": __version__,
         "fs_hz": repr(pipe.fs_hz),
@@ -236,6 +283,17 @@ def export_pipeline(
     report["nodes"] = len(model.graph.node)
     report["path"] = str(out)
     return report
+
+
+def _merge(enc_path: Path, model_path: Path) -> onnx.ModelProto:
+    """Chain the encoder graph (output ``spikes``) into the model graph (input ``spikes_in``)."""
+    enc = onnx.compose.add_prefix(
+        onnx.load(str(enc_path)), "enc/", rename_inputs=False, rename_outputs=False
+    )
+    mod = onnx.compose.add_prefix(
+        onnx.load(str(model_path)), "model/", rename_inputs=False, rename_outputs=False
+    )
+    return onnx.compose.merge_models(enc, mod, io_map=[("spikes", "spikes_in")])
 
 
 def verify(model: onnx.ModelProto, pipe: SpikePipeline, X: np.ndarray) -> dict:
