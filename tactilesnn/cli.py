@@ -198,6 +198,15 @@ def cmd_export(args: argparse.Namespace) -> int:
         f"onnxruntime vs torch max score difference {report['max_score_diff']:.2e}, "
         f"predictions agree {100 * report['prediction_agreement']:.2f} %"
     )
+    if args.quantize:
+        from .export import quantize_int8
+
+        q = quantize_int8(Path(args.out), test.X, test.y, overwrite=args.overwrite)
+        print(
+            f"int8 model {q['path']}: test accuracy {100 * q['int8_accuracy']:.2f} % vs float32 "
+            f"{100 * q['float_accuracy']:.2f} % (change {100 * q['accuracy_change']:+.2f} points); "
+            f"{q['int8_bytes']} vs {q['float_bytes']} bytes"
+        )
     return 0
 
 
@@ -283,6 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir")
     p.add_argument("--out", required=True, help="model.onnx to write")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument(
+        "--quantize", action="store_true", help="also write <out>.int8.onnx (dynamic int8)"
+    )
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_export)
 

@@ -321,6 +321,31 @@ def verify(model: onnx.ModelProto, pipe: SpikePipeline, X: np.ndarray) -> dict:
     return {"max_score_diff": diff, "prediction_agreement": agree, "n_checked": len(x)}
 
 
+def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = False) -> dict:
+    """Dynamic int8 quantisation of the MatMul weights; reports the accuracy change on (X, y)."""
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    from .service.runtime import PipelineSession
+
+    path = Path(path)
+    out = path.with_name(path.stem + ".int8.onnx")
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    quantize_dynamic(str(path), str(out), weight_type=QuantType.QInt8)
+    acc = {}
+    for name, p in (("float", path), ("int8", out)):
+        sess = PipelineSession(str(p))
+        acc[name] = float((sess.run(sess.validate(X)).argmax(1) == np.asarray(y)).mean())
+    return {
+        "path": str(out),
+        "float_accuracy": acc["float"],
+        "int8_accuracy": acc["int8"],
+        "accuracy_change": acc["int8"] - acc["float"],
+        "float_bytes": path.stat().st_size,
+        "int8_bytes": out.stat().st_size,
+    }
+
+
 def data_hash(cfg: dict) -> str:
     """SHA-256 identifying the training data: the data file's bytes or the task and its settings."""
     h = hashlib.sha256()

@@ -68,3 +68,15 @@ def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
         out += sess.feed_stream(st, chunk, hop=100)
     assert [r["window_index"] for r in out] == list(range(6))
     assert st.h is not None and np.abs(st.h).sum() >= 0
+
+
+def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
+    from tactilesnn.export import quantize_int8
+
+    run, _ = train_run("hook_loop", SMALL, PipelineConfig(epochs=3), tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
+    q = quantize_int8(tmp_path / "m.onnx", test_windows.X, test_windows.y)
+    assert q["int8_bytes"] < 0.5 * q["float_bytes"]
+    assert abs(q["accuracy_change"]) <= 0.05
+    assert q["float_accuracy"] == pytest.approx(pipe.score(test_windows.X, test_windows.y))

@@ -87,7 +87,7 @@ class STFTScalogram(nn.Module):
         )  # [BC, K, T], already divided by sum(window) through the window's scaling
         if self.detrend:
             # removing each frame's mean before windowing = subtracting mean * DFT(window)
-            mean = flat.unfold(-1, self.nperseg, self.hop).mean(-1)  # [BC, T]
+            mean = torch.nn.functional.avg_pool1d(flat.unsqueeze(1), self.nperseg, self.hop)[:, 0]
             spec[:, : self._n_detrend] -= mean.unsqueeze(1) * wdft.unsqueeze(-1)
         return spec.reshape(b, c, spec.shape[-2], spec.shape[-1])
 
