@@ -22,7 +22,7 @@ from .runs import RunExistsError
 log = logging.getLogger("tactilesnn")
 
 
-_SKIP = {"extra"}
+_SKIP: set[str] = set()
 _HELP = {
     "encoder": "gwt | stft (scalogram -> latency code) or lif (LIF converter population)",
     "model": "tempotron or snn (surrogate-gradient LIF network)",
@@ -137,6 +137,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         resume=args.resume,
         val_fraction=args.val_fraction,
         config_text=getattr(args, "_config_text", None),
+        export=args.export,
     )
     print(
         f"{source} {config.encoder}+{config.model}: test accuracy "
@@ -144,6 +145,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
     )
+    if "onnx" in m:
+        print(
+            f"model.onnx: {m['onnx']['nodes']} nodes, onnxruntime vs torch max score difference "
+            f"{m['onnx']['max_score_diff']:.1e} on the test split"
+        )
     print(f"run folder: {path}")
     return 0
 
@@ -278,6 +284,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="run folder (default runs/<task>-<encoder>-<model>-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.add_argument(
+        "--export",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="write model.onnx (window -> scores) into the run folder",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
 

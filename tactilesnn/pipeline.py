@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 import torch
@@ -78,7 +78,6 @@ class PipelineConfig:
     batch_size: int = 32
     patience: int = 0  # early stopping: epochs without validation improvement (0 = off)
     seed: int = 0
-    extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check_choice(self.encoder, "encoder", ENCODERS)

@@ -237,6 +237,7 @@ def train_run(
     resume: bool = False,
     val_fraction: float = 0.0,
     config_text: str | None = None,
+    export: bool = False,
 ) -> tuple[Path, dict]:
     """Build the data, train, evaluate and write ``out`` atomically; returns its metrics.
 
@@ -325,6 +326,19 @@ def train_run(
             {"labels": list(test.class_names), "matrix": res.confusion.tolist()},
         )
         plot_confusion(res.confusion, test.class_names, writer.file("confusion_matrix.png"))
+        if export:
+            from .export import data_hash, export_pipeline
+
+            rep = export_pipeline(
+                res.pipeline,
+                writer.file("model.onnx"),
+                test.X,
+                metadata={"training_data_sha256": data_hash(run_cfg), "run": out.name},
+            )
+            res.metrics["onnx"] = {
+                k: rep[k] for k in ("nodes", "max_score_diff", "prediction_agreement")
+            }
+            writer.write_json("metrics.json", res.metrics)
         path = writer.commit()
         shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
     except BaseException:
