@@ -79,7 +79,7 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
     return PipelineConfig(**values)
 
 
-def _apply_toml(parser: argparse.ArgumentParser, sub: argparse.ArgumentParser, argv) -> str | None:
+def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> str | None:
     """Load ``--config`` (if given) into the train parser's defaults; returns the file's text."""
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--config")
@@ -345,7 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if isinstance(a, argparse._SubParsersAction)
         ).choices["train"]
         try:
-            config_text = _apply_toml(parser, sub, argv[1:])
+            config_text = _apply_toml(sub, argv[1:])
         except ValueError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2

@@ -11,7 +11,6 @@ resolution (``gwt_mean`` vs ``stft``) from what it gains from time resolution in
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
@@ -147,7 +146,3 @@ def plot_curves(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-def results_json(path: Path) -> dict:
-    return json.loads(Path(path).read_text())
