@@ -1,0 +1,210 @@
+"""PVDF piezoelectric triangle (seed 004, SPEC 2.5): Boussinesq stress, d33 charge, charge amplifier.
+
+Array contract of :meth:`PVDFTriangle.read`: a contact described per simulation sample by its
+total normal force ``force_N [samples]``, centre ``center_mm [samples, 2]`` and diameter
+``diameter_mm`` (uniform pressure over the disc) at ``fs_in_hz`` -> ``[12, samples_out]`` float32
+at ``fs_hz`` (4 kS/s, >= 2 kS/s per taxel), in pC of equivalent input charge (the readout's output
+divided by its gain), after the charge amplifier's band (high-pass at 1 / (2 pi R_f C_f), low-pass
+1 kHz).
+
+Physics: a vertical point force F on the cover surface (PDMS, thickness h = 2.5 mm) gives at the
+sensor plane ``T3 = -3 F h^3 / (2 pi (r^2 + h^2)^(5/2))`` (Boussinesq; integrates to -F over the
+plane). A taxel (5 x 5 mm PVDF film, 110 um, eps_r 12: C_p = 24 pF) produces
+``q = d33 * integral of T3 over its area`` with d33 = -20 pC/N. The charge amplifier (seed 004:
+C_f = 100 pF, R_f = 100 MOhm) gives ``V = -q / C_f`` above ``f_L = 1 / (2 pi R_f C_f)`` = 16 Hz,
+saturating at the +-5 V supply (25 N on one taxel, as the seed states). Touch spans 5 decades
+(50 Pa - 5 MPa, ~0.01 pC - 5 nC), more than one gain can hold, so the readout is dual-range: the
+same charge is also read through a 10 nF feedback capacitor (its resistor scaled to keep the same
+corner), and each sample takes the
+high-gain reading unless it is within 10 % of saturation. A 24-bit ADC digitises both.
+
+Inverse problem (seed 004): point forces on a grid (here the 12 taxel sites) give ``b = C x`` with
+C the superposed Boussinesq kernels; :func:`reconstruct_forces` solves it with the Moore-Penrose
+pseudo-inverse under the physical constraint that normal forces are compressive (non-negative),
+via non-negative least squares.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, signal
+
+from .._checks import as_float_array, check_finite, check_positive
+
+EPS0 = 8.8541878128e-12
+
+
+def triangle_layout(pitch_mm: float = 6.0) -> np.ndarray:
+    """12 taxel centres (mm) on a triangular patch: rows of 5, 4, 2 and 1 at 60-degree offsets."""
+    pts = []
+    for row, count in enumerate((5, 4, 2, 1)):
+        y = row * pitch_mm * np.sqrt(3) / 2
+        x0 = row * pitch_mm / 2 + (1.0 if row == 2 else 0.0) * pitch_mm / 2
+        pts += [(x0 + i * pitch_mm, y) for i in range(count)]
+    return np.array(pts, dtype=np.float64)
+
+
+def boussinesq_t3(force_N: np.ndarray, r_mm: np.ndarray, cover_mm: float) -> np.ndarray:
+    """Normal stress T3 (Pa) at depth ``cover_mm`` and radial distance ``r_mm`` from point forces."""
+    h = cover_mm * 1e-3
+    r = np.asarray(r_mm) * 1e-3
+    return -3.0 * np.asarray(force_N) * h**3 / (2 * np.pi * (r * r + h * h) ** 2.5)
+
+
+@dataclass(frozen=True)
+class PVDFParams:
+    """Seed 004's values; every field can be overridden."""
+
+    d33_pC_per_N: float = -20.0
+    eps_r: float = 12.0
+    film_mm: float = 5.0
+    thickness_um: float = 110.0
+    cover_mm: float = 2.5  # PDMS
+    cf_pF: float = 100.0  # charge amplifier feedback capacitor C1
+    rf_Mohm: float = 100.0  # feedback resistor R1
+    cf_low_range_pF: float = 10_000.0  # second, low-gain range (dynamic range extension)
+    lowpass_hz: float = 1000.0
+    supply_V: float = 5.0
+    adc_bits: int = 24
+    noise_uV: float = 5.0  # rms at the amplifier output
+    fs_hz: float = 4000.0
+    pitch_mm: float = 6.0
+    quad: int = 5  # quadrature points per taxel side
+
+    def __post_init__(self) -> None:
+        for name in ("eps_r", "film_mm", "thickness_um", "cover_mm", "cf_pF", "rf_Mohm",
+                     "cf_low_range_pF", "lowpass_hz", "supply_V", "fs_hz", "pitch_mm"):  # fmt: skip
+            check_positive(getattr(self, name), name)
+        if self.lowpass_hz >= self.fs_hz / 2:
+            raise ValueError(f"lowpass {self.lowpass_hz} Hz must be below Nyquist {self.fs_hz / 2}")
+
+    @property
+    def capacitance_pF(self) -> float:
+        """Film capacitance C_p = eps0 eps_r A / t (seed 004: 24 pF)."""
+        area = (self.film_mm * 1e-3) ** 2
+        return EPS0 * self.eps_r * area / (self.thickness_um * 1e-6) * 1e12
+
+    @property
+    def highpass_hz(self) -> float:
+        return 1.0 / (2 * np.pi * self.rf_Mohm * 1e6 * self.cf_pF * 1e-12)
+
+
+class PVDFTriangle:
+    """Twelve PVDF taxels under a PDMS cover with a dual-range charge-amplifier readout."""
+
+    n_channels = 12
+
+    def __init__(self, params: PVDFParams | None = None) -> None:
+        self.params = params or PVDFParams()
+        self.taxels_mm = triangle_layout(self.params.pitch_mm)
+        p = self.params
+        g = (np.arange(p.quad) + 0.5) / p.quad - 0.5
+        qx, qy = np.meshgrid(g * p.film_mm, g * p.film_mm)
+        self._quad = np.stack([qx.ravel(), qy.ravel()], 1)  # offsets inside a taxel, mm
+        self._cell_m2 = (p.film_mm * 1e-3 / p.quad) ** 2
+
+    @property
+    def fs_hz(self) -> float:
+        return self.params.fs_hz
+
+    # ------------------------------------------------------------------ mechanics -> charge
+    def influence(self, points_mm: np.ndarray) -> np.ndarray:
+        """Charge (pC) on each taxel per newton at each surface point: ``[12, points]``."""
+        pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 2)
+        q = self.taxels_mm[:, None, :] + self._quad[None, :, :]  # [12, Q, 2]
+        r = np.linalg.norm(q[:, :, None, :] - pts[None, None, :, :], axis=-1)  # [12, Q, P]
+        t3 = boussinesq_t3(1.0, r, self.params.cover_mm)  # Pa per N
+        return self.params.d33_pC_per_N * (t3.sum(1) * self._cell_m2)
+
+    def disc_points(self, diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.ndarray]:
+        """Sub-point offsets (mm) and weights summing to 1 for a uniform-pressure disc."""
+        rad = diameter_mm / 2
+        pts, w = [np.zeros((1, 2))], [np.ones(1)]
+        for k in range(1, n_ring + 1):
+            r = rad * (k - 0.5) / n_ring
+            m = 6 * k
+            a = 2 * np.pi * (np.arange(m) + 0.5 * (k % 2)) / m
+            pts.append(np.stack([r * np.cos(a), r * np.sin(a)], 1))
+            w.append(np.full(m, 2 * np.pi * r * (rad / n_ring)))  # ring area
+        wts = np.concatenate(w)
+        wts[0] = np.pi * (rad / n_ring / 2) ** 2
+        return np.concatenate(pts), wts / wts.sum()
+
+    def charge_pC(
+        self, force_N: np.ndarray, center_mm: np.ndarray, diameter_mm: float
+    ) -> np.ndarray:
+        """Taxel charges ``[12, samples]`` (pC) for a disc contact moving over the triangle."""
+        f = np.asarray(force_N, dtype=np.float64)
+        c = np.asarray(center_mm, dtype=np.float64).reshape(-1, 2)
+        if c.shape[0] == 1:
+            c = np.repeat(c, f.size, 0)
+        offs, wts = self.disc_points(diameter_mm)
+        # only distinct contact positions need the (costly) Boussinesq quadrature
+        uniq, inv = np.unique(np.round(c, 4), axis=0, return_inverse=True)
+        per_pos = np.stack([self.influence(u + offs) @ wts for u in uniq], 1)  # [12, U]
+        return per_pos[:, inv.ravel()] * f[None, :]
+
+    # ------------------------------------------------------------------ readout
+    def amplify(self, q_pC: np.ndarray, fs_in_hz: float, cf_pF: float) -> np.ndarray:
+        """Charge amplifier V/q = -s R_f / (1 + s C_f R_f) then the 1 kHz low-pass (volts).
+
+        Both ranges share the high-pass corner: the low range's feedback resistor is scaled by
+        C_f / C_f,low so that R_f C_f stays the seed's 10 ms.
+        """
+        p = self.params
+        tau = p.rf_Mohm * 1e6 * p.cf_pF * 1e-12
+        a = np.exp(-1.0 / (fs_in_hz * tau))
+        dq = np.diff(q_pC, prepend=q_pC[..., :1], axis=-1)
+        v = -signal.lfilter([1.0], [1.0, -a], dq, axis=-1) / cf_pF  # pC / pF = V
+        sos = signal.butter(2, p.lowpass_hz, fs=fs_in_hz, output="sos")
+        return signal.sosfilt(sos, v, axis=-1)
+
+    def read(
+        self,
+        force_N: np.ndarray,
+        center_mm: np.ndarray,
+        diameter_mm: float,
+        fs_in_hz: float,
+        rng: np.random.Generator | None = None,
+    ) -> np.ndarray:
+        """Contact time course -> ``[12, samples]`` float32 equivalent charge (pC) at ``fs_hz``."""
+        p = self.params
+        f = as_float_array(force_N, "force_N", ndim=1).astype(np.float64)
+        check_finite(f, "force_N")
+        fs_in = check_positive(fs_in_hz, "fs_in_hz")
+        decim = fs_in / p.fs_hz
+        if abs(decim - round(decim)) > 1e-9 or round(decim) < 1:
+            raise ValueError(f"fs_in_hz ({fs_in}) must be an integer multiple of {p.fs_hz} Hz")
+        check_positive(diameter_mm, "diameter_mm")
+        q = self.charge_pC(f, center_mm, diameter_mm)
+        lsb = 2 * p.supply_V / 2**p.adc_bits
+        outs = []
+        for cf in (p.cf_pF, p.cf_low_range_pF):
+            v = self.amplify(q, fs_in, cf)[:, :: round(decim)]
+            if rng is not None:
+                v = v + p.noise_uV * 1e-6 * rng.standard_normal(v.shape)
+            v = np.clip(np.round(v / lsb) * lsb, -p.supply_V, p.supply_V)
+            outs.append(-v * cf)  # back to equivalent charge, pC
+        high, low = outs
+        saturated = np.abs(high) >= 0.9 * p.supply_V * p.cf_pF
+        return np.where(saturated, low, high).astype(np.float32)
+
+
+def reconstruct_forces(
+    sensor: PVDFTriangle, charges_pC: np.ndarray, grid_mm: np.ndarray | None = None
+) -> np.ndarray:
+    """Point forces (N, >= 0) on ``grid_mm`` (default: the taxel sites) from taxel charges.
+
+    ``b = C x`` with C the Boussinesq influence matrix; the unconstrained solution is the
+    Moore-Penrose pseudo-inverse; where it yields tensile (negative) forces, the compressive
+    constraint is enforced by non-negative least squares.
+    """
+    grid = sensor.taxels_mm if grid_mm is None else np.asarray(grid_mm, dtype=np.float64)
+    c = sensor.influence(grid)  # [12, G] pC per N
+    b = np.asarray(charges_pC, dtype=np.float64)
+    x = np.linalg.pinv(c) @ b
+    if np.all(x >= -1e-12):
+        return np.maximum(x, 0.0)
+    return optimize.nnls(c, b)[0]
