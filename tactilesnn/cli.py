@@ -17,7 +17,6 @@ import numpy as np
 
 from .datasets_synth import TASKS
 from .pipeline import ENCODERS, MODELS, PipelineConfig
-from .runs import RunExistsError
 
 log = logging.getLogger("tactilesnn")
 
@@ -216,6 +215,28 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_generate(args: argparse.Namespace) -> int:
+    from .datasets_synth.generate import generate
+
+    m = generate(
+        args.task,
+        args.n,
+        args.seed,
+        Path(args.out),
+        shard_size=args.shard_size,
+        workers=args.workers,
+        overwrite=args.overwrite,
+        resume=args.resume,
+        progress=not args.quiet,
+        task_kwargs={"difficulty": args.difficulty},
+    )
+    print(
+        f"{args.out}: {m['n_samples']} samples, {m['n_windows']} windows in "
+        f"{len(m['shards'])} shards ({m['fs_hz']:g} Hz, classes {', '.join(m['class_names'])})"
+    )
+    return 0
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from .service.app import serve
 
@@ -310,6 +331,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_export)
 
+    p = sub.add_parser("generate", help="render a synthetic task into sharded files")
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS))
+    p.add_argument("--n", type=int, required=True, help="number of samples (scans)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True)
+    p.add_argument("--shard-size", type=int, default=50)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--difficulty", type=float, default=1.0)
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=cmd_generate)
+
     p = sub.add_parser("serve", help="HTTP inference service (onnxruntime + numpy only)")
     p.add_argument("model")
     p.add_argument("--host", default="127.0.0.1")
@@ -360,7 +394,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     try:
         return args.func(args)
-    except (ValueError, RunExistsError, FileNotFoundError) as e:
+    except (ValueError, FileExistsError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
 

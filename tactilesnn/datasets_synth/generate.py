@@ -1,0 +1,186 @@
+"""Sharded dataset generation with a manifest, and a lazy torch Dataset over the shards.
+
+``generate(task, n, seed, out)`` renders samples ``0..n-1`` of a task (for ``hook_loop`` a sample is
+one scan, cut into its labelled windows) in parallel worker processes, ``shard_size`` samples per
+``shard-XXXXX.npz`` (``X [windows, channels, samples]`` float32, ``y``, ``sample``), and writes
+``manifest.json`` (task, parameters, seed, generator version, shapes, units, rate, class and
+channel names, and per shard its sample range, window count and SHA-256). Sample ``i`` depends
+only on (task, seed, i), so any worker count gives identical files.
+
+Safety: an existing dataset is never overwritten unless asked; an interrupted run leaves finished
+shards plus ``manifest.partial.json`` and ``generate(..., resume=True)`` only renders the missing
+shards (verifying the finished ones' hashes). Shards are written to a temporary name and renamed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from . import get_task
+
+GENERATOR_VERSION = f"tactilesnn {__version__} / hook_loop v1"
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _render_shard(args: tuple) -> dict:
+    task_name, task_kwargs, first, last, path = args
+    task = get_task(task_name, **task_kwargs)
+    xs, ys, ids = [], [], []
+    for i in range(first, last):
+        stream, labels, _ = task.scan(i)
+        X, y = task.windows(stream, labels)
+        xs.append(X)
+        ys.append(y)
+        ids.append(np.full(y.size, i, np.int64))
+    X = np.concatenate(xs) if xs else np.zeros((0, 2, task.window), np.float32)
+    tmp = Path(str(path) + ".tmp.npz")
+    np.savez(tmp, X=X, y=np.concatenate(ys), sample=np.concatenate(ids))
+    os.replace(tmp, path)
+    return {"file": Path(path).name, "first": first, "last": last, "windows": len(X),
+            "sha256": _sha256(Path(path))}  # fmt: skip
+
+
+def generate(
+    task_name: str,
+    n: int,
+    seed: int,
+    out: Path,
+    shard_size: int = 50,
+    workers: int = 2,
+    overwrite: bool = False,
+    resume: bool = False,
+    progress: bool = True,
+    task_kwargs: dict | None = None,
+) -> dict:
+    """Render ``n`` samples of ``task_name`` into ``out``; returns the manifest."""
+    from tqdm.auto import tqdm
+
+    out = Path(out)
+    kwargs = dict(task_kwargs or {}, seed=seed)
+    task = get_task(task_name, **kwargs)
+    if n < 1 or shard_size < 1:
+        raise ValueError(f"n and shard_size must be >= 1, got {n}, {shard_size}")
+    if hasattr(task, "n_scans") and n > task.n_scans:
+        raise ValueError(f"task {task_name} has {task.n_scans} samples; asked for {n}")
+    manifest_path, partial_path = out / "manifest.json", out / "manifest.partial.json"
+    if manifest_path.exists() and not overwrite:
+        raise FileExistsError(f"{out} already holds a dataset; pass --overwrite to replace it")
+    if out.exists() and any(out.iterdir()) and not (resume or overwrite):
+        raise FileExistsError(
+            f"{out} is not empty; pass --resume to finish an interrupted generation or "
+            "--overwrite to replace it"
+        )
+    if overwrite and out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    header = {
+        "task": task_name,
+        "task_kwargs": kwargs,
+        "n_samples": n,
+        "shard_size": shard_size,
+        "generator": GENERATOR_VERSION,
+        "fs_hz": task.fs_hz,
+        "window_samples": task.window,
+        "channel_names": list(task.sensor.channel_names),
+        "units": "relative change (static: dC/C; dynamic: rectified dV/V_bias)",
+        "class_names": list(task.class_names),
+    }
+    done: dict[str, dict] = {}
+    if resume and partial_path.exists():
+        old = json.loads(partial_path.read_text())
+        if {k: old[k] for k in header} != json.loads(json.dumps(header)):
+            raise ValueError(
+                f"--resume needs the same settings as the interrupted run ({partial_path})"
+            )
+        for sh in old["shards"]:
+            f = out / sh["file"]
+            if f.exists() and _sha256(f) == sh["sha256"]:
+                done[sh["file"]] = sh
+    jobs = []
+    for k, first in enumerate(range(0, n, shard_size)):
+        name = f"shard-{k:05d}.npz"
+        if name not in done:
+            jobs.append((task_name, kwargs, first, min(n, first + shard_size), out / name))
+    shards = dict(done)
+
+    def checkpoint() -> None:
+        doc = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
+        tmp = partial_path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(doc, indent=2))
+        os.replace(tmp, partial_path)
+
+    checkpoint()
+    bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=not progress)
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            for rec in pool.map(_render_shard, jobs):
+                shards[rec["file"]] = rec
+                checkpoint()
+                bar.update()
+    else:
+        for job in jobs:
+            rec = _render_shard(job)
+            shards[rec["file"]] = rec
+            checkpoint()
+            bar.update()
+    bar.close()
+    manifest = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
+    manifest["n_windows"] = sum(s["windows"] for s in manifest["shards"])
+    tmp = manifest_path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(manifest, indent=2))
+    os.replace(tmp, manifest_path)
+    partial_path.unlink(missing_ok=True)
+    return manifest
+
+
+class ShardDataset:
+    """torch-style Dataset over a generated folder: item ``i`` -> ``(X [C, W] float32, y int)``.
+
+    Shards are opened lazily (one cached at a time; ``allow_pickle=False``), so a dataset larger
+    than memory can be iterated in order.
+    """
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = Path(folder)
+        path = self.folder / "manifest.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"{self.folder} has no manifest.json: not a generated dataset")
+        self.manifest = json.loads(path.read_text())
+        self.shards = self.manifest["shards"]
+        self.offsets = np.cumsum([0] + [s["windows"] for s in self.shards])
+        self.class_names = tuple(self.manifest["class_names"])
+        self.fs_hz = float(self.manifest["fs_hz"])
+        self._cache: tuple[int, dict] | None = None
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def _shard(self, k: int) -> dict:
+        if self._cache is None or self._cache[0] != k:
+            with np.load(self.folder / self.shards[k]["file"], allow_pickle=False) as f:
+                self._cache = (k, {key: f[key] for key in f.files})
+        return self._cache[1]
+
+    def __getitem__(self, i: int):
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} windows")
+        i %= len(self)
+        k = int(np.searchsorted(self.offsets, i, side="right") - 1)
+        sh = self._shard(k)
+        j = i - int(self.offsets[k])
+        return sh["X"][j], int(sh["y"][j])
