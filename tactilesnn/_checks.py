@@ -56,3 +56,14 @@ def check_choice(value: str, name: str, choices: Sequence[str]) -> str:
     if value not in choices:
         raise ValueError(f"unknown {name} {value!r}; choose one of: {', '.join(choices)}")
     return value
+
+
+def check_decimation(fs_in_hz: float, fs_out_hz: float) -> int:
+    """Integer factor from a simulation rate down to a readout rate, or a ValueError."""
+    fs_in = check_positive(fs_in_hz, "fs_in_hz")
+    ratio = fs_in / fs_out_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ValueError(
+            f"fs_in_hz ({fs_in_hz}) must be an integer multiple of the readout rate ({fs_out_hz})"
+        )
+    return round(ratio)

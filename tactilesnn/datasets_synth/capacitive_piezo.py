@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import signal
 
-from .._checks import as_float_array, check_finite, check_positive
+from .._checks import as_float_array, check_decimation, check_finite, check_positive
 
 EPS0_F_PER_M = 8.8541878128e-12
 
@@ -193,13 +193,8 @@ class CapacitivePiezoStack:
         p = self.params
         pr = as_float_array(pressure_Pa, "pressure_Pa", ndim=1).astype(np.float64)
         check_finite(pr, "pressure_Pa")
-        fs_in = check_positive(fs_in_hz, "fs_in_hz")
-        decim = fs_in / p.fs_hz
-        if abs(decim - round(decim)) > 1e-9 or round(decim) < 1:
-            raise ValueError(
-                f"fs_in_hz ({fs_in_hz}) must be an integer multiple of the readout rate ({p.fs_hz})"
-            )
-        decim = round(decim)
+        fs_in = float(fs_in_hz)
+        decim = check_decimation(fs_in_hz, p.fs_hz)
         n_base = round(p.baseline_s * p.fs_hz)
         if pr.size // decim <= n_base:
             raise ValueError(

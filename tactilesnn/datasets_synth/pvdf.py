@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, signal
 
-from .._checks import as_float_array, check_finite, check_positive
+from .._checks import as_float_array, check_decimation, check_finite, check_positive
 
 EPS0 = 8.8541878128e-12
 
@@ -173,16 +173,14 @@ class PVDFTriangle:
         p = self.params
         f = as_float_array(force_N, "force_N", ndim=1).astype(np.float64)
         check_finite(f, "force_N")
-        fs_in = check_positive(fs_in_hz, "fs_in_hz")
-        decim = fs_in / p.fs_hz
-        if abs(decim - round(decim)) > 1e-9 or round(decim) < 1:
-            raise ValueError(f"fs_in_hz ({fs_in}) must be an integer multiple of {p.fs_hz} Hz")
+        fs_in = float(fs_in_hz)
+        decim = check_decimation(fs_in_hz, p.fs_hz)
         check_positive(diameter_mm, "diameter_mm")
         q = self.charge_pC(f, center_mm, diameter_mm)
         lsb = 2 * p.supply_V / 2**p.adc_bits
         outs = []
         for cf in (p.cf_pF, p.cf_low_range_pF):
-            v = self.amplify(q, fs_in, cf)[:, :: round(decim)]
+            v = self.amplify(q, fs_in, cf)[:, ::decim]
             if rng is not None:
                 v = v + p.noise_uV * 1e-6 * rng.standard_normal(v.shape)
             v = np.clip(np.round(v / lsb) * lsb, -p.supply_V, p.supply_V)
