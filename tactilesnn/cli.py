@@ -159,16 +159,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.data:
-        _, test = load_data_file(Path(args.data), pipe.config.seed)
+        tr, test = load_data_file(Path(args.data), pipe.config.seed)
         if args.all:
-            tr, te = load_data_file(Path(args.data), pipe.config.seed)
-            test = type(te)(
-                np.concatenate([tr.X, te.X]),
-                np.concatenate([tr.y, te.y]),
-                np.concatenate([tr.scan, te.scan]),
-                te.fs_hz,
-                te.class_names,
-                te.channel_names,
+            test = type(test)(
+                np.concatenate([tr.X, test.X]),
+                np.concatenate([tr.y, test.y]),
+                np.concatenate([tr.scan, test.scan]),
+                test.fs_hz,
+                test.class_names,
+                test.channel_names,
             )
         if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
             raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")

@@ -29,6 +29,7 @@ from torch import Tensor, nn
 
 from . import __version__
 from .encoders.export import WindowEncoder
+from .models.snn import reduce_readout
 from .pipeline import SpikePipeline
 
 SCORE_ATOL = 1e-4
@@ -180,13 +181,7 @@ class _SNNGraph(nn.Module):
         raster = (bins.unsqueeze(0) == steps.view(-1, 1, 1, 1)).to(spikes.dtype).sum(-1)
         hs, h_new = self.l1(self.fc1(raster), h)
         os_, o_new = self.l2(self.fc2(hs), o)
-        if self.readout == "count":
-            scores = os_.sum(0)
-        elif self.readout == "max":
-            scores = os_.amax(0)
-        else:
-            scores = os_.mean(0)
-        return scores, h_new, o_new
+        return reduce_readout(os_, self.readout), h_new, o_new
 
 
 def _torch_export(module, args, path, inputs, outputs, dynamic) -> None:

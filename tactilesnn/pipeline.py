@@ -257,9 +257,8 @@ class SpikePipeline:
     @torch.no_grad()
     def scores(self, spikes: torch.Tensor, batch: int | None = None) -> torch.Tensor:
         """Spike times -> class scores ``[N, classes]`` (tempotron: V_max per class)."""
-        if batch is None:  # the exact tempotron holds [batch, events, events] pairwise lags
-            events = spikes.shape[1] * spikes.shape[2] + 1
-            batch = max(8, min(1024, (1 << 22) // (events * events)))
+        if batch is None:
+            batch = tempotron_batch(spikes)
         parts = [self._forward(spikes[i : i + batch]) for i in range(0, spikes.shape[0], batch)]
         return torch.cat(parts) if parts else torch.zeros(0, len(self.class_names))
 
@@ -416,6 +415,12 @@ class SpikePipeline:
         self.model.load_state_dict(new)
         if self.config.encoder == "lif":
             self.lif_ref = torch.from_numpy(np.asarray(arrays["encoder.lif_ref"])).float()
+
+
+def tempotron_batch(spikes: torch.Tensor) -> int:
+    """Samples per exact-tempotron call: it holds [batch, events, events] pairwise lags."""
+    events = spikes.shape[1] * spikes.shape[2] + 1
+    return max(8, min(1024, (1 << 22) // (events * events)))
 
 
 def _flatten_optimizer(opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:

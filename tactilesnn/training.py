@@ -20,7 +20,7 @@ from . import __version__
 from ._checks import check_finite
 from .baselines import linear_amplitude_baseline
 from .datasets_synth import WindowDataset, get_task
-from .pipeline import PipelineConfig, SpikePipeline, accuracy_ci95
+from .pipeline import PipelineConfig, SpikePipeline, accuracy_ci95, tempotron_batch
 from .runs import RunWriter, load_arrays, read_json
 
 log = logging.getLogger("tactilesnn")
@@ -121,7 +121,7 @@ def fit_and_evaluate(
 def early_decision_metrics(pipe: SpikePipeline, spikes: torch.Tensor, y, full_pred) -> dict:
     """Tempotron deciding at the first class to fire: accuracy, window and spikes skipped."""
     classes, t_dec = [], []
-    batch = max(8, min(1024, (1 << 22) // (spikes.shape[1] * spikes.shape[2] + 1) ** 2))
+    batch = tempotron_batch(spikes)
     for i in range(0, spikes.shape[0], batch):
         c, t = pipe.model.predict_early(spikes[i : i + batch])
         classes.append(c)
@@ -320,7 +320,6 @@ def train_run(
         if config_text is not None:
             (writer.file("config.toml")).write_text(config_text)
         writer.write_arrays("weights.npz", res.pipeline.weights())
-        writer.write_json("metrics.json", res.metrics)
         writer.write_json(
             "confusion_matrix.json",
             {"labels": list(test.class_names), "matrix": res.confusion.tolist()},
@@ -338,7 +337,7 @@ def train_run(
             res.metrics["onnx"] = {
                 k: rep[k] for k in ("nodes", "max_score_diff", "prediction_agreement")
             }
-            writer.write_json("metrics.json", res.metrics)
+        writer.write_json("metrics.json", res.metrics)
         path = writer.commit()
         shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
     except BaseException:

@@ -284,7 +284,6 @@ class GaborScalogram(nn.Module):
             "length": length,
             "m": m_len,
             "frames": math.ceil(n / hop),
-            "bands": bands,
             "fold_t": fold.T.tocsr(),  # [bands * M, bins]: z^T = S^T spec^T
         }
         self._cache[key] = plan  # type: ignore[assignment]

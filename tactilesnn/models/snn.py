@@ -30,6 +30,15 @@ RESETS = ("subtract", "zero")
 READOUTS = ("count", "max", "mean")
 
 
+def reduce_readout(out: torch.Tensor, readout: str) -> torch.Tensor:
+    """Output layer activity ``[T, B, classes]`` -> scores: spike count, max or mean over time."""
+    if readout == "count":
+        return out.sum(0)
+    if readout == "max":
+        return out.amax(0)
+    return out.mean(0)
+
+
 def surrogate_grad(x: torch.Tensor, kind: str, alpha: float) -> torch.Tensor:
     """Derivative of the smooth stand-in for H(x) (x = u - theta)."""
     if kind == "fast_sigmoid":
@@ -271,10 +280,4 @@ class SNNClassifier(nn.Module):
         h_state, o_state = (None, None) if state is None else state
         h, h_state = self.hidden(x, h_state)
         o, o_state = self.out(h, o_state)
-        if self.readout == "count":
-            scores = o.sum(0)
-        elif self.readout == "max":
-            scores = o.amax(0)
-        else:
-            scores = o.mean(0)
-        return scores, (h_state, o_state)
+        return reduce_readout(o, self.readout), (h_state, o_state)
