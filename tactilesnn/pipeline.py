@@ -41,7 +41,8 @@ class PipelineConfig:
 
     encoder: str = "gwt"
     model: str = "tempotron"
-    channels: tuple[str, ...] = ("dynamic",)  # seed 001 encodes the dynamic (piezo) output
+    # seed 001 encodes the dynamic (piezo) output; ("all",) = every channel of the data
+    channels: tuple[str, ...] = ("dynamic",)
     # scalogram + latency code
     f_lo_hz: float = 3.0
     f_hi_hz: float = 90.0
@@ -118,6 +119,8 @@ class SpikePipeline:
         self.window = int(window)
         self.channel_names = tuple(channel_names)
         self.class_names = tuple(class_names)
+        if tuple(config.channels) == ("all",):  # every channel the data provides, in its order
+            config.channels = self.channel_names
         missing = [c for c in config.channels if c not in self.channel_names]
         if missing:
             raise ValueError(

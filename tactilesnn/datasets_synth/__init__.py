@@ -3,12 +3,20 @@
 from __future__ import annotations
 
 from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .faults import Faults, parse_faults
 from .hook_loop import HookLoopTask, WindowDataset
+from .teng_tasks import MaterialTask, StiffnessCurvatureTask
+from .texture_task import TextureTask
 
-TASKS = {"hook_loop": HookLoopTask}
+TASKS = {
+    "hook_loop": HookLoopTask,
+    "stiffness_curvature": StiffnessCurvatureTask,
+    "material": MaterialTask,
+    "texture": TextureTask,
+}
 
 
-def get_task(name: str, **kwargs: object) -> HookLoopTask:
+def get_task(name: str, **kwargs: object):
     """Instantiate a registered task by name (``kwargs`` go to its constructor)."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
@@ -19,7 +27,12 @@ __all__ = [
     "TASKS",
     "CapacitivePiezoParams",
     "CapacitivePiezoStack",
+    "Faults",
     "HookLoopTask",
+    "MaterialTask",
+    "StiffnessCurvatureTask",
+    "TextureTask",
     "WindowDataset",
     "get_task",
+    "parse_faults",
 ]

@@ -53,6 +53,21 @@ def boussinesq_t3(force_N: np.ndarray, r_mm: np.ndarray, cover_mm: float) -> np.
     return -3.0 * np.asarray(force_N) * h**3 / (2 * np.pi * (r * r + h * h) ** 2.5)
 
 
+def disc_points(diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Sub-point offsets (mm) and weights summing to 1 for a uniform-pressure disc."""
+    rad = diameter_mm / 2
+    pts, w = [np.zeros((1, 2))], [np.ones(1)]
+    for k in range(1, n_ring + 1):
+        r = rad * (k - 0.5) / n_ring
+        m = 6 * k
+        a = 2 * np.pi * (np.arange(m) + 0.5 * (k % 2)) / m
+        pts.append(np.stack([r * np.cos(a), r * np.sin(a)], 1))
+        w.append(np.full(m, 2 * np.pi * r * (rad / n_ring)))  # ring area
+    wts = np.concatenate(w)
+    wts[0] = np.pi * (rad / n_ring / 2) ** 2
+    return np.concatenate(pts), wts / wts.sum()
+
+
 @dataclass(frozen=True)
 class PVDFParams:
     """Seed 004's values; every field can be overridden."""
@@ -119,18 +134,7 @@ class PVDFTriangle:
         return self.params.d33_pC_per_N * (t3.sum(1) * self._cell_m2)
 
     def disc_points(self, diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.ndarray]:
-        """Sub-point offsets (mm) and weights summing to 1 for a uniform-pressure disc."""
-        rad = diameter_mm / 2
-        pts, w = [np.zeros((1, 2))], [np.ones(1)]
-        for k in range(1, n_ring + 1):
-            r = rad * (k - 0.5) / n_ring
-            m = 6 * k
-            a = 2 * np.pi * (np.arange(m) + 0.5 * (k % 2)) / m
-            pts.append(np.stack([r * np.cos(a), r * np.sin(a)], 1))
-            w.append(np.full(m, 2 * np.pi * r * (rad / n_ring)))  # ring area
-        wts = np.concatenate(w)
-        wts[0] = np.pi * (rad / n_ring / 2) ** 2
-        return np.concatenate(pts), wts / wts.sum()
+        return disc_points(diameter_mm, n_ring)
 
     def charge_pC(
         self, force_N: np.ndarray, center_mm: np.ndarray, diameter_mm: float

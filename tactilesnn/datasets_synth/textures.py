@@ -139,4 +139,104 @@ def _smooth_noise(n: int, dx_mm: float, corr_mm: float, rng: np.random.Generator
     return sm
 
 
-TEXTURES = {"hook": HookTexture(), "loop": LoopTexture()}
+@dataclass(frozen=True)
+class Grating:
+    """Parametric grating: raised-cosine ridges of ``period_mm`` and relative ``depth``.
+
+    Duty cycle ``duty`` (ridge width / period); irregularity jitters the period by 3 % and the
+    ridge heights by 10 % (machining / printing tolerance).
+    """
+
+    name: str
+    period_mm: float
+    depth: float = 1.0
+    duty: float = 0.5
+    load_exponent: float = 0.5
+
+    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+        n = int(np.ceil(length_mm / dx_mm))
+        count = int(length_mm / self.period_mm) + 3
+        gaps = self.period_mm * (1 + 0.03 * irregularity * rng.standard_normal(count))
+        centres = np.cumsum(gaps) - rng.uniform(0, self.period_mm)
+        amps = self.depth * (1 + 0.1 * irregularity * rng.standard_normal(count))
+        prof = _bumps(n, dx_mm, centres, amps, self.duty * self.period_mm)
+        return prof, prof
+
+
+@dataclass(frozen=True)
+class RandomRough:
+    """Random rough surface with a power-law height spectrum ``S(k) ~ k^-(2H+1)`` above
+    ``1 / corr_mm`` (self-affine, Hurst exponent ``hurst``) and flat below it; unit rms x ``rms``.
+    """
+
+    name: str
+    corr_mm: float
+    hurst: float = 0.8
+    rms: float = 0.6
+    load_exponent: float = 0.7
+
+    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+        n = int(np.ceil(length_mm / dx_mm))
+        k = np.fft.rfftfreq(n, dx_mm)  # cycles / mm
+        k0 = 1.0 / self.corr_mm
+        amp = np.where(k < k0, 1.0, (np.maximum(k, 1e-12) / k0) ** (-(2 * self.hurst + 1) / 2))
+        amp[0] = 0.0
+        spec = amp * (rng.standard_normal(k.size) + 1j * rng.standard_normal(k.size))
+        h = np.fft.irfft(spec, n)
+        h = self.rms * h / (h.std() + 1e-12)
+        prof = np.maximum(h + self.rms, 0.0)  # only asperities above the mean plane touch
+        return prof, prof
+
+
+@dataclass(frozen=True)
+class Fabric:
+    """Woven / piled fabric: a weave of ``periods_mm`` (thread and float repeats) with relative
+    ``weights``, soft fibres (low-pass ``fibre_mm``) and fuzz; knits/piles add stick-slip."""
+
+    name: str
+    periods_mm: tuple[float, ...]
+    weights: tuple[float, ...]
+    fuzz: float = 0.2
+    fibre_mm: float = 0.15
+    stick_slip: float = 0.0
+    load_exponent: float = 0.8
+
+    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+        n = int(np.ceil(length_mm / dx_mm))
+        x = np.arange(n) * dx_mm
+        prof = np.zeros(n)
+        for per, w in zip(self.periods_mm, self.weights, strict=True):
+            wobble = 0.02 * irregularity * per * _smooth_noise(n, dx_mm, 5 * per, rng)
+            prof += w * (1 + np.cos(2 * np.pi * (x + wobble) / per + rng.uniform(0, 2 * np.pi)))
+        prof += self.fuzz * _smooth_noise(n, dx_mm, self.fibre_mm, rng)
+        k = max(1, round(self.fibre_mm / dx_mm))
+        prof = np.convolve(prof, np.ones(k) / k, mode="same")
+        fwd, rev = prof.copy(), prof.copy()
+        if self.stick_slip:
+            count = rng.poisson(length_mm / 3.0)
+            for out in (fwd, rev):
+                starts = rng.uniform(0, length_mm, count)
+                lengths = rng.uniform(0.3, 1.5, count)
+                amps = self.stick_slip * rng.gamma(1.0, 1.0, count)
+                out += _sawtooth_events(n, dx_mm, starts, lengths, amps)
+            rev = rev[::-1].copy()
+        return np.maximum(fwd, 0.0), np.maximum(rev, 0.0)
+
+
+TEXTURES = {
+    t.name: t
+    for t in (
+        HookTexture(),
+        LoopTexture(),
+        Grating("grating_1mm", 1.0),
+        Grating("grating_2mm", 2.0),
+        Grating("grating_4mm", 4.0),
+        Grating("grating_2mm_shallow", 2.0, depth=0.35, duty=0.3),
+        RandomRough("rough_fine", corr_mm=0.3),
+        RandomRough("rough_coarse", corr_mm=2.0),
+        Fabric("denim", periods_mm=(0.8, 2.4), weights=(1.0, 0.5)),
+        Fabric("corduroy", periods_mm=(3.0,), weights=(1.5,), fuzz=0.3),
+        Fabric("knit", periods_mm=(1.2,), weights=(0.6,), fuzz=0.3, stick_slip=1.0),
+        Fabric("felt", periods_mm=(), weights=(), fuzz=0.8, fibre_mm=0.5),
+    )
+}

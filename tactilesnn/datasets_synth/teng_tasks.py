@@ -1,0 +1,151 @@
+"""TENG finger tasks (seed 000): object stiffness x curvature, and contact material.
+
+``stiffness_curvature``: objects of 3 stiffnesses (soft / medium / hard: the skin takes 30 / 60 /
+97 % of an overlap) x 3 curvatures (flat 15 mm indenter, sphere R 25 mm, sphere R 8 mm) indent
+the 8-electrode finger (or the Mia 6 / 14 layouts). The order in which electrodes activate and
+their timing encode curvature (a flat indenter activates 4 at once, a sharp sphere one or two,
+then neighbours), the contact-phase slope relative to the proximity slope encodes stiffness.
+Nuisances: contact material and its electrification (an amplitude factor), residual charge,
+object placement (+-0.75 mm across, +-2 mm along), approach speed (+-10 %), target force
+(15 N +-15 %; force control, so softer and sharper objects travel further).
+
+``material``: the 15 mm flat indenter covered with aluminium, Kapton, paper, glass or cloth
+approaches the finger at 4.65-9.3 mm/s to 10-70 N (force control). Materials differ in surface
+charge and its relaxation; as in the seed, they differ at low speed and converge at high speed.
+Nuisances: speed, final force, placement, earlier contacts (0-60).
+
+Array contract: ``X [N, electrodes, window]`` float32 gate potentials V_T in volts at 500 S/s.
+``difficulty`` scales placement / speed / depth spread and the noise; ``amplitude_spread`` scales
+the amplitude nuisances (material charge factor spread, electrification, force range).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .indentation import IndentationScene
+from .teng import MATERIALS, TENGArray, TENGParams, layout
+from .trial_task import TrialTask
+
+STIFFNESS = {"soft": 0.3, "medium": 0.6, "hard": 0.97}  # skin's share of an overlap
+CURVATURE_MM = {"flat": np.inf, "round": 25.0, "sharp": 8.0}  # object radius of curvature
+
+
+@dataclass(frozen=True)
+class StiffnessCurvatureTask(TrialTask):
+    """9 classes: ``<stiffness>-<curvature>``; 1 s trials of V_T on a TENG finger array."""
+
+    layout_name: str = "finger8"
+    duration_s: float = 1.0
+    material: str = "kapton"  # printed-plastic objects
+    force_N: float = 15.0  # force-controlled press (+-15 % x difficulty)
+
+    name = "stiffness_curvature"
+    task_id = 3
+    class_names = tuple(f"{s}-{c}" for s in STIFFNESS for c in CURVATURE_MM)
+    units = "V (TENG gate potential V_T)"
+
+    @property
+    def sensor(self) -> TENGArray:
+        base = TENGParams()
+        return TENGArray(
+            layout(self.layout_name), replace(base, noise_V=base.noise_V * self.difficulty)
+        )
+
+    @property
+    def fs_hz(self) -> float:
+        return self.sensor.fs_hz
+
+    @property
+    def window(self) -> int:
+        return round(self.duration_s * self.fs_hz)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return self.sensor.channel_names
+
+    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        d, a = self.difficulty, self.amplitude_spread
+        stiff = list(STIFFNESS)[label // len(CURVATURE_MM)]
+        curv = list(CURVATURE_MM)[label % len(CURVATURE_MM)]
+        sensor = self.sensor
+        pos = sensor.positions_mm
+        y_mid = 0.5 * (pos[:, 1].min() + pos[:, 1].max())
+        scene = IndentationScene(
+            radius_mm=CURVATURE_MM[curv],
+            center_mm=(0.75 * d * rng.uniform(-1, 1), y_mid + 2.0 * d * rng.uniform(-1, 1)),
+            speed_mm_s=9.3 * (1 + 0.1 * d * rng.uniform(-1, 1)),
+            pre_s=0.05 + 0.05 * rng.uniform(),
+        )
+        # force control: stop at the target force, so softer / sharper objects travel further
+        force = self.force_N * (1 + 0.15 * d * rng.uniform(-1, 1))
+        k_skin = sensor.params.skin_kPa_per_mm * 1e-3  # N/mm^2 per mm of indentation
+        scene = replace(scene, depth_mm=scene.depth_for_force(force, k_skin, STIFFNESS[stiff]))
+        gap, t_contact = scene.render(sensor.pad_points(), self.fs_hz, self.window)
+        contacts = int(rng.integers(0, 1 + round(60 * a)))
+        charge = np.exp(0.6 * a * rng.standard_normal())  # humidity, charge history (CV ~0.7)
+        v = charge * sensor.read(gap, self.material, contacts, rng, skin_share=STIFFNESS[stiff])
+        return v, {"t_contact_s": t_contact, "contacts": contacts, "charge": charge}
+
+
+@dataclass(frozen=True)
+class MaterialTask(TrialTask):
+    """5 classes (SPEC 2.2 materials); 1.6 s approach-hold cycles of the flat 15 mm indenter."""
+
+    duration_s: float = 1.6
+    speed_range_mm_s: tuple[float, float] = (4.65, 9.3)
+    force_range_N: tuple[float, float] = (10.0, 70.0)
+
+    name = "material"
+    task_id = 4
+    class_names = tuple(MATERIALS)
+    units = "V (TENG gate potential V_T)"
+
+    @property
+    def sensor(self) -> TENGArray:
+        base = TENGParams()
+        return TENGArray(layout("finger8"), replace(base, noise_V=base.noise_V * self.difficulty))
+
+    @property
+    def fs_hz(self) -> float:
+        return self.sensor.fs_hz
+
+    @property
+    def window(self) -> int:
+        return round(self.duration_s * self.fs_hz)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return self.sensor.channel_names
+
+    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        d, a = self.difficulty, self.amplitude_spread
+        sensor = self.sensor
+        material = self.class_names[label]
+        speed = rng.uniform(*self.speed_range_mm_s)
+        lo, hi = self.force_range_N
+        mid = 0.5 * (lo + hi)
+        force = mid + (hi - lo) / 2 * min(a, 1.0) * rng.uniform(-1, 1)
+        # flat 15 mm indenter on the skin: 267 kPa/mm x 177 mm^2 = 47 N per mm of indentation
+        area_mm2 = np.pi * 7.5**2
+        depth = force / (sensor.params.skin_kPa_per_mm * area_mm2 * 1e-3)
+        scene = IndentationScene(
+            center_mm=(1.0 * d * rng.uniform(-1, 1), 18.0 + 2.0 * d * rng.uniform(-1, 1)),
+            speed_mm_s=speed,
+            depth_mm=depth,
+            pre_s=0.05 + 0.05 * rng.uniform(),
+            hold_s=self.duration_s,
+        )
+        gap, t_contact = scene.render(sensor.pad_points(), self.fs_hz, self.window)
+        contacts = int(rng.integers(0, 1 + round(60 * a)))
+        charge = np.exp(0.6 * a * rng.standard_normal())  # humidity, charge history (CV ~0.7)
+        v = charge * sensor.read(gap, material, contacts, rng)
+        info = {
+            "speed_mm_s": speed,
+            "force_N": force,
+            "contacts": contacts,
+            "t_contact_s": t_contact,
+        }
+        return v, info

@@ -1,0 +1,82 @@
+"""Texture task: sliding scans over 12 textures read by the capacitive-piezo stack (seed 001).
+
+Textures (:data:`~tactilesnn.datasets_synth.textures.TEXTURES`): hook, loop; gratings of 1, 2 and
+4 mm period and a shallow 2 mm one (narrow ridges, 35 % depth); random-rough surfaces with a
+self-affine spectrum (correlation 0.3 and 2 mm); fabrics (denim twill, corduroy wales, knit with
+stick-slip, felt). One sample = one 0.5 s window (100 samples at 200 S/s, channels ``static``,
+``dynamic``) taken at a random point of a two-stride closed-loop scan at a random speed.
+
+Knobs: ``difficulty`` scales the speed spread (60 mm/s x exp(+-0.15 d), which shifts every
+temporal frequency f = v / period), stride jitter, load ripple, texture irregularity and the
+electronic noise; ``amplitude_spread`` scales the pressure set point range and the coupling-gain
+spread (so amplitude alone cannot name the texture).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
+from .textures import TEXTURES
+from .trial_task import TrialTask
+
+
+@dataclass(frozen=True)
+class TextureTask(TrialTask):
+    """12 classes (:data:`TEXTURES` order); ``X [N, 2, 100]`` relative units at 200 S/s."""
+
+    n_samples: int = 1200
+    speed_mm_s: float = 60.0
+    window_samples: int = 100
+
+    name: ClassVar[str] = "texture"
+    task_id: ClassVar[int] = 2
+    class_names: ClassVar[tuple[str, ...]] = tuple(TEXTURES)
+    units: ClassVar[str] = "relative change (static: dC/C; dynamic: rectified dV/V_bias)"
+
+    @property
+    def sensor(self) -> CapacitivePiezoStack:
+        base, d = CapacitivePiezoParams(), self.difficulty
+        return CapacitivePiezoStack(
+            replace(base, static_noise_rel=base.static_noise_rel * d,
+                    dynamic_noise_rel=base.dynamic_noise_rel * d)
+        )  # fmt: skip
+
+    @property
+    def fs_hz(self) -> float:
+        return self.sensor.fs_hz
+
+    @property
+    def window(self) -> int:
+        return self.window_samples
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return self.sensor.channel_names
+
+    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        speed = self.speed_mm_s * np.exp(0.15 * self.difficulty * rng.uniform(-1, 1))
+        protocol = ScanProtocol(
+            baseline_s=1.6, speed_mm_s=speed, n_strides=2, stride_mm=speed * 1.0, tail_s=0.1
+        )
+        scene = SlidingScanScene(
+            textures=(self.class_names[label],),
+            surface="planar",
+            protocol=protocol,
+            variability=ScanVariability().scaled(self.difficulty, self.amplitude_spread),
+        )
+        pressure, labels_sim, info = scene.render(rng, (0,))
+        sensor = self.sensor
+        stream = sensor.read(pressure, protocol.fs_sim_hz, rng)
+        labels = labels_sim[:: round(protocol.fs_sim_hz / self.fs_hz)][: stream.shape[1]]
+        inside = np.flatnonzero(labels == 0)
+        first, last = inside[0], inside[-1] - self.window + 1
+        if last < first:
+            raise ValueError(f"scan too short for a {self.window}-sample window")
+        start = int(rng.integers(first, last + 1))
+        info.update(speed_mm_s=speed, start_sample=start)
+        return stream[:, start : start + self.window].astype(np.float64), info

@@ -1,0 +1,126 @@
+"""Shared machinery of the trial-based tasks: one sample = one labelled contact trial.
+
+A trial task renders sample ``i`` as ``(x [channels, window] float32, label, info)``; the random
+stream of a sample is ``default_rng([task_id, seed, i])``, so sample ``i`` of ``(task, seed)`` is the
+same on any machine and in any worker. Classes are balanced by construction (sample ``i`` has
+class ``i % n_classes``); the train/test split is a seeded permutation of the sample indices.
+
+Every subclass exposes the same array contract as the hook-vs-loop task (see
+:class:`~tactilesnn.datasets_synth.hook_loop.WindowDataset`), which is what ``tactilesnn train``,
+``generate`` and the trivial baseline consume, and documents a ``difficulty`` knob (0 = idealised,
+1 = default) and an ``amplitude_spread`` knob (scales the amplitude nuisances).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from .faults import Faults
+from .hook_loop import WindowDataset
+
+
+@dataclass(frozen=True)
+class TrialTask:
+    """Base class: subclasses set the class attributes and implement :meth:`_render`."""
+
+    seed: int = 0
+    n_samples: int = 900
+    test_fraction: float = 0.2
+    difficulty: float = 1.0
+    amplitude_spread: float = 1.0
+    faults: Faults = field(default_factory=Faults)
+
+    name: ClassVar[str] = "trial"
+    task_id: ClassVar[int] = 0
+    class_names: ClassVar[tuple[str, ...]] = ()
+    units: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        for knob in ("difficulty", "amplitude_spread"):
+            v = getattr(self, knob)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{knob} must be a finite number >= 0, got {v}")
+        if self.n_samples < 2 * len(self.class_names):
+            raise ValueError(
+                f"n_samples must be >= {2 * len(self.class_names)} (two per class), "
+                f"got {self.n_samples}"
+            )
+        if not 0 < self.test_fraction < 1:
+            raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
+
+    # subclasses provide these --------------------------------------------------------------
+    @property
+    def fs_hz(self) -> float:
+        raise NotImplementedError
+
+    @property
+    def window(self) -> int:
+        raise NotImplementedError
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        raise NotImplementedError
+
+    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        """Return ``(x [channels, window] float64 in :attr:`units`, info)`` for one trial."""
+        raise NotImplementedError
+
+    # shared ----------------------------------------------------------------------------------
+    def rng(self, index: int) -> np.random.Generator:
+        return np.random.default_rng([self.task_id, self.seed, index])
+
+    def sample(self, index: int) -> tuple[np.ndarray, int, dict]:
+        """Sample ``index`` -> ``(x [channels, window] float32, label, info)``."""
+        if not 0 <= index < self.n_samples:
+            raise IndexError(f"sample index {index} out of range [0, {self.n_samples})")
+        label = index % len(self.class_names)
+        rng = self.rng(index)
+        x, info = self._render(label, rng)
+        if self.faults.active:  # device draws depend on (task, seed) only; drift on the sample
+            device = np.random.default_rng([self.task_id, self.seed, 2**31 + 1])
+            x = self.faults.apply(x, self.fs_hz, device, self.rng(index).spawn(1)[0])
+        if x.shape != (len(self.channel_names), self.window):
+            raise AssertionError(f"{self.name}: rendered {x.shape}, contract says "
+                                 f"{(len(self.channel_names), self.window)}")  # fmt: skip
+        info["class"] = self.class_names[label]
+        return x.astype(np.float32), label, info
+
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Sample ``index`` as windows ``(X [1, C, W] float32, y [1] int64)`` (generator contract)."""
+        x, y, _ = self.sample(index)
+        return x[None], np.array([y], np.int64)
+
+    def split(self) -> tuple[np.ndarray, np.ndarray]:
+        """Train / test sample indices, a permutation fixed by the seed (stratified by class)."""
+        k = len(self.class_names)
+        perm = np.random.default_rng([self.task_id, self.seed, 2**31]).permutation(self.n_samples)
+        labels = perm % k
+        test = np.concatenate(
+            [
+                perm[labels == c][: max(1, round(self.test_fraction * (labels == c).sum()))]
+                for c in range(k)
+            ]  # fmt: skip
+        )
+        train = np.setdiff1d(np.arange(self.n_samples), test)
+        return train, np.sort(test)
+
+    def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
+        """Render every sample and return the ``(train, test)`` datasets."""
+        from tqdm.auto import tqdm
+
+        X = np.zeros((self.n_samples, len(self.channel_names), self.window), np.float32)
+        y = np.zeros(self.n_samples, np.int64)
+        for i in tqdm(range(self.n_samples), desc=f"{self.name} samples", disable=not progress):
+            X[i], y[i], _ = self.sample(i)
+        train, test = self.split()
+
+        def take(idx: np.ndarray) -> WindowDataset:
+            return WindowDataset(
+                X[idx], y[idx], idx.astype(np.int64), self.fs_hz, self.class_names,
+                self.channel_names,
+            )  # fmt: skip
+
+        return take(train), take(test)
