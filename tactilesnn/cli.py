@@ -31,6 +31,12 @@ _HELP = {
 }
 
 
+FAULTS_FLAG = "--faults"
+FAULTS_HELP = (
+    'sensor faults for trial tasks, e.g. "dead=3;short=0-1@1e5;gain_sd=0.1;drift_per_s=0.01"'
+)
+
+
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     """One flag per :class:`PipelineConfig` field, so every setting is also a TOML key."""
     p.add_argument("--config", help="TOML file of settings (flag names as keys); flags win")
@@ -48,6 +54,7 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         default=1.0,
         help="multiplier of the force set-point range and coupling-gain spread",
     )
+    p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
     p.add_argument(
         "--val-fraction",
         type=float,
@@ -107,6 +114,18 @@ def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> str | None:
     return text
 
 
+def _task_kwargs(args: argparse.Namespace) -> dict:
+    kw = {"difficulty": args.difficulty, "amplitude_spread": args.amplitude_spread}
+    if getattr(args, "faults", None):
+        if args.task == "hook_loop":
+            raise ValueError("--faults applies to the trial tasks, not hook_loop")
+        from .datasets_synth import parse_faults
+
+        parse_faults(args.faults)  # fail early on a typo
+        kw["faults"] = args.faults
+    return kw
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     from .runs import default_run_dir
     from .training import train_run
@@ -120,11 +139,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     if args.resume and not args.out:
         raise ValueError("--resume needs the --out folder of the interrupted run")
-    task_kwargs = {
-        "seed": args.seed,
-        "difficulty": args.difficulty,
-        "amplitude_spread": args.amplitude_spread,
-    }
+    task_kwargs = dict(_task_kwargs(args), seed=args.seed)
     path, m = train_run(
         args.task,
         task_kwargs,
@@ -227,7 +242,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         resume=args.resume,
         progress=not args.quiet,
-        task_kwargs={"difficulty": args.difficulty},
+        task_kwargs=_task_kwargs(args),
     )
     print(
         f"{args.out}: {m['n_samples']} samples, {m['n_windows']} windows in "
@@ -338,6 +353,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shard-size", type=int, default=50)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--difficulty", type=float, default=1.0)
+    p.add_argument("--amplitude-spread", type=float, default=1.0)
+    p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
     p.add_argument("--quiet", action="store_true")

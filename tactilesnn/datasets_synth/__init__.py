@@ -7,12 +7,14 @@ from .faults import Faults, parse_faults
 from .hook_loop import HookLoopTask, WindowDataset
 from .teng_tasks import MaterialTask, StiffnessCurvatureTask
 from .texture_task import TextureTask
+from .touch_task import TouchModalityTask
 
 TASKS = {
     "hook_loop": HookLoopTask,
     "stiffness_curvature": StiffnessCurvatureTask,
     "material": MaterialTask,
     "texture": TextureTask,
+    "touch": TouchModalityTask,
 }
 
 
@@ -32,6 +34,7 @@ __all__ = [
     "MaterialTask",
     "StiffnessCurvatureTask",
     "TextureTask",
+    "TouchModalityTask",
     "WindowDataset",
     "get_task",
     "parse_faults",

@@ -1,7 +1,8 @@
 """Sharded dataset generation with a manifest, and a lazy torch Dataset over the shards.
 
-``generate(task, n, seed, out)`` renders samples ``0..n-1`` of a task (for ``hook_loop`` a sample is
-one scan, cut into its labelled windows) in parallel worker processes, ``shard_size`` samples per
+``generate(task, n, seed, out)`` renders samples ``0..n-1`` of any registered task (``task.render``:
+for ``hook_loop`` a sample is one scan, cut into its labelled windows; for the trial tasks one
+trial) in parallel worker processes, ``shard_size`` samples per
 ``shard-XXXXX.npz`` (``X [windows, channels, samples]`` float32, ``y``, ``sample``), and writes
 ``manifest.json`` (task, parameters, seed, generator version, shapes, units, rate, class and
 channel names, and per shard its sample range, window count and SHA-256). Sample ``i`` depends
@@ -26,7 +27,7 @@ import numpy as np
 from .. import __version__
 from . import get_task
 
-GENERATOR_VERSION = f"tactilesnn {__version__} / hook_loop v1"
+GENERATOR_VERSION = f"tactilesnn {__version__} / tasks v2"
 
 
 def _sha256(path: Path) -> str:
@@ -42,12 +43,11 @@ def _render_shard(args: tuple) -> dict:
     task = get_task(task_name, **task_kwargs)
     xs, ys, ids = [], [], []
     for i in range(first, last):
-        stream, labels, _ = task.scan(i)
-        X, y = task.windows(stream, labels)
+        X, y = task.render(i)
         xs.append(X)
         ys.append(y)
         ids.append(np.full(y.size, i, np.int64))
-    X = np.concatenate(xs) if xs else np.zeros((0, 2, task.window), np.float32)
+    X = np.concatenate(xs) if xs else np.zeros((0, len(task.channel_names), task.window), np.float32)
     tmp = Path(str(path) + ".tmp.npz")
     np.savez(tmp, X=X, y=np.concatenate(ys), sample=np.concatenate(ids))
     os.replace(tmp, path)
@@ -75,8 +75,11 @@ def generate(
     task = get_task(task_name, **kwargs)
     if n < 1 or shard_size < 1:
         raise ValueError(f"n and shard_size must be >= 1, got {n}, {shard_size}")
-    if hasattr(task, "n_scans") and n > task.n_scans:
-        raise ValueError(f"task {task_name} has {task.n_scans} samples; asked for {n}")
+    if task_name == "hook_loop" and n > task.n_samples:
+        raise ValueError(f"task {task_name} has {task.n_samples} scans; asked for {n}")
+    if n > task.n_samples:  # trial tasks: sample indices beyond the default size are valid
+        kwargs["n_samples"] = n
+        task = get_task(task_name, **kwargs)
     manifest_path, partial_path = out / "manifest.json", out / "manifest.partial.json"
     if manifest_path.exists() and not overwrite:
         raise FileExistsError(f"{out} already holds a dataset; pass --overwrite to replace it")
@@ -96,8 +99,8 @@ def generate(
         "generator": GENERATOR_VERSION,
         "fs_hz": task.fs_hz,
         "window_samples": task.window,
-        "channel_names": list(task.sensor.channel_names),
-        "units": "relative change (static: dC/C; dynamic: rectified dV/V_bias)",
+        "channel_names": list(task.channel_names),
+        "units": task.units,
         "class_names": list(task.class_names),
     }
     done: dict[str, dict] = {}

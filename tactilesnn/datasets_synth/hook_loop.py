@@ -66,9 +66,24 @@ class HookLoopTask:
         if not 0 < self.n_test < self.n_scans:
             raise ValueError(f"n_test must be in (0, {self.n_scans}), got {self.n_test}")
 
+    units = "relative change (static: dC/C; dynamic: rectified dV/V_bias)"
+
     @property
     def n_scans(self) -> int:
         return self.n_planar + self.n_concave + self.n_convex
+
+    @property
+    def n_samples(self) -> int:
+        """A sample of this task is one scan (cut into its labelled windows)."""
+        return self.n_scans
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return self.sensor.channel_names
+
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Scan ``index`` as its windows ``(X [n, 2, W] float32, y [n] int64)``."""
+        return self.windows(*self.scan(index)[:2])
 
     @property
     def fs_hz(self) -> float:

@@ -18,7 +18,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .faults import Faults
+from .faults import Faults, parse_faults
 from .hook_loop import WindowDataset
 
 
@@ -31,7 +31,7 @@ class TrialTask:
     test_fraction: float = 0.2
     difficulty: float = 1.0
     amplitude_spread: float = 1.0
-    faults: Faults = field(default_factory=Faults)
+    faults: Faults | str = field(default_factory=Faults)  # or a parse_faults() string
 
     name: ClassVar[str] = "trial"
     task_id: ClassVar[int] = 0
@@ -39,6 +39,8 @@ class TrialTask:
     units: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
+        if isinstance(self.faults, str):
+            object.__setattr__(self, "faults", parse_faults(self.faults))
         for knob in ("difficulty", "amplitude_spread"):
             v = getattr(self, knob)
             if not np.isfinite(v) or v < 0:
@@ -102,7 +104,7 @@ class TrialTask:
             [
                 perm[labels == c][: max(1, round(self.test_fraction * (labels == c).sum()))]
                 for c in range(k)
-            ]  # fmt: skip
+            ]
         )
         train = np.setdiff1d(np.arange(self.n_samples), test)
         return train, np.sort(test)
