@@ -47,7 +47,11 @@ def _render_shard(args: tuple) -> dict:
         xs.append(X)
         ys.append(y)
         ids.append(np.full(y.size, i, np.int64))
-    X = np.concatenate(xs) if xs else np.zeros((0, len(task.channel_names), task.window), np.float32)
+    X = (
+        np.concatenate(xs)
+        if xs
+        else np.zeros((0, len(task.channel_names), task.window), np.float32)
+    )
     tmp = Path(str(path) + ".tmp.npz")
     np.savez(tmp, X=X, y=np.concatenate(ys), sample=np.concatenate(ids))
     os.replace(tmp, path)

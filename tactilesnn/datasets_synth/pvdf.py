@@ -233,7 +233,9 @@ class PVDFTriangle:
         tail = int(12 * tau * fs_in) + int(20 * fs_in / p.lowpass_hz)
         breaks = np.flatnonzero(np.diff(active) > tail + 2 * decim)
         spans = []
-        for first, last in zip(active[np.r_[0, breaks + 1]], active[np.r_[breaks, -1]], strict=True):
+        for first, last in zip(
+            active[np.r_[0, breaks + 1]], active[np.r_[breaks, -1]], strict=True
+        ):
             # start on a zero-force sample: the amplifier sees the first step in full
             start = ((first - 1) // decim) * decim if first > 0 else 0
             spans.append(slice(int(start), int(min(f.size, last + 1 + tail))))

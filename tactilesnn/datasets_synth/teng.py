@@ -54,10 +54,10 @@ MATERIALS: dict[str, TriboMaterial] = {
     m.name: m
     for m in (
         TriboMaterial("aluminium", 1.00, 0.030, 0.05),
-        TriboMaterial("kapton", 0.80, 0.250, 0.60),
-        TriboMaterial("paper", 0.90, 0.070, 0.30),
-        TriboMaterial("glass", 1.10, 0.180, 0.40),
-        TriboMaterial("cloth", 0.85, 0.120, 0.50),
+        TriboMaterial("kapton", 0.80, 0.150, 0.60),
+        TriboMaterial("paper", 0.90, 0.060, 0.30),
+        TriboMaterial("glass", 1.10, 0.120, 0.40),
+        TriboMaterial("cloth", 0.85, 0.090, 0.50),
     )
 }
 
@@ -194,8 +194,8 @@ class TENGConverter:
     ``threshold_V``, then reset to rest.
     """
 
-    v_on_V: float = 0.35
-    gain: float = 4.0
+    v_on_V: float = 0.15
+    gain: float = 5.0
     tau_mem_ms: float = 20.0
     threshold_V: float = 1.0
     refractory_ms: float = 1.2
@@ -205,6 +205,8 @@ class TENGConverter:
         from ..encoders.spiking import lif_convert
 
         drive = np.maximum(np.asarray(v_t, dtype=np.float64) - self.v_on_V, 0.0)
+        if drive.ndim == 2:
+            drive = drive[None]
         return lif_convert(
             drive, fs_hz, tau_ms=self.tau_mem_ms, threshold=self.threshold_V, gain=self.gain,
             reset="rest", refractory_ms=self.refractory_ms,
