@@ -43,7 +43,7 @@ def test_generate_every_task(tmp_path, name):
     m = generate(name, 4, 0, out, shard_size=2, workers=1, progress=False)
     assert m["task"] == name and len(m["shards"]) == 2 and m["units"]
     ds = ShardDataset(out)
-    x, y = ds[0]
+    x, _y = ds[0]
     assert x.shape == (len(m["channel_names"]), m["window_samples"])
     task = get_task(name, seed=0)
     assert np.array_equal(x, task.render(0)[0][0])

@@ -53,7 +53,7 @@ def approach(speed, material="kapton", fs=2000.0):
 def test_peak_at_contact_onset_and_grows_with_speed():
     peaks = []
     for speed in (4.65, 9.3, 18.6):
-        v, t_c, gap, fs = approach(speed)
+        v, t_c, _gap, fs = approach(speed)
         t_peak = np.argmax(v[0]) / fs
         assert abs(t_peak - t_c) < 0.03  # seed: peak coincides with contact onset
         peaks.append(v[0].max())
@@ -79,7 +79,7 @@ def test_relax_matches_continuous_highpass_for_a_ramp():
 def test_far_field_cv_and_converter_suppression():
     rng = np.random.default_rng(0)
     fs = 2000.0
-    v, t_c, gap, _ = approach(9.3, fs=fs)
+    v, _t_c, gap, _ = approach(9.3, fs=fs)
     s = single(TENGParams(fs_hz=fs))
     scene = IndentationScene(
         speed_mm_s=9.3, center_mm=(0.0, 0.0), depth_mm=1.0, hold_s=0.5, start_gap_mm=6.0
