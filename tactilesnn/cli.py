@@ -258,7 +258,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve")
+BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -270,6 +270,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
         res = bench_serve.run(args.model, clients=args.clients, seconds=args.seconds)
         if args.out:
             _write_json(Path(args.out) / "serve.json", res)
+        return 0
+    if args.name == "tasks":
+        from .bench import tasks
+
+        res = tasks.run(workers=args.workers)
+        if args.out:
+            _write_json(Path(args.out) / "tasks.json", res)
         return 0
     if args.name == "snn":
         from .bench import snn
@@ -376,6 +383,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", help="serve: model.onnx to load-test")
     p.add_argument("--clients", type=int, default=8, help="serve: concurrent clients")
     p.add_argument("--seconds", type=float, default=10.0, help="serve: duration per case")
+    p.add_argument("--workers", type=int, default=2, help="tasks: generation processes")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--epochs", type=int, default=PipelineConfig().epochs)
     p.add_argument("--difficulty", type=float, default=1.0)

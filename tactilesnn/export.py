@@ -70,13 +70,18 @@ class _LIFEncoderGraph(nn.Module):
         self.k = int(cfg.lif_max_spikes)
         self.dt = 1000.0 / pipe.fs_hz
         self.tau = float(cfg.lif_tau_ms)
+        # 1.0 = scale each window by its peak |x| (lif_norm "window"), 0.0 = by the training RMS
+        self.register_buffer("window_norm", torch.tensor(float(cfg.lif_norm == "window")))
         n = cfg.clock_afferents
         clock = torch.full((n, self.k), float("inf"))
         clock[:, 0] = torch.arange(n, dtype=torch.float32) * (pipe.duration_ms / max(n, 1))
         self.register_buffer("clock", clock)
 
     def forward(self, x: Tensor) -> Tensor:
-        x = torch.index_select(x, 1, self.channel_idx) / self.ref.view(1, -1, 1)
+        x = torch.index_select(x, 1, self.channel_idx)
+        peak = x.abs().amax(dim=(1, 2), keepdim=True).clamp_min(1e-30)
+        scale = self.window_norm * peak + (1.0 - self.window_norm) * self.ref.view(1, -1, 1)
+        x = x / scale
         drive = (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)  # [N, A, W]
         n, a = drive.shape[0], drive.shape[1]
         v = torch.zeros(n, a)

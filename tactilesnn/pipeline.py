@@ -56,6 +56,9 @@ class PipelineConfig:
     lif_hi: float = 4.0
     lif_tau_ms: float = 10.0
     lif_max_spikes: int = 8
+    # "train": levels relative to each channel's training RMS; "window": relative to the peak
+    # |x| of each window over all channels (gain-invariant, keeps the channels' relative levels)
+    lif_norm: str = "train"
     # tempotron
     clock_afferents: int = 5  # afferents firing at fixed times in every window (time reference)
     tau_ms: float = 2000.0  # long membrane memory: integrates the whole 500 ms window
@@ -84,6 +87,7 @@ class PipelineConfig:
         check_choice(self.encoder, "encoder", ENCODERS)
         check_choice(self.model, "model", MODELS)
         check_choice(self.tempotron_train, "tempotron_train", ("rule", "gradient"))
+        check_choice(self.lif_norm, "lif_norm", ("train", "window"))
         self.channels = tuple(self.channels)
         self.stats = tuple(self.stats)
         if self.epochs < 1 or self.batch_size < 1 or self.n_bands < 1:
@@ -223,6 +227,9 @@ class SpikePipeline:
             raise RuntimeError("the LIF encoder is not calibrated: call fit() or calibrate() first")
         n, c, w = chunk.shape
         scaled = chunk / self.lif_ref.numpy()[None, :, None]
+        if cfg.lif_norm == "window":
+            peak = np.abs(chunk).max(axis=(1, 2), keepdims=True)
+            scaled = chunk / np.maximum(peak, 1e-30)
         thr = np.geomspace(cfg.lif_lo, cfg.lif_hi, cfg.lif_neurons)
         # converter j of channel i sees the input divided by its threshold (threshold 1 each)
         drive = (scaled[:, :, None, :] / thr[None, None, :, None]).reshape(n, c * len(thr), w)
