@@ -43,6 +43,23 @@ def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model)
         export_pipeline(pipe, out, test_windows.X[:2])
 
 
+def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
+    kw = {"seed": 0, "n_samples": 36}
+    cfg = PipelineConfig(encoder="lif", model="snn", epochs=1, snn_hidden=8, channels=("all",),
+                         lif_norm="window", lif_lo=0.05, lif_hi=0.8, lif_neurons=3)  # fmt: skip
+    run, _ = train_run("stiffness_curvature", kw, cfg, tmp_path / "run", progress=False)
+    pipe, _ = load_run(run)
+    from tactilesnn.datasets_synth import get_task
+
+    X = get_task("stiffness_curvature", **kw).build()[1].X
+    export_pipeline(pipe, tmp_path / "m.onnx", X)  # refuses on a parity failure
+    sess = PipelineSession(str(tmp_path / "m.onnx"))
+    ref = pipe.scores(pipe.encode(X)).numpy()
+    assert np.abs(sess.run(sess.validate(X)) - ref).max() <= 1e-4
+    # gain invariance: the window-normalised code gives the same scores at 10x the amplitude
+    assert np.allclose(pipe.scores(pipe.encode(10 * X)).numpy(), ref, atol=1e-5)
+
+
 def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
     nodes = []
     for dt in (10.0, 2.5):  # 51 vs 201 time steps

@@ -50,8 +50,10 @@ def skip_pvdf(repeats: int = 5, seconds: float = 40.0) -> dict:
             f = np.zeros(n)
             for _ in range(4):
                 i, length = int(rng.integers(0, n - 1600)), int(rng.integers(320, 1200))
-                f[i : i + length] += rng.uniform(0.2, 1.4) * 0.5 * (
-                    1 - np.cos(2 * np.pi * np.arange(length) / length)
+                f[i : i + length] += (
+                    rng.uniform(0.2, 1.4)
+                    * 0.5
+                    * (1 - np.cos(2 * np.pi * np.arange(length) / length))
                 )
             c = sensor.taxels_mm[rng.integers(12)] + rng.uniform(-2, 2, 2)
             t0 = time.perf_counter()
