@@ -15,6 +15,7 @@ shards (verifying the finished ones' hashes). Shards are written to a temporary 
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -106,6 +107,7 @@ def generate(
         "channel_names": list(task.channel_names),
         "units": task.units,
         "class_names": list(task.class_names),
+        "parameters": json.loads(json.dumps(dataclasses.asdict(task), default=str)),
     }
     done: dict[str, dict] = {}
     if resume and partial_path.exists():
@@ -191,3 +193,28 @@ class ShardDataset:
         sh = self._shard(k)
         j = i - int(self.offsets[k])
         return sh["X"][j], int(sh["y"][j])
+
+
+class TaskDataset:
+    """torch-style Dataset that renders a trial task on the fly: item ``i`` -> ``(X [C, W], y)``.
+
+    Item ``i`` is sample ``i`` of (task, seed), identical to what ``generate`` writes, so a
+    training loop can stream samples without storing them (each DataLoader worker renders its
+    own indices).
+    """
+
+    def __init__(self, task_name: str, **task_kwargs: object) -> None:
+        self.task = get_task(task_name, **task_kwargs)
+        if not hasattr(self.task, "sample"):
+            raise ValueError(f"{task_name} is scan-based: generate it and use ShardDataset")
+        self.class_names = tuple(self.task.class_names)
+        self.fs_hz = float(self.task.fs_hz)
+
+    def __len__(self) -> int:
+        return int(self.task.n_samples)
+
+    def __getitem__(self, i: int):
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"index {i} out of range for {len(self)} samples")
+        x, y, _ = self.task.sample(i % len(self))
+        return x, y

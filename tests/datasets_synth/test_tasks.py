@@ -7,7 +7,7 @@ import pytest
 
 from tactilesnn.baselines import linear_amplitude_baseline
 from tactilesnn.datasets_synth import TASKS, get_task
-from tactilesnn.datasets_synth.generate import ShardDataset, generate
+from tactilesnn.datasets_synth.generate import ShardDataset, TaskDataset, generate
 from tactilesnn.datasets_synth.pvdf import PVDFParams, PVDFTriangle
 from tactilesnn.datasets_synth.textures import TEXTURES
 
@@ -47,7 +47,13 @@ def test_generate_every_task(tmp_path, name):
     assert x.shape == (len(m["channel_names"]), m["window_samples"])
     task = get_task(name, seed=0)
     assert np.array_equal(x, task.render(0)[0][0])
-    assert json.loads((out / "manifest.json").read_text())["fs_hz"] == task.fs_hz
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["fs_hz"] == task.fs_hz and manifest["parameters"]["seed"] == 0
+    if name != "hook_loop":  # on-the-fly dataset == generated shards
+        live = TaskDataset(name, seed=0)
+        assert np.array_equal(live[1][0], ds[1][0]) and live[1][1] == ds[1][1]
+        with pytest.raises(IndexError):
+            live[len(live)]
 
 
 @pytest.mark.parametrize("pitch_mm", [6.0, 20.0])
