@@ -31,6 +31,7 @@ _HELP = {
 }
 
 
+TASK_KW_HELP = "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)"
 FAULTS_FLAG = "--faults"
 FAULTS_HELP = (
     'sensor faults for trial tasks, e.g. "dead=3;short=0-1@1e5;gain_sd=0.1;drift_per_s=0.01"'
@@ -55,6 +56,7 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         help="multiplier of the force set-point range and coupling-gain spread",
     )
     p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
+    p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
     p.add_argument(
         "--val-fraction",
         type=float,
@@ -114,8 +116,24 @@ def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> str | None:
     return text
 
 
+def _parse_task_kw(items: Sequence[str] | None) -> dict:
+    """``["layout_name=mia14", "n_samples=2000"]`` -> kwargs (values parsed as JSON if possible)."""
+    out: dict = {}
+    for item in items or []:
+        key, sep, val = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--task-kw expects key=value, got {item!r}")
+        try:
+            value = json.loads(val)
+        except json.JSONDecodeError:
+            value = val
+        out[key.strip()] = tuple(value) if isinstance(value, list) else value
+    return out
+
+
 def _task_kwargs(args: argparse.Namespace) -> dict:
     kw = {"difficulty": args.difficulty, "amplitude_spread": args.amplitude_spread}
+    kw.update(_parse_task_kw(getattr(args, "task_kw", None)))
     if getattr(args, "faults", None):
         if args.task == "hook_loop":
             raise ValueError("--faults applies to the trial tasks, not hook_loop")
@@ -362,6 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--difficulty", type=float, default=1.0)
     p.add_argument("--amplitude-spread", type=float, default=1.0)
     p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
+    p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
     p.add_argument("--quiet", action="store_true")

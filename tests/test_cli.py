@@ -70,3 +70,16 @@ def test_train_py_is_the_same_cli():
         [sys.executable, "train.py", "--help"], capture_output=True, text=True, check=True
     ).stdout
     assert "--encoder" in out and "--task" in out
+
+
+def test_generate_trial_task_with_task_kw_and_faults(tmp_path, capsys):
+    out = tmp_path / "sc"
+    args = ["generate", "--task", "stiffness_curvature", "--n", "4", "--out", str(out),
+            "--task-kw", "layout_name=mia14", "--faults", "dead=2", "--quiet"]  # fmt: skip
+    assert main(args) == 0
+    m = json.loads((out / "manifest.json").read_text())
+    assert len(m["channel_names"]) == 14 and m["parameters"]["faults"]["dead"] == [2]
+    bad = ["generate", "--task", "texture", "--n", "2", "--out", str(tmp_path / "x"),
+           "--task-kw", "layout=1", "--quiet"]  # fmt: skip
+    assert main(bad) != 0
+    assert "has no parameter(s) ['layout']" in capsys.readouterr().err

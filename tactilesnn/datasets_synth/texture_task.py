@@ -3,7 +3,7 @@
 Textures (:data:`~tactilesnn.datasets_synth.textures.TEXTURES`): hook, loop; gratings of 1, 2 and
 4 mm period and a shallow 2 mm one (narrow ridges, 35 % depth); random-rough surfaces with a
 self-affine spectrum (correlation 0.3 and 2 mm); fabrics (denim twill, corduroy wales, knit with
-stick-slip, felt). One sample = one 0.5 s window (100 samples at 200 S/s, channels ``static``,
+stick-slip, felt). One sample = one 1 s window (200 samples at 200 S/s, channels ``static``,
 ``dynamic``) taken at a random point of a two-stride closed-loop scan at a random speed.
 
 Knobs: ``difficulty`` scales the speed spread (60 mm/s x exp(+-0.15 d), which shifts every
@@ -27,11 +27,11 @@ from .trial_task import TrialTask
 
 @dataclass(frozen=True)
 class TextureTask(TrialTask):
-    """12 classes (:data:`TEXTURES` order); ``X [N, 2, 100]`` relative units at 200 S/s."""
+    """12 classes (:data:`TEXTURES` order); ``X [N, 2, 200]`` relative units at 200 S/s."""
 
-    n_samples: int = 1200
+    n_samples: int = 2400
     speed_mm_s: float = 60.0
-    window_samples: int = 100
+    window_samples: int = 200  # 1 s: a few cycles of the coarsest (4 mm) grating
 
     name: ClassVar[str] = "texture"
     task_id: ClassVar[int] = 2
