@@ -27,7 +27,7 @@ compresses the negative half-cycle towards cut-off, its output pole, and a 10-bi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import signal
@@ -101,6 +101,18 @@ class CapacitivePiezoStack:
 
     def __init__(self, params: CapacitivePiezoParams | None = None) -> None:
         self.params = params or CapacitivePiezoParams()
+
+    @classmethod
+    def with_noise_scale(cls, scale: float) -> CapacitivePiezoStack:
+        """Seed 001's stack with both channels' electronic noise multiplied by ``scale``."""
+        base = CapacitivePiezoParams()
+        return cls(
+            replace(
+                base,
+                static_noise_rel=base.static_noise_rel * scale,
+                dynamic_noise_rel=base.dynamic_noise_rel * scale,
+            )
+        )
 
     @property
     def fs_hz(self) -> float:

@@ -17,11 +17,11 @@ amplitude from identifying the texture. Both default to 1.0; 0 gives idealised s
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .capacitive_piezo import CapacitivePiezoStack
 from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
 
 TASK_ID = 1  # mixed into every seed so different tasks never share random streams
@@ -91,15 +91,7 @@ class HookLoopTask:
 
     @property
     def sensor(self) -> CapacitivePiezoStack:
-        d = self.difficulty
-        base = CapacitivePiezoParams()
-        return CapacitivePiezoStack(
-            replace(
-                base,
-                static_noise_rel=base.static_noise_rel * d,
-                dynamic_noise_rel=base.dynamic_noise_rel * d,
-            )
-        )
+        return CapacitivePiezoStack.with_noise_scale(self.difficulty)
 
     def surface(self, index: int) -> str:
         """Surface of scan ``index``: the first 100 planar, then 50 concave, then 50 convex."""

@@ -124,6 +124,10 @@ class PVDFTriangle:
     def fs_hz(self) -> float:
         return self.params.fs_hz
 
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(f"taxel{i}" for i in range(self.n_channels))
+
     # ------------------------------------------------------------------ mechanics -> charge
     def influence(self, points_mm: np.ndarray) -> np.ndarray:
         """Charge (pC) on each taxel per newton at each surface point: ``[12, points]``."""

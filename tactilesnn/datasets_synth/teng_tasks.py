@@ -31,6 +31,13 @@ from .indentation import IndentationScene
 from .teng import MATERIALS, TENGArray, TENGParams, layout
 from .trial_task import TrialTask
 
+
+def teng_sensor(layout_name: str, difficulty: float) -> TENGArray:
+    """The seed's TENG array on a named layout, gate noise scaled by ``difficulty``."""
+    base = TENGParams()
+    return TENGArray(layout(layout_name), replace(base, noise_V=base.noise_V * difficulty))
+
+
 STIFFNESS = {"soft": 0.3, "medium": 0.6, "hard": 0.97}  # skin's share of an overlap
 CURVATURE_MM = {"flat": np.inf, "round": 25.0, "sharp": 8.0}  # object radius of curvature
 
@@ -51,22 +58,7 @@ class StiffnessCurvatureTask(TrialTask):
 
     @property
     def sensor(self) -> TENGArray:
-        base = TENGParams()
-        return TENGArray(
-            layout(self.layout_name), replace(base, noise_V=base.noise_V * self.difficulty)
-        )
-
-    @property
-    def fs_hz(self) -> float:
-        return self.sensor.fs_hz
-
-    @property
-    def window(self) -> int:
-        return round(self.duration_s * self.fs_hz)
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return self.sensor.channel_names
+        return teng_sensor(self.layout_name, self.difficulty)
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         d, a = self.difficulty, self.amplitude_spread
@@ -114,20 +106,7 @@ class MaterialTask(TrialTask):
 
     @property
     def sensor(self) -> TENGArray:
-        base = TENGParams()
-        return TENGArray(layout("finger8"), replace(base, noise_V=base.noise_V * self.difficulty))
-
-    @property
-    def fs_hz(self) -> float:
-        return self.sensor.fs_hz
-
-    @property
-    def window(self) -> int:
-        return round(self.duration_s * self.fs_hz)
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return self.sensor.channel_names
+        return teng_sensor("finger8", self.difficulty)
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         d, a = self.difficulty, self.amplitude_spread

@@ -14,12 +14,12 @@ spread (so amplitude alone cannot name the texture).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .capacitive_piezo import CapacitivePiezoStack
 from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
 from .textures import TEXTURES
 from .trial_task import TrialTask
@@ -40,23 +40,11 @@ class TextureTask(TrialTask):
 
     @property
     def sensor(self) -> CapacitivePiezoStack:
-        base, d = CapacitivePiezoParams(), self.difficulty
-        return CapacitivePiezoStack(
-            replace(base, static_noise_rel=base.static_noise_rel * d,
-                    dynamic_noise_rel=base.dynamic_noise_rel * d)
-        )  # fmt: skip
-
-    @property
-    def fs_hz(self) -> float:
-        return self.sensor.fs_hz
+        return CapacitivePiezoStack.with_noise_scale(self.difficulty)
 
     @property
     def window(self) -> int:
         return self.window_samples
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return self.sensor.channel_names
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         speed = self.speed_mm_s * np.exp(0.15 * self.difficulty * rng.uniform(-1, 1))

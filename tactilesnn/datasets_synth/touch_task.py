@@ -49,18 +49,6 @@ class TouchModalityTask(TrialTask):
         base = PVDFParams()
         return PVDFTriangle(replace(base, noise_uV=base.noise_uV * max(self.difficulty, 1e-3)))
 
-    @property
-    def fs_hz(self) -> float:
-        return self.sensor.fs_hz
-
-    @property
-    def window(self) -> int:
-        return round(self.duration_s * self.fs_hz)
-
-    @property
-    def channel_names(self) -> tuple[str, ...]:
-        return tuple(f"taxel{i}" for i in range(self.sensor.n_channels))
-
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         d, a = self.difficulty, self.amplitude_spread
         sensor = self.sensor

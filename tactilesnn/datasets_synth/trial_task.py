@@ -53,18 +53,23 @@ class TrialTask:
         if not 0 < self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
 
-    # subclasses provide these --------------------------------------------------------------
+    # subclasses provide ``sensor`` (a model with ``fs_hz`` and ``channel_names``) and either a
+    # ``duration_s`` field or their own ``window``
+    @property
+    def sensor(self):
+        raise NotImplementedError
+
     @property
     def fs_hz(self) -> float:
-        raise NotImplementedError
+        return float(self.sensor.fs_hz)
 
     @property
     def window(self) -> int:
-        raise NotImplementedError
+        return round(self.duration_s * self.fs_hz)  # type: ignore[attr-defined]
 
     @property
     def channel_names(self) -> tuple[str, ...]:
-        raise NotImplementedError
+        return tuple(self.sensor.channel_names)
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         """Return ``(x [channels, window] float64 in :attr:`units`, info)`` for one trial."""
