@@ -85,3 +85,15 @@ def test_bad_input():
         CapacitiveTriangle().read(np.ones(10), (0, 0), 5.0, 100.0)
     with pytest.raises(ValueError, match="stage"):
         CapacitiveTriangleParams(stage=3)
+
+
+def test_noise_grows_with_modules_and_falls_with_conversion_time():
+    f = np.zeros(20000)
+
+    def noise(**kw):
+        s = CapacitiveTriangle(CapacitiveTriangleParams(**kw))
+        return s.read(f, (0, 0), 5.0, 10000.0, np.random.default_rng(0))[1].std()
+
+    base = noise()
+    assert noise(modules=16) == pytest.approx(4 * base, rel=0.15)
+    assert noise(stage=2) == pytest.approx(base / 2, rel=0.15)

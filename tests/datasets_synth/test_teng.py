@@ -121,3 +121,14 @@ def test_bad_input():
     bad[2, 4] = np.nan
     with pytest.raises(ValueError, match="sample 4"):
         s.read(bad, "glass")
+
+
+def test_contact_electrification_grows_and_saturates():
+    v, t_c, gap, fs = approach(9.3)
+    s = single(TENGParams(fs_hz=fs))
+    peaks = [s.read(gap[None], "kapton", n)[0].max() for n in (0, 20, 200, 2000)]
+    assert peaks[0] < peaks[1] < peaks[2]
+    assert peaks[3] / peaks[0] == pytest.approx(1 + MATERIALS["kapton"].electrification, rel=1e-3)
+    # a conductive surface barely charges up
+    al = [s.read(gap[None], "aluminium", n)[0].max() for n in (0, 2000)]
+    assert al[1] / al[0] < 1.1
