@@ -124,7 +124,7 @@ def test_bad_input():
 
 
 def test_contact_electrification_grows_and_saturates():
-    v, t_c, gap, fs = approach(9.3)
+    _, _, gap, fs = approach(9.3)
     s = single(TENGParams(fs_hz=fs))
     peaks = [s.read(gap[None], "kapton", n)[0].max() for n in (0, 20, 200, 2000)]
     assert peaks[0] < peaks[1] < peaks[2]
