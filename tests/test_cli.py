@@ -83,3 +83,20 @@ def test_generate_trial_task_with_task_kw_and_faults(tmp_path, capsys):
            "--task-kw", "layout=1", "--quiet"]  # fmt: skip
     assert main(bad) != 0
     assert "has no parameter(s) ['layout']" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["texture", "stiffness_curvature", "material", "touch"])
+def test_task_configs_parse(name):
+    from pathlib import Path
+
+    from tactilesnn.cli import _apply_toml, _config, build_parser
+
+    parser = build_parser()
+    sub = parser._subparsers._group_actions[0].choices["train"]
+    path = Path(__file__).resolve().parents[1] / "configs" / f"{name}.toml"
+    argv = ["train", "--config", str(path)]
+    _apply_toml(sub, argv[1:])
+    args = parser.parse_args(argv)
+    assert args.task == name
+    cfg = _config(args)  # every key is a valid pipeline setting
+    assert cfg.channels in (("all",), ("dynamic",))
