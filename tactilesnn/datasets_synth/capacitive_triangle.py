@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._checks import as_float_array, check_choice, check_finite, check_positive
-from .pvdf import EPS0, boussinesq_t3, disc_points
+from .pvdf import EPS0, boussinesq_t3, contact_positions, disc_points
 
 STAGE_MS = (0.768, 1.536, 3.072)
 MODES = {"12": 12, "3": 3, "1": 1}
@@ -126,16 +126,13 @@ class CapacitiveTriangle:
     ) -> np.ndarray:
         """Pressure (Pa) on each pad ``[12, samples]`` from a uniform disc load spread by the foam."""
         f = np.asarray(force_N, dtype=np.float64)
-        c = np.asarray(center_mm, dtype=np.float64).reshape(-1, 2)
-        if c.shape[0] == 1:
-            c = np.repeat(c, f.size, 0)
         offs, wts = disc_points(diameter_mm)
-        uniq, inv = np.unique(np.round(c, 4), axis=0, return_inverse=True)
+        uniq, inv = contact_positions(center_mm, f.size)
         per = np.empty((12, len(uniq)))
         for k, u in enumerate(uniq):
             r = np.linalg.norm(self.taxels_mm[:, None, :] - (u + offs)[None], axis=-1)
             per[:, k] = -boussinesq_t3(1.0, r, self.params.spread_depth_mm) @ wts
-        return per[:, inv.ravel()] * f[None, :]
+        return per[:, inv] * f[None, :]
 
     def strain(self, pressure_Pa: np.ndarray) -> np.ndarray:
         """Foam compression (fraction) with play-operator hysteresis along the last axis."""

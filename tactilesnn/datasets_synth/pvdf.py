@@ -53,6 +53,21 @@ def boussinesq_t3(force_N: np.ndarray, r_mm: np.ndarray, cover_mm: float) -> np.
     return -3.0 * np.asarray(force_N) * h**3 / (2 * np.pi * (r * r + h * h) ** 2.5)
 
 
+def contact_positions(center_mm: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct contact centres ``[U, 2]`` (mm, to 0.1 um) and each sample's index into them.
+
+    ``center_mm`` is one centre ``[2]`` or one per sample ``[n, 2]``; only distinct positions need
+    the (costly) spatial quadrature of a contact.
+    """
+    c = np.asarray(center_mm, dtype=np.float64).reshape(-1, 2)
+    if c.shape[0] == 1:
+        c = np.repeat(c, n, 0)
+    if c.shape[0] != n:
+        raise ValueError(f"center_mm has {c.shape[0]} rows for {n} samples")
+    uniq, inv = np.unique(np.round(c, 4), axis=0, return_inverse=True)
+    return uniq, inv.ravel()
+
+
 def disc_points(diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.ndarray]:
     """Sub-point offsets (mm) and weights summing to 1 for a uniform-pressure disc."""
     rad = diameter_mm / 2
@@ -148,18 +163,14 @@ class PVDFTriangle:
     ) -> np.ndarray:
         """Taxel charges ``[12, samples]`` (pC) for a disc contact moving over the triangle."""
         f = np.asarray(force_N, dtype=np.float64)
-        c = np.asarray(center_mm, dtype=np.float64).reshape(-1, 2)
-        if c.shape[0] == 1:
-            c = np.repeat(c, f.size, 0)
         offs, wts = self.disc_points(diameter_mm)
-        # only distinct contact positions need the (costly) Boussinesq quadrature
-        uniq, inv = np.unique(np.round(c, 4), axis=0, return_inverse=True)
+        uniq, inv = contact_positions(center_mm, f.size)
         per_pos = np.empty((self.n_channels, len(uniq)))
         for k in range(0, len(uniq), 32):  # 32 positions x disc points per vectorised call
             u = uniq[k : k + 32]
             inf = self.influence((u[:, None, :] + offs[None]).reshape(-1, 2))
             per_pos[:, k : k + len(u)] = inf.reshape(self.n_channels, len(u), -1) @ wts
-        return per_pos[:, inv.ravel()] * f[None, :]
+        return per_pos[:, inv] * f[None, :]
 
     # ------------------------------------------------------------------ readout
     def amplify(self, q_pC: np.ndarray, fs_in_hz: float, cf_pF: float) -> np.ndarray:
@@ -199,11 +210,8 @@ class PVDFTriangle:
         fs_in = float(fs_in_hz)
         decim = check_decimation(fs_in_hz, p.fs_hz)
         check_positive(diameter_mm, "diameter_mm")
-        c = np.asarray(center_mm, dtype=np.float64).reshape(-1, 2)
-        if c.shape[0] == 1:
-            c = np.repeat(c, f.size, 0)
-        if c.shape[0] != f.size:
-            raise ValueError(f"center_mm has {c.shape[0]} rows for {f.size} force samples")
+        uniq, inv = contact_positions(center_mm, f.size)
+        c = uniq[inv]  # [samples, 2]
         n_out = -(-f.size // decim)
         spans, taxels = [slice(0, f.size)], np.arange(self.n_channels)
         if skip:

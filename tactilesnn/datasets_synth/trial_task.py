@@ -13,6 +13,7 @@ Every subclass exposes the same array contract as the hook-vs-loop task (see
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -23,7 +24,7 @@ from .hook_loop import WindowDataset
 
 
 @dataclass(frozen=True)
-class TrialTask:
+class TrialTask(ABC):
     """Base class: subclasses set the class attributes and implement :meth:`_render`."""
 
     seed: int = 0
@@ -56,8 +57,9 @@ class TrialTask:
     # subclasses provide ``sensor`` (a model with ``fs_hz`` and ``channel_names``) and either a
     # ``duration_s`` field or their own ``window``
     @property
+    @abstractmethod
     def sensor(self):
-        raise NotImplementedError
+        """The sensor model this task reads (has ``fs_hz`` and ``channel_names``)."""
 
     @property
     def fs_hz(self) -> float:
@@ -71,9 +73,9 @@ class TrialTask:
     def channel_names(self) -> tuple[str, ...]:
         return tuple(self.sensor.channel_names)
 
+    @abstractmethod
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         """Return ``(x [channels, window] float64 in :attr:`units`, info)`` for one trial."""
-        raise NotImplementedError
 
     # shared ----------------------------------------------------------------------------------
     def rng(self, index: int) -> np.random.Generator:

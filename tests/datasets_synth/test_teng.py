@@ -88,7 +88,7 @@ def test_far_field_cv_and_converter_suppression():
     far = np.argmin(np.abs(g_far[0] - 3.5))  # 3.5 mm from the skin
     vals = np.array([s.read(g_far, "kapton", 10, rng)[0, far] for _ in range(400)])
     cv = vals.std() / abs(vals.mean())
-    assert 1.5 < cv < 6.0  # seed: CV of V_T up to 3.5 far from the skin
+    assert cv == pytest.approx(3.5, abs=0.6)  # seed: CV of V_T up to 3.5 far from the skin
     n = gap.size
     g, _ = IndentationScene(speed_mm_s=9.3, center_mm=(0.0, 0.0), depth_mm=1.0, hold_s=0.5).render(
         np.zeros((1, 2)), fs, n
