@@ -77,7 +77,8 @@ class TENGParams:
     residual_sd_V: float = 0.175  # sd / mean = 3.5: the seed's far-field CV
     residual_range_mm: float = 3.0  # decay length of the residual-charge term
     electrification_contacts: float = 20.0
-    gain_sd: float = 0.0  # per-electrode calibration spread (log sd) after the LCR trimming
+    # per-sensor calibration spread (seed: C 3-22 pF, R 0.24-1 MOhm before trimming) is a device
+    # property: use Faults(gain_sd=...), which draws it once per device
     electrode_mm: float = 4.0  # square pad side: induced charge is the mean over the pad
     pad_quad: int = 3  # quadrature points per pad side
 
@@ -165,8 +166,6 @@ class TENGArray:
             residual = p.residual_mean_V + p.residual_sd_V * rng.standard_normal()
             u = u + residual * np.exp(-np.maximum(gap, 0.0) / p.residual_range_mm).mean(1)
         v = relax(u, self.fs_hz, mat.relax_s)
-        if p.gain_sd and rng is not None:
-            v = v * np.exp(p.gain_sd * rng.standard_normal(v.shape[0]))[:, None]
         if rng is not None:
             v = v + p.noise_V * rng.standard_normal(v.shape)
         return v
