@@ -125,6 +125,8 @@ class PVDFTriangle:
     """Twelve PVDF taxels under a PDMS cover with a dual-range charge-amplifier readout."""
 
     n_channels = 12
+    # charge below which a taxel is not simulated (read(skip=True)); 1/5 of the noise rms
+    skip_tol_pC: float = 1e-4
 
     def __init__(self, params: PVDFParams | None = None) -> None:
         self.params = params or PVDFParams()
@@ -233,8 +235,6 @@ class PVDFTriangle:
         high, low = outs
         saturated = np.abs(high) >= 0.9 * p.supply_V * p.cf_pF
         return np.where(saturated, low, high).astype(np.float32)
-
-    skip_tol_pC: float = 1e-4  # below the 24-bit high-range LSB (6e-5 V x 100 pF = 6e-3 pC)
 
     def _needed(
         self, f: np.ndarray, c: np.ndarray, diameter_mm: float, fs_in: float, decim: int

@@ -153,7 +153,9 @@ class Grating:
     duty: float = 0.5
     load_exponent: float = 0.5
 
-    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+    def profiles(
+        self, length_mm: float, dx_mm: float, rng: np.random.Generator, irregularity: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = int(np.ceil(length_mm / dx_mm))
         count = int(length_mm / self.period_mm) + 3
         gaps = self.period_mm * (1 + 0.03 * irregularity * rng.standard_normal(count))
@@ -175,7 +177,9 @@ class RandomRough:
     rms: float = 0.6
     load_exponent: float = 0.7
 
-    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+    def profiles(
+        self, length_mm: float, dx_mm: float, rng: np.random.Generator, irregularity: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = int(np.ceil(length_mm / dx_mm))
         k = np.fft.rfftfreq(n, dx_mm)  # cycles / mm
         k0 = 1.0 / self.corr_mm
@@ -201,7 +205,9 @@ class Fabric:
     stick_slip: float = 0.0
     load_exponent: float = 0.8
 
-    def profiles(self, length_mm, dx_mm, rng, irregularity=1.0):
+    def profiles(
+        self, length_mm: float, dx_mm: float, rng: np.random.Generator, irregularity: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         n = int(np.ceil(length_mm / dx_mm))
         x = np.arange(n) * dx_mm
         prof = np.zeros(n)
