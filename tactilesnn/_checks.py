@@ -67,3 +67,22 @@ def check_decimation(fs_in_hz: float, fs_out_hz: float) -> int:
             f"fs_in_hz ({fs_in_hz}) must be an integer multiple of the readout rate ({fs_out_hz})"
         )
     return round(ratio)
+
+
+def check_int(value: object, name: str, minimum: int = 1) -> int:
+    """Return ``value`` as int if it is an integer >= ``minimum`` (1.7 and True are refused)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value}")
+    return int(value)
+
+
+def check_range(value: object, name: str, lo: float, hi: float) -> float:
+    """Return ``value`` as float if finite and in ``[lo, hi]``."""
+    if isinstance(value, bool):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    v = float(value)  # type: ignore[arg-type]
+    if not (np.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"{name} must be a finite number in [{lo}, {hi}], got {value!r}")
+    return v

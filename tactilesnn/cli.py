@@ -10,25 +10,22 @@ import json
 import logging
 import sys
 from collections.abc import Sequence
-from dataclasses import MISSING, fields
 from pathlib import Path
 
 import numpy as np
 
+from .config import (
+    TOP_FLAGS,
+    PipelineConfig,
+    TrainConfig,
+    flat_settings,
+    is_nested,
+    owner_of_flag,
+    registries,
+)
 from .datasets_synth import TASKS
-from .pipeline import ENCODERS, MODELS, PipelineConfig
 
 log = logging.getLogger("tactilesnn")
-
-
-_SKIP: set[str] = set()
-_HELP = {
-    "encoder": "gwt | stft (scalogram -> latency code) or lif (LIF converter population)",
-    "model": "tempotron or snn (surrogate-gradient LIF network)",
-    "seed": "dataset split, generation and initialisation seed",
-    "lr": "tempotron learning rate lambda (seed 001: 0.005)",
-    "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
-}
 
 
 TASK_KW_HELP = "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)"
@@ -39,8 +36,11 @@ FAULTS_HELP = (
 
 
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
-    """One flag per :class:`PipelineConfig` field, so every setting is also a TOML key."""
-    p.add_argument("--config", help="TOML file of settings (flag names as keys); flags win")
+    """Run options, then one flag per pipeline setting (the flat names of every registered
+    component's config, :func:`tactilesnn.config.flat_settings`); each is also a TOML key."""
+    p.add_argument(
+        "--config", help="TOML file of settings (nested sections or flat keys); flags win"
+    )
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
     p.add_argument("--data", help="real recordings .npz (X [N,C,S], y, fs, class_names)")
     p.add_argument(
@@ -63,37 +63,82 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         default=0.0,
         help="fraction of training scans held out for early stopping / best weights",
     )
-    for f in fields(PipelineConfig):
-        if f.name in _SKIP:
-            continue
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
-        kw: dict = {"default": default, "help": _HELP.get(f.name)}
-        if f.name == "encoder":
-            kw["choices"] = ENCODERS
-        elif f.name == "model":
-            kw["choices"] = MODELS
+    g = p.add_argument_group("pipeline settings (unset flags keep the component's default)")
+    for kind, reg in registries().items():
+        g.add_argument(
+            f"--{kind}",
+            choices=reg.names(),
+            default=argparse.SUPPRESS,
+            help=f"{kind} component (default {getattr(config_defaults(), kind + '_type')})",
+        )
+    for name, (owner, default, text) in flat_settings().items():
+        kw: dict = {"default": argparse.SUPPRESS, "help": f"{text} [{owner}; default {default!r}]"}
         if isinstance(default, bool):
             kw["action"] = argparse.BooleanOptionalAction
         elif isinstance(default, tuple):
             kw["nargs"] = "+"
         else:
             kw["type"] = type(default)
-        p.add_argument(flag, **kw)
+        g.add_argument("--" + name.replace("_", "-"), **kw)
+
+
+def config_defaults() -> PipelineConfig:
+    return PipelineConfig()
 
 
 def _config(args: argparse.Namespace) -> PipelineConfig:
-    values = {f.name: getattr(args, f.name) for f in fields(PipelineConfig) if f.name not in _SKIP}
-    return PipelineConfig(**values)
+    """TOML settings (if any) overridden by the flags given on the command line."""
+    flat = {k: getattr(args, k) for k in [*registries(), *flat_settings()] if hasattr(args, k)}
+    base = getattr(args, "_pipeline_toml", None) or {}
+    return apply_flat(base, flat)
 
 
-def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> str | None:
-    """Load ``--config`` (if given) into the train parser's defaults; returns the file's text."""
+def apply_flat(base: dict, flat: dict) -> PipelineConfig:
+    """``base`` (nested or flat settings) with flat overrides: the command line over a TOML file.
+
+    A flat setting of a component that is not selected is refused (``--lif-neurons`` with
+    ``--encoder gwt``); changing a component's type drops the old component's settings.
+    """
+    if not is_nested(base):
+        return PipelineConfig.from_flat({**base, **flat}, strict=True)
+    d = PipelineConfig.from_dict(base).to_dict()
+    for kind in registries():
+        if kind in flat and flat[kind] != d[kind]["type"]:
+            d[kind] = {"type": flat[kind]}
+    comp = PipelineConfig.from_dict(d)
+    enc_flags, model_flags = type(comp.encoder).FLAGS, type(comp.model).FLAGS
+    for key, value in flat.items():
+        value = tuple(value) if isinstance(value, list) else value
+        if key in registries():
+            continue
+        if key in TOP_FLAGS:
+            d[TOP_FLAGS[key]] = value
+        elif key in TrainConfig.FLAGS:
+            d["train"][TrainConfig.FLAGS[key]] = value
+        elif key in enc_flags:
+            d["encoder"][enc_flags[key]] = value
+        elif key in model_flags:
+            d["model"][model_flags[key]] = value
+        else:
+            owner = owner_of_flag(key)
+            if owner is None:
+                raise ValueError(f"unknown setting {key!r}")
+            kind, names = owner
+            raise ValueError(
+                f"{key!r} is a setting of {kind} {' / '.join(names)}, but the {kind} is "
+                f"{d[kind]['type']!r}"
+            )
+    return PipelineConfig.from_dict(d)
+
+
+def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> tuple[str | None, dict]:
+    """Load ``--config``: run options become the parser's defaults; returns the file's text and
+    its pipeline settings (nested sections, or the flat form of earlier versions)."""
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--config")
     known, _ = pre.parse_known_args(argv)
     if not known.config:
-        return None
+        return None, {}
     import tomllib
 
     path = Path(known.config)
@@ -104,16 +149,32 @@ def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> str | None:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{path}: not valid TOML: {e}") from e
-    table = table.get("train", table)
-    dests = {a.dest: a for a in sub._actions}
+    nested = isinstance(table.get("encoder"), dict) or isinstance(table.get("model"), dict)
+    if not nested:
+        table = table.get("train", table)  # the flat form, optionally under [train]
+    dests = {a.dest for a in sub._actions} - {"help", "config"}
+    pipeline_keys = {*registries(), *flat_settings()}
+    settings: dict = {}
     defaults = {}
     for key, value in table.items():
         dest = key.replace("-", "_")
-        if dest not in dests or dest in ("help", "config"):
+        if nested and key in ("encoder", "model", "train", *TOP_FLAGS):
+            settings[key] = value
+        elif not nested and dest in pipeline_keys:
+            settings[dest] = value
+        elif dest in dests and dest not in pipeline_keys:
+            defaults[dest] = tuple(value) if isinstance(value, list) else value
+        else:
             raise ValueError(f"{path}: unknown setting {key!r}")
-        defaults[dest] = tuple(value) if isinstance(value, list) else value
+    try:
+        if nested:
+            PipelineConfig.from_dict(settings)
+        else:
+            PipelineConfig.from_flat(settings, strict=True)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: {e}") from e
     sub.set_defaults(**defaults)
-    return text
+    return text, settings
 
 
 def _parse_task_kw(items: Sequence[str] | None) -> dict:
@@ -153,11 +214,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     out = (
         Path(args.out)
         if args.out
-        else default_run_dir(Path("runs"), source, config.encoder, config.model)
+        else default_run_dir(Path("runs"), source, config.encoder_type, config.model_type)
     )
     if args.resume and not args.out:
         raise ValueError("--resume needs the --out folder of the interrupted run")
-    task_kwargs = dict(_task_kwargs(args), seed=args.seed)
+    task_kwargs = dict(_task_kwargs(args), seed=config.seed)
     path, m = train_run(
         args.task,
         task_kwargs,
@@ -172,7 +233,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         export=args.export,
     )
     print(
-        f"{source} {config.encoder}+{config.model}: test accuracy "
+        f"{source} {config.encoder_type}+{config.model_type}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
@@ -404,7 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, default=10.0, help="serve: duration per case")
     p.add_argument("--workers", type=int, default=2, help="tasks: generation processes")
     p.add_argument("--overwrite", action="store_true")
-    p.add_argument("--epochs", type=int, default=PipelineConfig().epochs)
+    p.add_argument("--epochs", type=int, default=TrainConfig().epochs)
     p.add_argument("--difficulty", type=float, default=1.0)
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_bench)
@@ -414,7 +475,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    config_text = None
+    config_text, pipeline_toml = None, {}
     if argv and argv[0] == "train":
         sub = next(
             a
@@ -422,12 +483,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             if isinstance(a, argparse._SubParsersAction)
         ).choices["train"]
         try:
-            config_text = _apply_toml(sub, argv[1:])
+            config_text, pipeline_toml = _apply_toml(sub, argv[1:])
         except ValueError as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
     args = parser.parse_args(argv)
     args._config_text = config_text
+    args._pipeline_toml = pipeline_toml
     from .perf import tune_allocator
 
     tune_allocator()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import platform
 import shutil
@@ -15,12 +16,15 @@ from pathlib import Path
 import numpy as np
 import torch
 from sklearn.metrics import confusion_matrix
+from tqdm.auto import tqdm
 
 from . import __version__
 from ._checks import check_finite
 from .baselines import linear_amplitude_baseline
+from .config import PipelineConfig, TrainConfig, is_nested
 from .datasets_synth import WindowDataset, get_task
-from .pipeline import PipelineConfig, SpikePipeline, accuracy_ci95, tempotron_batch
+from .models.base import SpikeModel, to_tensor_labels
+from .pipeline import SpikePipeline, accuracy_ci95
 from .runs import RunWriter, load_arrays, read_json
 
 log = logging.getLogger("tactilesnn")
@@ -59,6 +63,123 @@ def split_validation(
     return take(~is_val), take(is_val)
 
 
+class Trainer:
+    """Training loop for any :class:`~tactilesnn.models.base.SpikeModel`.
+
+    Models that learn by a rule get :meth:`~SpikeModel.rule_update` per mini-batch; the others
+    Adam on :meth:`~SpikeModel.loss`. After each epoch: training error, validation accuracy
+    (if given), best-weight bookkeeping, early stopping (``patience``) and a resumable state
+    (weights, optimizer, RNG; momentum is a model buffer) for ``on_epoch``.
+    """
+
+    def __init__(self, model: SpikeModel, config: TrainConfig, progress: bool = False) -> None:
+        self.model, self.config, self.progress = model, config, progress
+        self.history: dict = {}
+
+    @torch.no_grad()
+    def _scores(self, spikes: torch.Tensor) -> torch.Tensor:
+        batch = self.model.batch_size(spikes)
+        return torch.cat([self.model.scores(spikes[i : i + batch])
+                          for i in range(0, spikes.shape[0], batch)])  # fmt: skip
+
+    def fit(
+        self,
+        spikes: torch.Tensor,
+        y: np.ndarray,
+        val: tuple[torch.Tensor, np.ndarray] | None = None,
+        on_epoch: Callable[[int, dict], None] | None = None,
+        resume: dict | None = None,
+    ) -> list[float]:
+        """Train on spike times ``[N, A, k]`` and labels ``[N]``; returns the error per epoch."""
+        cfg, model = self.config, self.model
+        yt = to_tensor_labels(np.asarray(y), model.n_classes, spikes.shape[0])
+        gen = torch.Generator().manual_seed(cfg.seed)
+        by_rule = model.learns_by_rule
+        opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
+        st = {"epoch": 0, "history": [], "val_history": [], "best_score": -math.inf, "stale": 0}
+        best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        if resume is not None:
+            _load_state(model, resume["model"])
+            gen.set_state(torch.from_numpy(np.asarray(resume["rng"], dtype=np.uint8)))
+            if opt is not None and "optimizer" in resume:
+                _restore_optimizer(opt, resume["optimizer"])
+            st = {k: resume[k] for k in st}
+            st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
+            best_w = {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}
+        desc = f"train {type(model).registry_name}"
+        bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc, disable=not self.progress)
+        for epoch in bar:
+            perm = torch.randperm(spikes.shape[0], generator=gen)
+            model.train()
+            for i in range(0, perm.numel(), cfg.batch_size):
+                idx = perm[i : i + cfg.batch_size]
+                if by_rule:
+                    with torch.no_grad():
+                        model.rule_update(spikes[idx], yt[idx], epoch)
+                else:
+                    loss = model.loss(spikes[idx], yt[idx])
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+            model.eval()
+            err = float((self._scores(spikes).argmax(1) != yt).float().mean())
+            st["history"].append(err)
+            score = 1.0 - err
+            if val is not None:
+                vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
+                score = float((self._scores(val[0]).argmax(1) == vy).float().mean())
+                st["val_history"].append(score)
+            if score > st["best_score"]:
+                st["best_score"], st["stale"] = score, 0
+                best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            else:
+                st["stale"] += 1
+            st["epoch"] = epoch + 1
+            bar.set_postfix(
+                train_error=f"{err:.4f}", **({"val_acc": f"{score:.4f}"} if val else {})
+            )
+            if on_epoch is not None:
+                on_epoch(epoch, self.state(st, gen, opt, best_w))
+            if cfg.patience and val is not None and st["stale"] >= cfg.patience:
+                break
+        if cfg.keep_best:
+            model.load_state_dict(best_w)
+        self.history = st
+        return st["history"]
+
+    def state(self, st: dict, gen: torch.Generator, opt, best_w: dict) -> dict:
+        """Everything needed to resume: weights, optimizer state, RNG, bookkeeping."""
+        state = dict(st)
+        state["model"] = {k: v.detach().numpy().copy() for k, v in self.model.state_dict().items()}
+        state["best"] = {k: v.numpy().copy() for k, v in best_w.items()}
+        state["rng"] = gen.get_state().numpy().copy()
+        if opt is not None:
+            state["optimizer"] = _flatten_optimizer(opt)
+        return state
+
+
+def _load_state(module: torch.nn.Module, arrays: dict) -> None:
+    module.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in arrays.items()})
+
+
+def _flatten_optimizer(opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
+    out = {}
+    for i, st in opt.state_dict()["state"].items():
+        for k, v in st.items():
+            out[f"{i}.{k}"] = v.numpy().copy() if torch.is_tensor(v) else np.asarray(v)
+    return out
+
+
+def _restore_optimizer(opt: torch.optim.Optimizer, flat: dict[str, np.ndarray]) -> None:
+    sd = opt.state_dict()
+    state: dict[int, dict] = {}
+    for key, v in flat.items():
+        i, name = key.split(".", 1)
+        state.setdefault(int(i), {})[name] = torch.from_numpy(np.array(v))
+    sd["state"] = state
+    opt.load_state_dict(sd)
+
+
 def fit_and_evaluate(
     config: PipelineConfig,
     train: WindowDataset,
@@ -80,19 +201,17 @@ def fit_and_evaluate(
     s_val = pipe.encode(val_set.X) if val_set is not None else None
     s_test = pipe.encode(test.X)
     t_enc = time.perf_counter() - t0
-    history = pipe.fit_spikes(
+    trainer = Trainer(pipe.model, config.train, progress=progress)
+    history = trainer.fit(
         s_train,
         fit_set.y,
-        progress=progress,
         val=(s_val, val_set.y) if val_set is not None else None,
         on_epoch=checkpoint,
         resume=resume,
     )
     t_fit = time.perf_counter() - t0 - t_enc
     pred = pipe.scores(s_test).argmax(1).numpy()
-    early = (
-        early_decision_metrics(pipe, s_test, test.y, pred) if config.model == "tempotron" else None
-    )
+    early = early_decision_metrics(pipe, s_test, test.y, pred)
     acc = float((pred == test.y).mean())
     cm = confusion_matrix(test.y, pred, labels=np.arange(len(test.class_names)))
     metrics = {
@@ -100,7 +219,7 @@ def fit_and_evaluate(
         "test_accuracy_ci95": accuracy_ci95(acc, test.y.size),
         "train_error_final": history[-1],
         "epochs_run": len(history),
-        "val_accuracy_history": pipe.history["val_history"],
+        "val_accuracy_history": trainer.history["val_history"],
         "n_train_windows": int(fit_set.y.size),
         "n_val_windows": int(val_set.y.size) if val_set is not None else 0,
         "n_test_windows": int(test.y.size),
@@ -118,12 +237,14 @@ def fit_and_evaluate(
 
 
 @torch.no_grad()
-def early_decision_metrics(pipe: SpikePipeline, spikes: torch.Tensor, y, full_pred) -> dict:
-    """Tempotron deciding at the first class to fire: accuracy, window and spikes skipped."""
+def early_decision_metrics(pipe: SpikePipeline, spikes: torch.Tensor, y, full_pred) -> dict | None:
+    """A model deciding before the window ends (if it can): accuracy, window and spikes skipped."""
+    if spikes.shape[0] == 0 or pipe.model.early_decision(spikes[:1]) is None:
+        return None
     classes, t_dec = [], []
-    batch = tempotron_batch(spikes)
+    batch = pipe.model.batch_size(spikes)
     for i in range(0, spikes.shape[0], batch):
-        c, t = pipe.model.predict_early(spikes[i : i + batch])
+        c, t = pipe.model.early_decision(spikes[i : i + batch])
         classes.append(c)
         t_dec.append(t)
     cls, t = torch.cat(classes).numpy(), torch.cat(t_dec).numpy()
@@ -200,9 +321,7 @@ def save_checkpoint(folder: Path, state: dict) -> None:
     for group in ("model", "best", "optimizer"):
         for k, v in state.get(group, {}).items():
             arrays[f"{group}/{k}"] = np.asarray(v)
-    for k in ("rng", "velocity"):
-        if k in state:
-            arrays[k] = np.asarray(state[k])
+    arrays["rng"] = np.asarray(state["rng"])
     tmp = folder / "checkpoint.tmp.npz"
     np.savez(tmp, **arrays)
     os.replace(tmp, folder / "checkpoint.npz")
@@ -353,6 +472,7 @@ def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
         if not (run_dir / name).is_file():
             raise FileNotFoundError(f"{run_dir} is not a run folder: {name} is missing")
     cfg = read_json(run_dir / "config.json")
+    legacy = not is_nested(cfg["pipeline"])  # written before the component layer
     pipe = SpikePipeline(
         PipelineConfig.from_dict(cfg["pipeline"]),
         cfg["fs_hz"],
@@ -360,7 +480,7 @@ def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
         cfg["channel_names"],
         cfg["class_names"],
     )
-    pipe.load_weights(load_arrays(run_dir / "weights.npz"))
+    pipe.load_weights(load_arrays(run_dir / "weights.npz"), legacy=legacy)
     return pipe, cfg
 
 

@@ -29,7 +29,7 @@ def test_train_writes_run_folder(run_dir, capsys):
     assert np.array(cm["matrix"]).sum() == m["n_test_windows"]
     # weights load without pickle
     with np.load(run_dir / "weights.npz", allow_pickle=False) as f:
-        assert f["model.weight"].shape[0] == 2
+        assert f["model.net.weight"].shape[0] == 2
 
 
 def test_refuses_to_overwrite(run_dir, capsys):

@@ -7,9 +7,9 @@ import onnx
 import pytest
 
 from tactilesnn.cli import main
+from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
-from tactilesnn.pipeline import PipelineConfig
 from tactilesnn.service.runtime import PipelineSession, StreamState
 from tactilesnn.training import load_run, train_run
 
@@ -24,8 +24,9 @@ def test_windows():
 @pytest.mark.parametrize("encoder", ["gwt", "stft", "lif"])
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
 def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model):
-    tau = 200.0 if encoder == "lif" else 2000.0  # the LIF population code needs a shorter tau
-    cfg = PipelineConfig(encoder=encoder, model=model, epochs=2, snn_hidden=16, tau_ms=tau)
+    # the LIF population code needs a shorter tempotron tau
+    kw = {"snn_hidden": 16} if model == "snn" else {"tau_ms": 200.0 if encoder == "lif" else 2000.0}
+    cfg = PipelineConfig.from_flat(encoder=encoder, model=model, epochs=2, **kw)
     run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "run", progress=False)
     out = tmp_path / "m.onnx"
     assert main(["export", str(run), "--out", str(out), "--quiet"]) == 0
@@ -45,7 +46,7 @@ def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model)
 
 def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
     kw = {"seed": 0, "n_samples": 36}
-    cfg = PipelineConfig(encoder="lif", model="snn", epochs=1, snn_hidden=8, channels=("all",),
+    cfg = PipelineConfig.from_flat(encoder="lif", model="snn", epochs=1, snn_hidden=8, channels=("all",),
                          lif_norm="window", lif_lo=0.05, lif_hi=0.8, lif_neurons=3)  # fmt: skip
     run, _ = train_run("stiffness_curvature", kw, cfg, tmp_path / "run", progress=False)
     pipe, _ = load_run(run)
@@ -63,7 +64,7 @@ def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
 def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
     nodes = []
     for dt in (10.0, 2.5):  # 51 vs 201 time steps
-        cfg = PipelineConfig(model="snn", epochs=1, snn_hidden=8, snn_dt_ms=dt)
+        cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_dt_ms=dt)
         run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / f"r{dt}", progress=False)
         pipe, _ = load_run(run)
         rep = export_pipeline(pipe, tmp_path / f"m{dt}.onnx", test_windows.X[:16])
@@ -72,7 +73,7 @@ def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
 
 
 def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
-    cfg = PipelineConfig(model="snn", epochs=1, snn_hidden=8)
+    cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
     run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
     export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:8])
@@ -90,7 +91,9 @@ def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
 def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
     from tactilesnn.export import quantize_int8
 
-    run, _ = train_run("hook_loop", SMALL, PipelineConfig(epochs=3), tmp_path / "r", progress=False)
+    run, _ = train_run(
+        "hook_loop", SMALL, PipelineConfig.from_flat(epochs=3), tmp_path / "r", progress=False
+    )
     pipe, _ = load_run(run)
     export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
     q = quantize_int8(tmp_path / "m.onnx", test_windows.X, test_windows.y)

@@ -9,7 +9,7 @@ import pytest
 
 import tactilesnn.training as training
 from tactilesnn.cli import main
-from tactilesnn.pipeline import PipelineConfig
+from tactilesnn.config import PipelineConfig
 from tactilesnn.runs import load_arrays
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
@@ -24,7 +24,9 @@ ICUB = next((r / _REL for r in _ROOTS if (r / _REL).is_file()), _ROOTS[1] / _REL
 
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
 def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, model):
-    cfg = PipelineConfig(model=model, epochs=4, snn_hidden=16)
+    cfg = PipelineConfig.from_flat(
+        model=model, epochs=4, **({"snn_hidden": 16} if model == "snn" else {})
+    )
     ref_dir, _ = training.train_run("hook_loop", SMALL, cfg, tmp_path / "ref", progress=False)
 
     real_save = training.save_checkpoint
@@ -48,7 +50,7 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
         training.train_run(
             "hook_loop",
             SMALL,
-            PipelineConfig(model=model, epochs=5),
+            PipelineConfig.from_flat(model=model, epochs=5),
             out,
             progress=False,
             resume=True,
@@ -83,7 +85,8 @@ def test_toml_config_and_flag_override(tmp_path, capsys):
         == 0
     )
     cfg = json.loads((out / "config.json").read_text())["pipeline"]
-    assert cfg["encoder"] == "stft" and cfg["n_bands"] == 12 and cfg["epochs"] == 1
+    assert cfg["encoder"]["type"] == "stft" and cfg["encoder"]["n_bands"] == 12
+    assert cfg["train"]["epochs"] == 1 and cfg["train"]["seed"] == 1
     assert (out / "config.toml").read_text() == toml.read_text()
     bad = tmp_path / "bad.toml"
     bad.write_text("epochz = 3\n")

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from ..baselines import linear_amplitude_baseline
+from ..config import PipelineConfig
 from ..datasets_synth import HookLoopTask
-from ..pipeline import PipelineConfig
 from ..runs import RunWriter
 from ..training import fit_and_evaluate
 
@@ -58,9 +58,9 @@ def run(
                 ),
             }
             for key, kw in PIPELINES.items():
-                cfg = PipelineConfig(seed=seed, **kw)
-                if epochs is not None:
-                    cfg.epochs = epochs
+                cfg = PipelineConfig.from_flat(
+                    seed=seed, **kw, **({"epochs": epochs} if epochs is not None else {})
+                )
                 res = fit_and_evaluate(cfg, train, test, progress=progress)
                 row[key] = {
                     "test_accuracy": res.metrics["test_accuracy"],

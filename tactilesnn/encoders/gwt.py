@@ -158,6 +158,16 @@ class GaborScalogram(nn.Module):
         """``[batch, channels, samples]`` -> magnitude ``[batch, channels, bands, frames]``."""
         return self.analytic(x).abs()
 
+    @torch.no_grad()
+    def linear_map(self, window: int) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The transform of a ``window``-sample input as a matrix (for export as MatMuls).
+
+        Returns ``(response [window, bands, frames] complex128, None)``: the magnitude of
+        ``x @ response`` is :meth:`forward` (edges included); no band pooling follows.
+        """
+        eye = torch.eye(int(window), dtype=torch.float64).unsqueeze(1)  # unit impulses
+        return self.analytic(eye)[:, 0], None
+
     def analytic(self, x: torch.Tensor) -> torch.Tensor:
         """Complex wavelet coefficients ``[batch, channels, bands, frames]`` (linear in ``x``)."""
         if x.ndim != 3:

@@ -118,11 +118,9 @@ def to_events(spike_times: torch.Tensor, duration_ms: float):
 
 
 def to_dense(spike_times: torch.Tensor, duration_ms: float, dt_ms: float) -> torch.Tensor:
-    """Spike times ``[B, N]`` (ms, inf = none) -> dense 0/1 raster ``[B, N, steps]`` float32."""
-    steps = int(np.ceil(duration_ms / dt_ms)) + 1
-    idx = torch.floor(spike_times / dt_ms)  # same binning as SpikeEvents.to_dense
-    ok = torch.isfinite(idx) & (idx >= 0) & (idx < steps)
-    out = torch.zeros(*spike_times.shape, steps)
-    b, n = torch.nonzero(ok, as_tuple=True)
-    out[b, n, idx[ok].long()] = 1.0
-    return out
+    """Spike times ``[B, N]`` (ms, inf = none) -> dense raster ``[B, N, steps]`` float32
+    (the package's binning, :func:`tactilesnn.spikes.spike_raster`)."""
+    from ..spikes import raster_steps, spike_raster
+
+    steps = raster_steps(duration_ms, dt_ms)
+    return spike_raster(spike_times.float(), dt_ms, steps).permute(1, 2, 0).contiguous()

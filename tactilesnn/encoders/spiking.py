@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import torch
+from torch import Tensor
 
 from .._checks import as_float_array, check_choice, check_finite, check_positive
 
@@ -60,6 +62,54 @@ def _validate(x: np.ndarray, fs_hz: float) -> tuple[np.ndarray, float]:
     return arr, check_positive(fs_hz, "fs_hz")
 
 
+def lif_hold_substep(v: Tensor, v_inf: Tensor, rem: Tensor, tau_ms: float, theta: float):
+    """Advance LIF neurons inside a sample held at ``v_inf`` with ``rem`` ms of it left.
+
+    Returns ``(fires, s, relaxed)``: ``fires`` marks neurons that reach ``theta`` within ``rem``
+    (at once if already there), ``s`` the exact time to that crossing (ms; ``inf`` where none),
+    ``relaxed`` the potential at the end of the sample for neurons that do not fire. The one
+    definition of the converter's arithmetic (used by :func:`lif_convert`, the LIF-population
+    encoder and its exported graph).
+    """
+    above = v >= theta
+    ratio = (v - v_inf) / (theta - v_inf)
+    s = torch.where(above, torch.zeros_like(v), tau_ms * torch.log(ratio.clamp_min(1e-30)))
+    fires = (above | (v_inf > theta)) & (s <= rem) & (rem > 0)
+    relaxed = v_inf + (v - v_inf) * torch.exp(-rem / tau_ms)
+    return fires, torch.where(fires, s, torch.full_like(s, math.inf)), relaxed
+
+
+def lif_first_spikes(
+    drive: Tensor, dt_ms: float, tau_ms: float, k: int, early_exit: bool
+) -> Tensor:
+    """First ``k`` spike times ``[N, A, k]`` (ms; inf = none) of LIF converters (threshold 1,
+    rest 0, reset by subtraction) driven by ``drive [N, A, samples]`` held over each sample.
+
+    At most ``k`` crossings per sample can matter, so the loop per sample is bounded by ``k``
+    (``early_exit`` stops it once nothing fires; the exported graph runs it to ``k``).
+    """
+    n, a, w = drive.shape[0], drive.shape[1], drive.shape[2]
+    v = torch.zeros(n, a, dtype=drive.dtype)
+    count = torch.zeros(n, a, dtype=drive.dtype)
+    times = torch.full((n, a, k), math.inf, dtype=drive.dtype)
+    slots = torch.arange(k, dtype=drive.dtype).view(1, 1, -1)
+    for i in range(w):
+        vi = drive[:, :, i]
+        rem = torch.full((n, a), dt_ms, dtype=drive.dtype)
+        for _ in range(k):
+            fires, s, relaxed = lif_hold_substep(v, vi, rem, tau_ms, 1.0)
+            quiet = (~fires) & (rem > 0)
+            t_abs = i * dt_ms + (dt_ms - rem) + s
+            hit = (slots == count.unsqueeze(-1)) & (fires & (count < k)).unsqueeze(-1)
+            times = torch.where(hit, t_abs.unsqueeze(-1), times)
+            count = count + fires.to(count.dtype)
+            v = torch.where(fires, torch.clamp(v, min=1.0) - 1.0, torch.where(quiet, relaxed, v))
+            rem = torch.where(fires, rem - s, torch.where(quiet, torch.zeros_like(rem), rem))
+            if early_exit and not bool(fires.any()):
+                break
+    return times
+
+
 def lif_convert(
     x: np.ndarray,
     fs_hz: float,
@@ -72,7 +122,8 @@ def lif_convert(
 ) -> SpikeEvents:
     """LIF analog-to-spike conversion, exact for piecewise-constant input (see module doc).
 
-    ``gain`` is R (input units -> volts); ``threshold`` and ``v_rest`` in volts.
+    ``gain`` is R (input units -> volts); ``threshold`` and ``v_rest`` in volts. Computed in
+    float64 with :func:`lif_hold_substep`.
     """
     arr, fs = _validate(x, fs_hz)
     tau = check_positive(tau_ms, "tau_ms")
@@ -83,48 +134,41 @@ def lif_convert(
         raise ValueError(f"refractory_ms must be >= 0, got {refractory_ms}")
     b, c, n = arr.shape
     dt = 1000.0 / fs
-    drive = v_rest + gain * arr.reshape(b * c, n)  # V_inf per sample
-    v = np.full(b * c, v_rest)
-    refr = np.zeros(b * c)  # refractory time left, ms
-    jump = threshold - v_rest if reset == "subtract" else None
-    ev_n: list[np.ndarray] = []
-    ev_t: list[np.ndarray] = []
+    # shifted so that rest is 0: threshold theta - v_rest, drive = R I
+    theta = float(threshold - v_rest)
+    drive = torch.from_numpy(gain * arr.reshape(b * c, n))
+    v = torch.zeros(b * c, dtype=torch.float64)
+    refr = torch.zeros(b * c, dtype=torch.float64)  # refractory time left, ms
+    zero = torch.zeros((), dtype=torch.float64)
+    ev_n: list[Tensor] = []
+    ev_t: list[Tensor] = []
     for i in range(n):
         v_inf = drive[:, i]
-        rem = np.full(b * c, dt)
+        rem = torch.full((b * c,), dt, dtype=torch.float64)
         while True:
             # refractory neurons stay at reset for the time they have left
-            hold = np.minimum(refr, rem)
-            refr -= hold
-            rem -= hold
+            hold = torch.minimum(refr, rem)
+            refr, rem = refr - hold, rem - hold
             live = rem > 0
-            if not live.any():
+            if not bool(live.any()):
                 break
-            vi, vl = v_inf[live], v[live]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                s_star = tau * np.log((vl - vi) / (threshold - vi))
-            s_star = np.where(vl >= threshold, 0.0, s_star)
-            fires = (vi > threshold) | (vl >= threshold)
-            fires &= s_star <= rem[live]
-            idx = np.flatnonzero(live)
-            # neurons that do not fire integrate to the end of the sample
-            quiet = idx[~fires]
-            v[quiet] = v_inf[quiet] + (v[quiet] - v_inf[quiet]) * np.exp(-rem[quiet] / tau)
-            rem[quiet] = 0.0
-            spk = idx[fires]
-            if spk.size == 0:
+            fires, s, relaxed = lif_hold_substep(v, v_inf, rem, tau, theta)
+            fires &= live
+            quiet = live & ~fires
+            v = torch.where(quiet, relaxed, v)
+            rem = torch.where(quiet, zero, rem)
+            spk = torch.nonzero(fires).flatten()
+            if spk.numel() == 0:
                 break
-            s = s_star[fires]
             ev_n.append(spk)
-            ev_t.append(i * dt + (dt - rem[spk]) + s)
-            rem[spk] -= s
-            if jump is None:
-                v[spk] = v_rest
-            else:  # by subtraction from the potential at the crossing (theta, or above at s = 0)
-                v[spk] = np.maximum(v[spk], threshold) - jump
-            refr[spk] = refractory_ms
-    neuron = np.concatenate(ev_n) if ev_n else np.zeros(0, np.int64)
-    times = np.concatenate(ev_t) if ev_t else np.zeros(0)
+            ev_t.append(i * dt + (dt - rem[spk]) + s[spk])
+            rem = torch.where(fires, rem - s, rem)
+            # reset to rest, or by subtraction from the potential at the crossing
+            reset_v = zero if reset == "rest" else torch.clamp(v, min=theta) - theta
+            v = torch.where(fires, reset_v, v)
+            refr = torch.where(fires, torch.full_like(refr, refractory_ms), refr)
+    neuron = torch.cat(ev_n).numpy() if ev_n else np.zeros(0, np.int64)
+    times = torch.cat(ev_t).numpy() if ev_t else np.zeros(0)
     order = np.lexsort((times, neuron))
     neuron, times = neuron[order], times[order]
     return SpikeEvents(

@@ -91,6 +91,16 @@ class STFTScalogram(nn.Module):
             spec[:, : self._n_detrend] -= mean.unsqueeze(1) * wdft.unsqueeze(-1)
         return spec.reshape(b, c, spec.shape[-2], spec.shape[-1])
 
+    @torch.no_grad()
+    def linear_map(self, window: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The transform of a ``window``-sample input as matrices (for export as MatMuls).
+
+        Returns ``(response [window, bins, frames] complex128, pool [bands, bins])``:
+        ``pool @ |x @ response|`` is :meth:`forward`.
+        """
+        eye = torch.eye(int(window), dtype=torch.float64).unsqueeze(1)  # unit impulses
+        return self.spectrum(eye)[:, 0], self._tensors(torch.float64)[2]
+
     def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
         """Window / sum(window), its DFT, and 2 x band weights, cast once per dtype."""
         if dtype not in self._cast:

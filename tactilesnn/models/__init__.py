@@ -1,0 +1,22 @@
+"""Models: spike times -> class scores (see :mod:`tactilesnn.models.base`).
+
+Registered components (``MODELS``): importing a component module registers it; the lines below
+are the registry's list of shipped models.
+"""
+
+from .base import MODELS, SpikeModel, build_model, register_model
+from .snn import SNNClassifier, SNNConfig, SNNModel
+from .tempotron import Tempotron, TempotronClassifier, TempotronConfig
+
+__all__ = [
+    "MODELS",
+    "SNNClassifier",
+    "SNNConfig",
+    "SNNModel",
+    "SpikeModel",
+    "Tempotron",
+    "TempotronClassifier",
+    "TempotronConfig",
+    "build_model",
+    "register_model",
+]

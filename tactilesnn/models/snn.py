@@ -21,22 +21,29 @@ Array contract: inputs ``[T, batch, features]`` float32 (time-major), spikes out
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
+
+from .._checks import check_choice, check_int, check_positive
+from ..spikes import raster_steps, spike_raster
+from .base import SpikeModel, register_model
+from .functional import (
+    decay_factor,
+    li_scan,
+    lif_integrate,
+    lif_rec_scan,
+    lif_reset,
+    lif_scan,
+    lif_step,
+    reduce_readout,
+)
 
 SURROGATES = ("fast_sigmoid", "arctan")
 RESETS = ("subtract", "zero")
 READOUTS = ("count", "max", "mean")
-
-
-def reduce_readout(out: torch.Tensor, readout: str) -> torch.Tensor:
-    """Output layer activity ``[T, B, classes]`` -> scores: spike count, max or mean over time."""
-    if readout == "count":
-        return out.sum(0)
-    if readout == "max":
-        return out.amax(0)
-    return out.mean(0)
 
 
 def surrogate_grad(x: torch.Tensor, kind: str, alpha: float) -> torch.Tensor:
@@ -69,19 +76,13 @@ class _LIFScan(torch.autograd.Function):
             ctx.cfg = (beta, theta, kind, alpha, reset, steps)
             return spikes, post
         # membrane before reset: kept for every step only when a backward pass will need it
-        u_all = torch.empty_like(cur) if training else torch.empty_like(cur[:1]).expand_as(cur)
+        u_all = torch.empty_like(cur) if training else None
         spikes = torch.empty_like(cur)
-        post = u0.clone()  # membrane after reset
-        zero = torch.zeros((), dtype=cur.dtype)
-        u_buf = torch.empty_like(u0)
+        post = u0
         for t in range(steps):
-            u, s = (u_all[t] if training else u_buf), spikes[t]
-            torch.add(cur[t], post, alpha=beta, out=u)
-            torch.ge(u, theta, out=s)  # written as 0.0 / 1.0 into the float buffer
-            if reset == "subtract":
-                torch.sub(u, s, alpha=theta, out=post)
-            else:
-                torch.where(s > 0, zero, u, out=post)
+            spikes[t], post, u = lif_step(post, cur[t], beta, theta, reset == "subtract")
+            if u_all is not None:
+                u_all[t] = u
         if training:
             ctx.save_for_backward(u_all, spikes)
         ctx.cfg = (beta, theta, kind, alpha, reset, steps)
@@ -132,18 +133,6 @@ def _fused(x: torch.Tensor):
     return kernel()
 
 
-def lif_scan_reference(cur, u0, beta, theta, reset="subtract"):
-    """Plain autograd-free reference loop (for tests): spikes ``[T, B, H]`` and final ``u``."""
-    u = u0.clone()
-    out = []
-    for c in cur.unbind(0):
-        u = beta * u + c
-        s = (u >= theta).to(cur.dtype)
-        u = u - s * theta if reset == "subtract" else u * (1 - s)
-        out.append(s)
-    return torch.stack(out), u
-
-
 class LIFLayer(nn.Module):
     """Linear projection -> LIF neurons (optionally recurrent), time-major.
 
@@ -173,11 +162,10 @@ class LIFLayer(nn.Module):
             raise ValueError(
                 f"unknown surrogate {surrogate!r}; choose one of: {', '.join(SURROGATES)}"
             )
-        if not tau_mem_ms > 0 or not dt_ms > 0:
-            raise ValueError(f"tau_mem_ms and dt_ms must be positive, got {tau_mem_ms}, {dt_ms}")
         self.fc = nn.Linear(n_in, n_out)
         self.rec = nn.Linear(n_out, n_out, bias=False) if recurrent else None
-        self.beta = math.exp(-dt_ms / tau_mem_ms)
+        self.tau_mem_ms, self.dt_ms = float(tau_mem_ms), float(dt_ms)
+        self.beta = decay_factor(dt_ms, tau_mem_ms)
         self.theta, self.reset, self.surrogate, self.alpha = theta, reset, surrogate, alpha
 
     def initial_state(self, batch: int, device=None, dtype=torch.float32):
@@ -201,9 +189,9 @@ class LIFLayer(nn.Module):
         u, s = state
         out = []
         for c in cur.unbind(0):
-            u = self.beta * u + c + self.rec(s)
+            u = lif_integrate(u, c + self.rec(s), self.beta)
             s = _SpikeFn.apply(u - self.theta, self.surrogate, self.alpha)
-            u = u - s.detach() * self.theta if self.reset == "subtract" else u * (1 - s.detach())
+            u = lif_reset(u, s.detach(), self.theta, self.reset == "subtract")
             out.append(s)
         return torch.stack(out), (u, s)
 
@@ -227,17 +215,16 @@ class LeakyReadout(nn.Module):
     def __init__(self, n_in: int, n_out: int, tau_mem_ms: float = 20.0, dt_ms: float = 1.0) -> None:
         super().__init__()
         self.fc = nn.Linear(n_in, n_out)
-        self.beta = math.exp(-dt_ms / tau_mem_ms)
+        self.tau_mem_ms, self.dt_ms = float(tau_mem_ms), float(dt_ms)
+        self.beta = decay_factor(dt_ms, tau_mem_ms)
+
+    def initial_state(self, batch: int, device=None, dtype=torch.float32) -> torch.Tensor:
+        return torch.zeros(batch, self.fc.out_features, device=device, dtype=dtype)
 
     def forward(self, x: torch.Tensor, state: torch.Tensor | None = None):
         cur = self.fc(x)
         v = torch.zeros_like(cur[0]) if state is None else state
-        # a linear recurrence: v_t = sum_k beta^(t-k) cur_k, written as a causal filter over T
-        out = []
-        for c in cur.unbind(0):
-            v = self.beta * v + c
-            out.append(v)
-        return torch.stack(out), v
+        return li_scan(cur, v, self.beta)
 
 
 class SNNClassifier(nn.Module):
@@ -281,3 +268,156 @@ class SNNClassifier(nn.Module):
         h, h_state = self.hidden(x, h_state)
         o, o_state = self.out(h, o_state)
         return reduce_readout(o, self.readout), (h_state, o_state)
+
+
+# ---------------------------------------------------------------------------------- component
+@dataclass(frozen=True)
+class SNNConfig:
+    """Two-layer surrogate-gradient SNN on the spike raster, trained with Adam on cross-entropy."""
+
+    hidden: int = 64
+    dt_ms: float = 5.0
+    tau_ms: float = 50.0
+    readout: str = "max"
+    recurrent: bool = False
+    lr: float = 0.003
+    # steps simulated after the window ends; runs written before the component layer used
+    # ceil(D / dt) + 1 steps, so they load with 1 (LEGACY) and score exactly as they were trained
+    extra_steps: int = 0
+
+    LEGACY: ClassVar[dict[str, object]] = {"extra_steps": 1}
+    FLAGS: ClassVar[dict[str, str]] = {
+        "snn_hidden": "hidden",
+        "snn_dt_ms": "dt_ms",
+        "snn_tau_ms": "tau_ms",
+        "snn_readout": "readout",
+        "snn_recurrent": "recurrent",
+        "snn_lr": "lr",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "hidden": "hidden LIF units",
+        "dt_ms": "SNN time step (ms); the window is rasterised at this step",
+        "tau_ms": "membrane time constant of every SNN layer (ms)",
+        "readout": f"class score from the output layer ({', '.join(READOUTS)})",
+        "recurrent": "recurrent hidden layer (W_rec s_{t-1} added to the input current)",
+        "lr": "Adam learning rate",
+        "extra_steps": "time steps simulated after the window end (1 in pre-0.2 runs)",
+    }
+
+    def __post_init__(self) -> None:
+        check_int(self.hidden, "hidden", 1)
+        check_positive(self.dt_ms, "dt_ms")
+        check_positive(self.tau_ms, "tau_ms")
+        check_choice(self.readout, "readout", READOUTS)
+        if not isinstance(self.recurrent, bool):
+            raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
+        check_positive(self.lr, "lr")
+        check_int(self.extra_steps, "extra_steps", 0)
+
+
+@register_model("snn", SNNConfig)
+class SNNModel(SpikeModel):
+    """Spike times -> raster at ``dt_ms`` -> LIF hidden layer -> readout; see :class:`SNNConfig`.
+
+    Streaming state (graph I/O of the export, ``[batch, units]``): ``h_state`` (hidden membrane),
+    ``o_state`` (output membrane) and, for a recurrent hidden layer, ``hs_state`` (its last spikes).
+    """
+
+    onnx_scripted = True
+    score_units = "SNN readout (spike count, or max / mean of the output membrane)"
+
+    def __init__(self, config: SNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
+                 duration_ms: float, seed: int = 0) -> None:  # fmt: skip
+        super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
+        torch.manual_seed(int(seed))  # nn.Linear draws its initial weights from the global RNG
+        self.net = SNNClassifier(
+            n_afferents, config.hidden, n_classes, readout=config.readout,
+            recurrent=config.recurrent, tau_mem_ms=config.tau_ms, dt_ms=config.dt_ms,
+        )  # fmt: skip
+        self.steps = raster_steps(duration_ms, config.dt_ms) + config.extra_steps
+
+    def raster(self, spikes: Tensor) -> Tensor:
+        """Spike times ``[B, A, k]`` -> counts ``[steps, B, A]`` (:func:`~tactilesnn.spikes.spike_raster`)."""
+        return spike_raster(spikes, self.config.dt_ms, self.steps)
+
+    def scores(self, spikes: Tensor) -> Tensor:
+        return self.net(self.raster(spikes))[0]
+
+    def bytes_per_sample(self, afferents: int, k: int) -> int:
+        units = afferents * (k + 1) + 3 * self.config.hidden + 2 * self.n_classes
+        return 4 * self.steps * units
+
+    def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        return nn.functional.cross_entropy(self.scores(spikes), y)
+
+    def learning_rate(self) -> float:
+        return self.config.lr
+
+    @property
+    def state_names(self) -> tuple[tuple[str, int], ...]:
+        names = [("h_state", self.config.hidden), ("o_state", self.n_classes)]
+        if self.config.recurrent:
+            names.append(("hs_state", self.config.hidden))
+        return tuple(names)
+
+    def onnx_module(self) -> nn.Module:
+        return _RecurrentSNNGraph(self) if self.config.recurrent else _SNNGraph(self)
+
+    def upgrade_state(self, state: dict) -> dict:
+        """Runs written before the component layer kept the network at the top level."""
+        return super().upgrade_state({"net." + k: v for k, v in state.items()})
+
+    def to_nir(self):
+        from ..export.nir import snn_to_nir
+
+        return snn_to_nir(self)
+
+
+class _SNNGraph(nn.Module):
+    """Exported SNN: raster -> hoisted projections -> scans (ONNX ``Loop``s) -> readout.
+
+    The same :mod:`~tactilesnn.models.functional` scans as the reference; scripted, so the graph
+    does not grow with the number of time steps. Takes and returns the streaming state.
+    """
+
+    def __init__(self, model: SNNModel) -> None:
+        super().__init__()
+        net = model.net
+        self.dt, self.steps = float(model.config.dt_ms), int(model.steps)
+        self.fc1, self.fc2 = net.hidden.fc, net.out.fc
+        w_rec = net.hidden.rec.weight if net.hidden.rec is not None else torch.zeros(1, 1)
+        self.register_buffer("w_rec", w_rec.detach().clone())
+        self.beta1, self.theta1 = float(net.hidden.beta), float(net.hidden.theta)
+        self.sub1 = net.hidden.reset == "subtract"
+        self.beta2 = float(net.out.beta)
+        self.spiking_out = isinstance(net.out, LIFLayer)
+        self.theta2 = float(net.out.theta) if isinstance(net.out, LIFLayer) else 1.0
+        self.sub2 = net.out.reset == "subtract" if isinstance(net.out, LIFLayer) else True
+        self.readout = net.readout
+
+    def readout_scan(self, hid: Tensor, o: Tensor) -> tuple[Tensor, Tensor]:
+        if self.spiking_out:
+            out, o_new = lif_scan(self.fc2(hid), o, self.beta2, self.theta2, self.sub2)
+        else:
+            out, o_new = li_scan(self.fc2(hid), o, self.beta2)
+        return reduce_readout(out, self.readout), o_new
+
+    def forward(self, spikes: Tensor, h: Tensor, o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        cur = self.fc1(spike_raster(spikes, self.dt, self.steps))
+        hid, h_new = lif_scan(cur, h, self.beta1, self.theta1, self.sub1)
+        scores, o_new = self.readout_scan(hid, o)
+        return scores, h_new, o_new
+
+
+class _RecurrentSNNGraph(_SNNGraph):
+    """:class:`_SNNGraph` with a recurrent hidden layer: its last spikes are state too."""
+
+    def forward(  # type: ignore[override]
+        self, spikes: Tensor, h: Tensor, o: Tensor, hs: Tensor
+    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        cur = self.fc1(spike_raster(spikes, self.dt, self.steps))
+        hid, h_new, hs_new = lif_rec_scan(
+            cur, h, hs, self.w_rec, self.beta1, self.theta1, self.sub1
+        )
+        scores, o_new = self.readout_scan(hid, o)
+        return scores, h_new, o_new, hs_new

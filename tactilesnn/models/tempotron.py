@@ -29,9 +29,14 @@ Array contract: ``spike_times`` ``[batch, inputs]`` (one spike per input) or
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
-from torch import nn
+from torch import Tensor, nn
+
+from .._checks import check_choice, check_positive, check_range
+from .base import SpikeModel, register_model
 
 
 def psp_norm(tau_ms: float, tau_s_ms: float) -> float:
@@ -81,6 +86,8 @@ class Tempotron(nn.Module):
         std = init_std if init_std is not None else 0.5 * self.theta / math.sqrt(self.n_inputs)
         g = torch.Generator().manual_seed(int(seed))
         self.weight = nn.Parameter(torch.randn(self.n_classes, self.n_inputs, generator=g) * std)
+        # the previous rule step (momentum); learned state, so it lives in the state_dict
+        self.register_buffer("velocity", torch.zeros(self.n_classes, self.n_inputs))
 
     # ------------------------------------------------------------------ kernel and potential
     def kernel(self, s: torch.Tensor) -> torch.Tensor:
@@ -233,7 +240,7 @@ class Tempotron(nn.Module):
 
         With ``momentum`` mu > 0 the step is ``dw(n) = lr * rule + mu * dw(n - 1)`` (Gutig &
         Sompolinsky 2006 used mu = 0.99 with per-sample updates); the previous step is kept in
-        ``self.velocity``. With ``margin`` kappa > 0 the rule also acts on near misses: a target
+        the ``velocity`` buffer. With ``margin`` kappa > 0 the rule also acts on near misses: a target
         tempotron with ``V_max < theta + kappa`` is potentiated and a non-target one with
         ``V_max >= theta - kappa`` is depressed, which keeps decisions away from the threshold
         (kappa = 0 is the seed's rule).
@@ -265,9 +272,117 @@ class Tempotron(nn.Module):
         kern = torch.where(ok, self.kernel(lag), torch.zeros_like(lag))
         dw = lr * torch.einsum("bc,bcm->cm", sign, kern).reshape(self.n_classes, n, k).sum(-1)
         if momentum:
-            if getattr(self, "velocity", None) is None or self.velocity.shape != dw.shape:
-                self.velocity = torch.zeros_like(dw)
             dw = dw + momentum * self.velocity
-            self.velocity = dw
+            self.velocity.copy_(dw)
         self.weight += dw
         return n_err, v_max.argmax(dim=1)
+
+
+# ---------------------------------------------------------------------------------- component
+@dataclass(frozen=True)
+class TempotronConfig:
+    """One exact tempotron per class, trained by seed 001's rule (or Adam on a V_max hinge)."""
+
+    tau_ms: float = 2000.0  # long membrane memory: integrates the whole 500 ms window
+    tau_s_ms: float = 50.0
+    theta: float = 1.0
+    learning: str = "rule"  # "rule" (seed 001) or "gradient" (Adam on a V_max hinge)
+    lr: float = 0.005  # rule: seed 001 lambda
+    adam_lr: float = 0.003  # gradient learning
+    momentum: float = 0.0
+    margin: float = 0.2
+    lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "tau_ms": "tau_ms",
+        "tau_s_ms": "tau_s_ms",
+        "theta": "theta",
+        "tempotron_train": "learning",
+        "lr": "lr",
+        "tempotron_adam_lr": "adam_lr",
+        "momentum": "momentum",
+        "margin": "margin",
+        "lr_decay": "lr_decay",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "tau_ms": "tempotron membrane time constant (ms)",
+        "tau_s_ms": "tempotron synaptic time constant (ms, < tau)",
+        "theta": "tempotron firing threshold",
+        "learning": "rule (seed 001) or gradient (Adam on a V_max hinge)",
+        "lr": "tempotron rule learning rate lambda (seed 001: 0.005)",
+        "adam_lr": "Adam learning rate when learning = gradient",
+        "momentum": "tempotron rule momentum (0 = seed 001)",
+        "margin": "rule margin kappa: also learn from near misses (0 = seed 001)",
+        "lr_decay": "rule learning rate / (1 + lr_decay * epoch)",
+    }
+
+    def __post_init__(self) -> None:
+        check_positive(self.tau_s_ms, "tau_s_ms")
+        if not self.tau_ms > self.tau_s_ms:
+            raise ValueError(f"need tau_ms > tau_s_ms, got {self.tau_ms}, {self.tau_s_ms}")
+        check_positive(self.theta, "theta")
+        check_choice(self.learning, "learning", ("rule", "gradient"))
+        check_positive(self.lr, "lr")
+        check_positive(self.adam_lr, "adam_lr")
+        check_range(self.momentum, "momentum", 0.0, 0.999)
+        check_range(self.margin, "margin", 0.0, 1e3)
+        check_range(self.lr_decay, "lr_decay", 0.0, 1e6)
+
+
+@register_model("tempotron", TempotronConfig)
+class TempotronClassifier(SpikeModel):
+    """Exact tempotrons (one per class); scores are ``V_max`` per class (threshold ``theta``)."""
+
+    score_units = "tempotron V_max per class (fires at theta)"
+
+    def __init__(self, config: TempotronConfig, n_afferents: int, max_spikes: int,
+                 n_classes: int, duration_ms: float, seed: int = 0) -> None:  # fmt: skip
+        super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
+        self.net = Tempotron(
+            n_afferents, n_classes, duration_ms=duration_ms, tau_ms=config.tau_ms,
+            tau_s_ms=config.tau_s_ms, theta=config.theta, seed=seed,
+        )  # fmt: skip
+        self.learns_by_rule = config.learning == "rule"
+
+    def scores(self, spikes: Tensor) -> Tensor:
+        return self.net(spikes)[0]
+
+    def bytes_per_sample(self, afferents: int, k: int) -> int:
+        events = afferents * k + 1  # the exact maximum holds [events, events] pairwise lags
+        return 4 * 6 * events * events
+
+    def early_decision(self, spikes: Tensor) -> tuple[Tensor, Tensor]:
+        return self.net.predict_early(spikes)
+
+    def rule_update(self, spikes: Tensor, y: Tensor, epoch: int) -> None:
+        c = self.config
+        lr = c.lr / (1.0 + c.lr_decay * epoch)
+        self.net.rule_update(spikes, y, lr=lr, momentum=c.momentum, margin=c.margin)
+
+    def learning_rate(self) -> float:
+        return self.config.adam_lr
+
+    def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        """Hinge on the exact V_max around theta with the margin (differentiable)."""
+        v = self.net(spikes)[0]
+        tgt = nn.functional.one_hot(y, self.n_classes).to(v.dtype)
+        thr, m = self.config.theta, self.config.margin
+        hinge = tgt * torch.relu(thr + m - v) + (1 - tgt) * torch.relu(v - thr + m)
+        return hinge.sum(1).mean()
+
+    def onnx_module(self) -> nn.Module:
+        return _ScoresOnly(self.net)
+
+    def upgrade_state(self, state: dict) -> dict:
+        """Runs written before the component layer kept ``weight`` at the top level and the
+        momentum outside the state (it restarts at zero)."""
+        return super().upgrade_state({"net." + k: v for k, v in state.items()})
+
+
+class _ScoresOnly(nn.Module):
+    def __init__(self, net: Tempotron) -> None:
+        super().__init__()
+        self.net = net
+
+    def forward(self, spikes: Tensor) -> Tensor:
+        return self.net(spikes)[0]

@@ -20,13 +20,17 @@ class InputError(ValueError):
 
 @dataclass
 class StreamState:
-    """Per-stream SNN state and the samples not yet in a complete window."""
+    """Per-stream model state (graph state inputs by name) and the samples not yet in a window."""
 
-    h: np.ndarray | None = None
-    o: np.ndarray | None = None
+    values: dict[str, np.ndarray] = field(default_factory=dict)
     buffer: np.ndarray | None = None
     windows_done: int = 0
     meta: dict = field(default_factory=dict)
+
+    @property
+    def h(self) -> np.ndarray | None:
+        """The SNN hidden-layer membrane (``h_state``), if the model has one."""
+        return self.values.get("h_state")
 
 
 class PipelineSession:
@@ -47,10 +51,9 @@ class PipelineSession:
             raise ValueError(f"{path} is not a tactilesnn export (metadata: {e})") from e
         self.metadata = dict(meta)
         self.inputs = {i.name: i for i in self.session.get_inputs()}
-        self.stateful = "h_state" in self.inputs
-        if self.stateful:
-            self.h_units = self.inputs["h_state"].shape[1]
-            self.o_units = self.inputs["o_state"].shape[1]
+        # every graph input besides the window is streaming state, returned as "<name>_out"
+        self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
+        self.stateful = bool(self.state_units)
 
     def info(self) -> dict:
         return {
@@ -91,17 +94,16 @@ class PipelineSession:
     def run(self, x: np.ndarray, state: StreamState | None = None) -> np.ndarray:
         """Scores ``[batch, classes]`` for validated windows (updates ``state`` if given)."""
         feeds = {"window": x}
-        if self.stateful:
-            n = len(x)
-            zeros_h = np.zeros((n, self.h_units), np.float32)
-            zeros_o = np.zeros((n, self.o_units), np.float32)
-            feeds["h_state"] = state.h if state is not None and state.h is not None else zeros_h
-            feeds["o_state"] = state.o if state is not None and state.o is not None else zeros_o
-            scores, h, o = self.session.run(["scores", "h_state_out", "o_state_out"], feeds)
-            if state is not None:
-                state.h, state.o = h, o
-            return scores
-        return self.session.run(["scores"], feeds)[0]
+        if not self.stateful:
+            return self.session.run(["scores"], feeds)[0]
+        names = list(self.state_units)
+        for name, units in self.state_units.items():
+            held = state.values.get(name) if state is not None else None
+            feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
+        scores, *new = self.session.run(["scores", *(f"{k}_out" for k in names)], feeds)
+        if state is not None:
+            state.values = dict(zip(names, new, strict=True))
+        return scores
 
     def classify(self, x: object, fs_hz: float | None = None) -> dict:
         arr = self.validate(x, fs_hz)

@@ -7,8 +7,8 @@ import pytest
 
 from tactilesnn.baselines import linear_amplitude_baseline
 from tactilesnn.bench import gwt_vs_stft
+from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
-from tactilesnn.pipeline import PipelineConfig
 from tactilesnn.training import fit_and_evaluate
 
 
@@ -20,7 +20,7 @@ def data():
 def test_spectral_pipeline_beats_amplitude_baseline(data):
     train, test = data
     baseline = linear_amplitude_baseline(train.X, train.y, test.X, test.y)
-    res = fit_and_evaluate(PipelineConfig(epochs=8), train, test)
+    res = fit_and_evaluate(PipelineConfig.from_flat(epochs=8), train, test)
     gwt = res.metrics["test_accuracy"]
     assert gwt >= 0.98
     assert baseline <= 0.93, "amplitude statistics alone must not solve the task"

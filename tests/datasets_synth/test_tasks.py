@@ -87,10 +87,10 @@ def test_touch_spans_five_decades_without_nan():
 
 
 def test_texture_is_not_solved_by_amplitude():
-    from tactilesnn.pipeline import PipelineConfig
+    from tactilesnn.config import PipelineConfig
     from tactilesnn.training import fit_and_evaluate
 
     tr, te = get_task("texture", n_samples=480).build()
     base = linear_amplitude_baseline(tr.X, tr.y, te.X, te.y)
-    res = fit_and_evaluate(PipelineConfig(epochs=10), tr, te)
+    res = fit_and_evaluate(PipelineConfig.from_flat(epochs=10), tr, te)
     assert res.metrics["test_accuracy"] > base + 0.1

@@ -57,10 +57,13 @@ def test_std_stat_sees_bursts_only():
 
 
 def test_to_dense_roundtrip():
-    t = torch.tensor([[0.0, 12.0, float("inf")]])
+    # one binning convention (tactilesnn.spikes): a 20 ms window at 1 ms is 20 steps, step j holds
+    # [j, j + 1) ms and a spike at exactly the window end falls into the last step
+    t = torch.tensor([[0.0, 12.0, float("inf"), 20.0]])
     d = to_dense(t, duration_ms=20, dt_ms=1.0)
-    assert d.shape == (1, 3, 21)
-    assert d[0, 0, 0] == 1 and d[0, 1, 12] == 1 and d[0, 2].sum() == 0
+    assert d.shape == (1, 4, 20)
+    assert d[0, 0, 0] == 1 and d[0, 1, 12] == 1 and d[0, 2].sum() == 0 and d[0, 3, 19] == 1
+    assert d.sum() == 3
 
 
 def test_rejects_bad_arguments():

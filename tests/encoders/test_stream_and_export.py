@@ -6,11 +6,12 @@ import onnxruntime as ort
 import pytest
 import torch
 
+from tactilesnn.config import PipelineConfig
 from tactilesnn.encoders.export import WindowEncoder, export_window_encoder
 from tactilesnn.encoders.gwt import GaborScalogram, log_bands
 from tactilesnn.encoders.latency import LatencyCode
 from tactilesnn.encoders.stream import StreamEncoder, restrict_bands
-from tactilesnn.pipeline import PipelineConfig, SpikePipeline
+from tactilesnn.pipeline import SpikePipeline
 
 FS = 200.0
 
@@ -84,13 +85,13 @@ def test_restrict_bands_drops_what_the_sensor_cannot_deliver():
 @pytest.mark.parametrize("encoder", ["gwt", "stft"])
 def test_onnx_export_matches_torch(encoder, tmp_path):
     pipe = SpikePipeline(
-        PipelineConfig(encoder=encoder, clock_afferents=0),
+        PipelineConfig.from_flat(encoder=encoder, clock_afferents=0),
         FS,
         100,
         ("static", "dynamic"),
         ("hook", "loop"),
     )
-    enc = WindowEncoder(pipe.encoder, pipe.code, 100, pipe.channel_idx)
+    enc = WindowEncoder(pipe.encoder.scalogram, pipe.encoder.code, 100, pipe.channel_idx)
     x = np.abs(np.random.default_rng(3).standard_normal((32, 2, 100))).astype(np.float32)
     ref = pipe.encode(x).numpy()[..., 0]  # the FFT implementation, one spike per afferent
     with torch.no_grad():

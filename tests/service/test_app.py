@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
+from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
-from tactilesnn.pipeline import PipelineConfig
 from tactilesnn.service.app import create_app
 from tactilesnn.training import load_run, train_run
 
@@ -19,7 +19,9 @@ SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("svc")
-    run, _ = train_run("hook_loop", SMALL, PipelineConfig(epochs=2), tmp / "r", progress=False)
+    run, _ = train_run(
+        "hook_loop", SMALL, PipelineConfig.from_flat(epochs=2), tmp / "r", progress=False
+    )
     pipe, _ = load_run(run)
     test = HookLoopTask(**SMALL).build()[1]
     export_pipeline(pipe, tmp / "m.onnx", test.X[:32])

@@ -1,0 +1,246 @@
+"""Typed, nested pipeline settings: ``PipelineConfig(channels, encoder, model, train)``.
+
+``encoder`` and ``model`` are the configuration dataclasses of registered components; their
+``type`` tag (the registry name) is written next to their fields, so a saved configuration says
+which components it builds. TOML form::
+
+    channels = ["dynamic"]
+    clock_afferents = 5
+
+    [encoder]
+    type = "lif"
+    neurons = 8
+
+    [model]
+    type = "snn"
+    hidden = 64
+
+    [train]
+    epochs = 40
+
+The flat form of earlier versions (``encoder = "lif"``, ``lif_neurons = 8``, ``snn_hidden = 64``,
+``epochs = 40`` in one table; also the command-line flag names) is still read: each component's
+config class lists its flat names in ``FLAGS`` (flat name -> field).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from ._checks import check_int
+from .encoders import ENCODERS
+from .models import MODELS
+from .registry import Registry
+
+DEFAULT_ENCODER = "gwt"
+DEFAULT_MODEL = "tempotron"
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """The training loop: epochs, mini-batches, early stopping, seed."""
+
+    epochs: int = 40
+    batch_size: int = 32
+    patience: int = 0  # epochs without validation improvement before stopping (0 = off)
+    keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
+    seed: int = 0  # split, generation and initialisation
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "epochs": "epochs",
+        "batch_size": "batch_size",
+        "patience": "patience",
+        "keep_best": "keep_best",
+        "seed": "seed",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "epochs": "training epochs (upper bound with early stopping)",
+        "batch_size": "mini-batch size",
+        "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
+        "keep_best": "keep the weights with the best validation (else training) accuracy",
+        "seed": "dataset split, generation and initialisation seed",
+    }
+
+    def __post_init__(self) -> None:
+        check_int(self.epochs, "epochs", 1)
+        check_int(self.batch_size, "batch_size", 1)
+        check_int(self.patience, "patience", 0)
+        check_int(self.seed, "seed", 0)
+        if not isinstance(self.keep_best, bool):
+            raise ValueError(f"keep_best must be true or false, got {self.keep_best!r}")
+
+
+#: flat names of the pipeline's own fields
+TOP_FLAGS = {"channels": "channels", "clock_afferents": "clock_afferents"}
+TOP_HELP = {
+    "channels": "input channels by name ('all' = every channel of the data, in its order)",
+    "clock_afferents": "afferents firing at fixed times in every window (a time reference)",
+}
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Everything that defines a trained pipeline except its weights (saved in the run folder)."""
+
+    # seed 001 encodes the dynamic (piezo) output; ("all",) = every channel of the data
+    channels: tuple[str, ...] = ("dynamic",)
+    clock_afferents: int = 5
+    encoder: Any = field(default_factory=lambda: ENCODERS.config_class(DEFAULT_ENCODER)())
+    model: Any = field(default_factory=lambda: MODELS.config_class(DEFAULT_MODEL)())
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", tuple(str(c) for c in self.channels))
+        if not self.channels:
+            raise ValueError("channels must name at least one channel (or 'all')")
+        check_int(self.clock_afferents, "clock_afferents", 0)
+        ENCODERS.name_of_config(self.encoder)  # TypeError if not a registered encoder's config
+        MODELS.name_of_config(self.model)
+        if not isinstance(self.train, TrainConfig):
+            raise TypeError(f"train must be a TrainConfig, got {type(self.train).__name__}")
+
+    @property
+    def encoder_type(self) -> str:
+        return ENCODERS.name_of_config(self.encoder)
+
+    @property
+    def model_type(self) -> str:
+        return MODELS.name_of_config(self.model)
+
+    @property
+    def seed(self) -> int:
+        return self.train.seed
+
+    def replace(self, **changes: Any) -> PipelineConfig:
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ dict / TOML forms
+    def to_dict(self) -> dict[str, Any]:
+        """Nested, JSON-ready: components carry their ``type`` tag."""
+        return {
+            "channels": list(self.channels),
+            "clock_afferents": self.clock_afferents,
+            "encoder": _plain(ENCODERS.config_to_dict(self.encoder)),
+            "model": _plain(MODELS.config_to_dict(self.model)),
+            "train": dataclasses.asdict(self.train),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PipelineConfig:
+        """Nested form (as written by :meth:`to_dict`) or the flat form of earlier versions."""
+        if not is_nested(d):  # a run folder written before the component layer
+            cfg = cls.from_flat(d, strict=False)
+            legacy = getattr(type(cfg.model), "LEGACY", {})
+            return cfg.replace(model=dataclasses.replace(cfg.model, **legacy)) if legacy else cfg
+        unknown = sorted(set(d) - {"channels", "clock_afferents", "encoder", "model", "train"})
+        if unknown:
+            raise ValueError(f"unknown pipeline settings: {', '.join(unknown)}")
+        train = d.get("train", {})
+        tknown = {f.name for f in dataclasses.fields(TrainConfig)}
+        if set(train) - tknown:
+            raise ValueError(f"[train] has no setting(s) {sorted(set(train) - tknown)}")
+        kw: dict[str, Any] = {"train": TrainConfig(**train)}
+        for key in ("channels", "clock_afferents"):
+            if key in d:
+                kw[key] = d[key]
+        kw["encoder"] = ENCODERS.config_from_dict(d.get("encoder", {"type": DEFAULT_ENCODER}))
+        kw["model"] = MODELS.config_from_dict(d.get("model", {"type": DEFAULT_MODEL}))
+        return cls(**kw)
+
+    @classmethod
+    def from_flat(cls, d: dict[str, Any] | None = None, strict: bool = True, **kw: Any):
+        """Build from flat settings (``encoder="lif", lif_neurons=4, snn_hidden=16, epochs=2``).
+
+        ``strict``: a setting of a component that is not selected (``lif_neurons`` with the GWT
+        encoder) is an error; otherwise it is ignored (old run folders saved every field).
+        """
+        flat = {**(d or {}), **kw}
+        enc_name = flat.pop("encoder", DEFAULT_ENCODER)
+        model_name = flat.pop("model", DEFAULT_MODEL)
+        enc_cls, model_cls = ENCODERS.config_class(enc_name), MODELS.config_class(model_name)
+        parts: dict[str, dict[str, Any]] = {"top": {}, "encoder": {}, "model": {}, "train": {}}
+        for key, value in flat.items():
+            value = tuple(value) if isinstance(value, list) else value
+            placed = False
+            for part, flags in (("top", TOP_FLAGS), ("train", TrainConfig.FLAGS),
+                                ("encoder", enc_cls.FLAGS), ("model", model_cls.FLAGS)):  # fmt: skip
+                if key in flags:
+                    parts[part][flags[key]] = value
+                    placed = True
+                    break
+            if placed:
+                continue
+            owner = owner_of_flag(key)
+            if owner is None:
+                raise ValueError(f"unknown pipeline setting {key!r}")
+            if strict:
+                kind, names = owner
+                chosen = enc_name if kind == "encoder" else model_name
+                raise ValueError(
+                    f"{key!r} is a setting of {kind} {' / '.join(names)}, but the {kind} is "
+                    f"{chosen!r}"
+                )
+        return cls(
+            encoder=enc_cls(**parts["encoder"]),
+            model=model_cls(**parts["model"]),
+            train=TrainConfig(**parts["train"]),
+            **parts["top"],
+        )
+
+
+def is_nested(d: dict[str, Any]) -> bool:
+    """True for the nested form (component tables), False for the flat form."""
+    return (
+        isinstance(d.get("encoder"), dict)
+        or isinstance(d.get("model"), dict)
+        or (isinstance(d.get("train"), dict))
+    )
+
+
+def owner_of_flag(flag: str) -> tuple[str, tuple[str, ...]] | None:
+    """``("encoder" | "model", registered names)`` whose config has the flat name ``flag``."""
+    for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
+        names = tuple(n for n in reg.names() if flag in reg.config_class(n).FLAGS)
+        if names:
+            return kind, names
+    return None
+
+
+def flat_settings() -> dict[str, tuple[str, Any, str]]:
+    """Every flat setting name -> ``(owner description, default, help)`` (for the CLI)."""
+    out: dict[str, tuple[str, Any, str]] = {}
+    defaults = PipelineConfig()
+    for name, fld in TOP_FLAGS.items():
+        out[name] = ("pipeline", getattr(defaults, fld), TOP_HELP[name])
+    for name, fld in TrainConfig.FLAGS.items():
+        out[name] = ("train", getattr(defaults.train, fld), TrainConfig.HELP[name])
+    for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
+        for comp in reg.names():
+            cfg_cls = reg.config_class(comp)
+            for flag, fld in cfg_cls.FLAGS.items():
+                default = _field_default(cfg_cls, fld)
+                if flag in out:
+                    owner, d0, h = out[flag]
+                    out[flag] = (f"{owner}, {comp}", d0, h)
+                else:
+                    out[flag] = (f"{kind} {comp}", default, cfg_cls.HELP.get(fld, ""))
+    return out
+
+
+def registries() -> dict[str, Registry]:
+    return {"encoder": ENCODERS, "model": MODELS}
+
+
+def _field_default(cls: type, name: str) -> Any:
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            if f.default is not dataclasses.MISSING:
+                return f.default
+            return f.default_factory()  # type: ignore[misc]
+    raise KeyError(name)
+
+
+def _plain(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}

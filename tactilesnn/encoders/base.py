@@ -1,0 +1,114 @@
+"""The encoder contract (raw windows -> spike times) and the encoder registry.
+
+An encoder is a ``torch.nn.Module`` built from its typed configuration (a frozen dataclass with a
+``type`` tag), the sampling rate, the window length and the number of channels it receives:
+
+* input: ``X`` ``[N, channels, samples]`` float at ``fs_hz`` in the sensor's units (the pipeline
+  has already selected the channels);
+* :meth:`SpikeEncoder.fit` learns data-dependent state from training windows and keeps it in
+  buffers (so it is in ``state_dict()`` and saved with the run);
+* :meth:`SpikeEncoder.encode` -> spike times ``[N, n_afferents, max_spikes]`` float32, in ms from
+  the window start, ascending along the last axis, ``+inf`` where a slot holds no spike. This is
+  the one spike format between stages; :class:`~tactilesnn.encoders.spiking.SpikeEvents` (event
+  lists) converts to and from it;
+* :meth:`SpikeEncoder.onnx_module` returns the exported graph of this encoder (same input and
+  output), owned by the encoder.
+
+Adding an encoder: one module with a config dataclass and a ``@register_encoder("name", Config)``
+class; nothing else in the package names it.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import abstractmethod
+from collections.abc import Callable
+from typing import ClassVar
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..registry import Registry
+
+ENCODERS: Registry = Registry("encoder")
+
+
+def register_encoder(name: str, config: type) -> Callable[[type], type]:
+    """Class decorator: register a :class:`SpikeEncoder` under ``name`` with its config class."""
+    return ENCODERS.register(name, config)
+
+
+class SpikeEncoder(nn.Module):
+    """Base class of every encoder; see the module docstring for the contract."""
+
+    #: the exported module must be scripted (it has a data-dependent loop) rather than traced
+    onnx_scripted: ClassVar[bool] = False
+    #: True when :meth:`fit` learns state that :meth:`encode` needs
+    needs_fit: ClassVar[bool] = False
+
+    def __init__(self, config: object, fs_hz: float, window: int, n_channels: int) -> None:
+        super().__init__()
+        self.config = config
+        self.fs_hz, self.window, self.n_channels = float(fs_hz), int(window), int(n_channels)
+        self.duration_ms = 1000.0 * self.window / self.fs_hz
+        self.register_buffer("fitted", torch.tensor(not self.needs_fit))
+
+    @property
+    @abstractmethod
+    def n_afferents(self) -> int:
+        """Number of afferent neurons (the second axis of the spike times)."""
+
+    @property
+    def max_spikes(self) -> int:
+        """Spike slots per afferent (the last axis of the spike times)."""
+        return 1
+
+    def fit(self, X: np.ndarray) -> SpikeEncoder:
+        """Learn data-dependent state from training windows ``[N, channels, samples]``."""
+        self.fitted.fill_(True)
+        return self
+
+    def check_fitted(self) -> None:
+        if not bool(self.fitted):
+            raise RuntimeError(f"the {self.registry_name} encoder is not fitted: call fit() first")
+
+    @abstractmethod
+    def encode_batch(self, x: Tensor) -> Tensor:
+        """``[n, channels, samples]`` float32 -> spike times ``[n, afferents, max_spikes]``."""
+
+    def bytes_per_window(self) -> int:
+        """Peak intermediate bytes per window (for batching by a byte budget)."""
+        return 64 * self.n_channels * self.window
+
+    @torch.no_grad()
+    def encode(self, X: np.ndarray, budget_bytes: int = 1 << 27) -> Tensor:
+        """``X [N, channels, samples]`` -> spike times ``[N, afferents, max_spikes]`` (ms)."""
+        self.check_fitted()
+        arr = np.asarray(X)
+        if arr.ndim != 3 or arr.shape[1:] != (self.n_channels, self.window):
+            raise ValueError(
+                f"encoder input must be [N, {self.n_channels}, {self.window}], got {arr.shape}"
+            )
+        batch = max(1, min(4096, budget_bytes // max(1, self.bytes_per_window())))
+        out = torch.full((arr.shape[0], self.n_afferents, self.max_spikes), math.inf)
+        for i in range(0, arr.shape[0], batch):
+            chunk = torch.from_numpy(np.ascontiguousarray(arr[i : i + batch], dtype=np.float32))
+            out[i : i + batch] = self.encode_batch(chunk)
+        return out
+
+    @abstractmethod
+    def onnx_module(self) -> nn.Module:
+        """Module ``window [B, channels, samples] -> spike times [B, afferents, max_spikes]``."""
+
+    def upgrade_state(self, state: dict) -> dict:
+        """Map a ``state_dict`` saved before the component layer to the current keys (a saved
+        encoder was fitted; buffers the old format lacked keep their current values)."""
+        current = {k: v.numpy() for k, v in self.state_dict().items()}
+        return {**current, "fitted": np.array(True), **state}
+
+
+def build_encoder(config: object, fs_hz: float, window: int, n_channels: int) -> SpikeEncoder:
+    """Instantiate the registered encoder whose config class ``config`` is."""
+    cls = ENCODERS.component_for(config)
+    return cls(config, fs_hz, window, n_channels)

@@ -1,0 +1,139 @@
+"""LIF-population encoder (seed 000's analog-to-spike converters as a population code): ``lif``.
+
+Each channel drives ``neurons`` LIF converters whose thresholds are graded geometrically from
+``lo`` to ``hi`` times a reference level; converter ``j`` of channel ``c`` is afferent
+``c * neurons + j`` and keeps its first ``max_spikes`` spike times. The reference level is
+(``norm``):
+
+* ``"train"``: each channel's median RMS over the training windows (fitted, a buffer);
+* ``"window"``: the peak ``|x|`` of each window over all channels (gain-invariant level
+  crossings that keep the channels' relative levels).
+
+Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
+lif_first_spikes`, the same function in the exported graph, where it is an ONNX ``Loop``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .._checks import check_choice, check_int, check_positive
+from .base import SpikeEncoder, register_encoder
+from .spiking import lif_first_spikes
+
+NORMS = ("train", "window")
+
+
+@dataclass(frozen=True)
+class LIFPopulationConfig:
+    neurons: int = 8
+    lo: float = 0.25
+    hi: float = 4.0
+    tau_ms: float = 10.0
+    max_spikes: int = 8
+    norm: str = "train"
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "lif_neurons": "neurons",
+        "lif_lo": "lo",
+        "lif_hi": "hi",
+        "lif_tau_ms": "tau_ms",
+        "lif_max_spikes": "max_spikes",
+        "lif_norm": "norm",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "neurons": "LIF converters per channel (thresholds graded from lo to hi)",
+        "lo": "lowest threshold, in multiples of the reference level",
+        "hi": "highest threshold, in multiples of the reference level",
+        "tau_ms": "converter membrane time constant (ms)",
+        "max_spikes": "spike times kept per converter",
+        "norm": "reference level: train (channel RMS on training data) or window (peak |x|)",
+    }
+
+    def __post_init__(self) -> None:
+        check_int(self.neurons, "neurons", 1)
+        check_int(self.max_spikes, "max_spikes", 1)
+        check_positive(self.lo, "lo")
+        check_positive(self.hi, "hi")
+        check_positive(self.tau_ms, "tau_ms")
+        if self.hi < self.lo:
+            raise ValueError(f"hi ({self.hi}) must be >= lo ({self.lo})")
+        check_choice(self.norm, "norm", NORMS)
+
+
+class _LIFPopulationGraph(nn.Module):
+    """Scaling + converters; scripted for export (the sample loop becomes an ONNX ``Loop``)."""
+
+    def __init__(self, ref: Tensor, inv_thr: Tensor, dt_ms: float, tau_ms: float, k: int,
+                 window_norm: bool) -> None:  # fmt: skip
+        super().__init__()
+        self.register_buffer("ref", ref.clone())
+        self.register_buffer("inv_thr", inv_thr.clone())
+        self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
+        self.window_norm = bool(window_norm)
+        self.early_exit = False
+
+    def forward(self, x: Tensor) -> Tensor:
+        if self.window_norm:
+            x = x / x.abs().amax(dim=(1, 2), keepdim=True).clamp_min(1e-30)
+        else:
+            x = x / self.ref.view(1, -1, 1)
+        drive = (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)  # [N, A, W]
+        return lif_first_spikes(drive, self.dt, self.tau, self.k, self.early_exit)
+
+
+@register_encoder("lif", LIFPopulationConfig)
+class LIFPopulationEncoder(SpikeEncoder):
+    """Population of LIF analog-to-spike converters per channel; see the module docstring."""
+
+    onnx_scripted = True
+    needs_fit = True
+
+    def __init__(self, config: LIFPopulationConfig, fs_hz: float, window: int, n_channels: int):
+        super().__init__(config, fs_hz, window, n_channels)
+        thr = np.geomspace(config.lo, config.hi, config.neurons)
+        self.register_buffer("inv_thr", torch.as_tensor(1.0 / thr, dtype=torch.float32))
+        self.register_buffer("ref", torch.zeros(n_channels))  # per-channel RMS level
+        if config.norm == "window":  # nothing to learn
+            self.fitted.fill_(True)
+
+    @property
+    def n_afferents(self) -> int:
+        return self.n_channels * self.config.neurons
+
+    @property
+    def max_spikes(self) -> int:
+        return self.config.max_spikes
+
+    def fit(self, X: np.ndarray) -> LIFPopulationEncoder:
+        rms = np.sqrt((np.asarray(X, dtype=np.float64) ** 2).mean(-1))  # [N, C]
+        self.ref.copy_(torch.from_numpy(np.maximum(np.median(rms, axis=0), 1e-12)))
+        self.fitted.fill_(True)
+        return self
+
+    def upgrade_state(self, state: dict) -> dict:
+        if "lif_ref" in state:  # the pipeline's attribute before this class existed
+            state = {**state, "ref": state["lif_ref"]}
+            del state["lif_ref"]
+        return super().upgrade_state(state)
+
+    def bytes_per_window(self) -> int:
+        return 8 * self.n_afferents * (self.window + 4 * self.max_spikes)
+
+    def graph(self, early_exit: bool) -> _LIFPopulationGraph:
+        g = _LIFPopulationGraph(self.ref, self.inv_thr, 1000.0 / self.fs_hz, self.config.tau_ms,
+                                self.config.max_spikes, self.config.norm == "window")  # fmt: skip
+        g.early_exit = early_exit
+        return g
+
+    def encode_batch(self, x: Tensor) -> Tensor:
+        # float64 for the exact crossing times; the graph runs the same loop in float32
+        return self.graph(early_exit=True).double()(x.double()).float()
+
+    def onnx_module(self) -> nn.Module:
+        return self.graph(early_exit=False)

@@ -1,0 +1,154 @@
+"""Scalogram -> latency code (seed 001) as encoder components: ``gwt`` and ``stft``.
+
+Per window: a Gabor-wavelet (``gwt``) or STFT (``stft``) scalogram on log-spaced bands, then one
+latency-coded spike per (channel, statistic, band) (:class:`~tactilesnn.encoders.latency.LatencyCode`).
+Afferent index = (channel * n_stats + stat) * n_bands + band; one spike slot per afferent.
+The exported graph is the scalogram as two MatMuls + modulus (+ band pooling) + the code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from torch import Tensor, nn
+
+from .._checks import check_choice, check_int, check_positive
+from .base import SpikeEncoder, register_encoder
+from .export import WindowEncoder
+from .gwt import GaborScalogram, log_bands
+from .latency import MAPPINGS, STATS, LatencyCode
+from .stft import STFTScalogram
+
+
+@dataclass(frozen=True)
+class ScalogramLatencySettings:
+    """Bands (Hz) and the latency code; shared by the GWT and STFT encoders."""
+
+    f_lo_hz: float = 3.0
+    f_hi_hz: float = 90.0  # capped at 0.45 fs (the Gabor bands' unit-sinusoid convention)
+    n_bands: int = 20
+    stats: tuple[str, ...] = ("mean", "std")
+    mapping: str = "log"
+    dynamic_range_db: float = 30.0
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "f_lo_hz": "f_lo_hz",
+        "f_hi_hz": "f_hi_hz",
+        "n_bands": "n_bands",
+        "stats": "stats",
+        "mapping": "mapping",
+        "dynamic_range_db": "dynamic_range_db",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "f_lo_hz": "lowest band centre (Hz)",
+        "f_hi_hz": "highest band centre (Hz; capped at 0.45 x the sampling rate)",
+        "n_bands": "number of log-spaced bands",
+        "stats": f"per-band statistics, each one afferent ({', '.join(STATS)})",
+        "mapping": f"amplitude -> latency mapping ({', '.join(MAPPINGS)})",
+        "dynamic_range_db": "log mapping: dB below the strongest band that still spike",
+    }
+
+    def __post_init__(self) -> None:
+        check_positive(self.f_lo_hz, "f_lo_hz")
+        check_positive(self.f_hi_hz, "f_hi_hz")
+        if not self.f_lo_hz < self.f_hi_hz:
+            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
+        check_int(self.n_bands, "n_bands", 1)
+        if self.n_bands > 512:
+            raise ValueError(f"n_bands must be <= 512, got {self.n_bands}")
+        object.__setattr__(self, "stats", tuple(self.stats))
+        if not self.stats:
+            raise ValueError("stats must name at least one statistic")
+        for st in self.stats:
+            check_choice(st, "statistic", STATS)
+        check_choice(self.mapping, "mapping", MAPPINGS)
+        check_positive(self.dynamic_range_db, "dynamic_range_db")
+
+
+@dataclass(frozen=True)
+class GWTConfig(ScalogramLatencySettings):
+    """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code."""
+
+
+@dataclass(frozen=True)
+class STFTConfig(ScalogramLatencySettings):
+    """Hann STFT (frames of ``frame_samples``, 0 = the whole window) -> latency code."""
+
+    frame_samples: int = 0
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        **ScalogramLatencySettings.FLAGS,
+        "stft_frame_samples": "frame_samples",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        **ScalogramLatencySettings.HELP,
+        "frame_samples": "STFT frame length in samples (0 = the whole window, seed 001)",
+    }
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int(self.frame_samples, "frame_samples", 0)
+
+
+class ScalogramLatencyEncoder(SpikeEncoder):
+    """Scalogram of the window -> one latency spike per (channel, statistic, band)."""
+
+    def __init__(self, config, fs_hz: float, window: int, n_channels: int) -> None:
+        super().__init__(config, fs_hz, window, n_channels)
+        f_hi = min(config.f_hi_hz, 0.45 * self.fs_hz)
+        self.freqs_hz = log_bands(min(config.f_lo_hz, f_hi / 2), f_hi, config.n_bands)
+        self.scalogram = self.make_scalogram()
+        self.code = LatencyCode(
+            duration_ms=self.duration_ms,
+            mapping=config.mapping,
+            stats=config.stats,
+            dynamic_range_db=config.dynamic_range_db,
+        )
+
+    def make_scalogram(self) -> nn.Module:
+        raise NotImplementedError
+
+    @property
+    def n_afferents(self) -> int:
+        return self.n_channels * len(self.config.stats) * self.config.n_bands
+
+    def bytes_per_window(self) -> int:
+        # complex spectra of the padded window for every band, plus the magnitudes
+        return 48 * self.n_channels * (self.config.n_bands + 1) * 3 * self.window
+
+    def encode_batch(self, x: Tensor) -> Tensor:
+        return self.code(self.scalogram(x)).unsqueeze(-1)
+
+    def onnx_module(self) -> nn.Module:
+        return _WithSlot(WindowEncoder(self.scalogram, self.code, self.window))
+
+
+@register_encoder("gwt", GWTConfig)
+class GWTLatencyEncoder(ScalogramLatencyEncoder):
+    """Gabor-wavelet scalogram -> latency code (seed 001's winning encoder)."""
+
+    def make_scalogram(self) -> nn.Module:
+        return GaborScalogram(self.fs_hz, self.freqs_hz)
+
+
+@register_encoder("stft", STFTConfig)
+class STFTLatencyEncoder(ScalogramLatencyEncoder):
+    """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison)."""
+
+    def make_scalogram(self) -> nn.Module:
+        frame = self.config.frame_samples or self.window
+        if frame > self.window:
+            raise ValueError(f"frame_samples ({frame}) exceeds the window ({self.window})")
+        return STFTScalogram(self.fs_hz, self.freqs_hz, nperseg=frame)
+
+
+class _WithSlot(nn.Module):
+    """``[B, A]`` one-spike times -> ``[B, A, 1]`` (the package's spike format)."""
+
+    def __init__(self, inner: nn.Module) -> None:
+        super().__init__()
+        self.inner = inner
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.inner(x).unsqueeze(-1)

@@ -1,0 +1,144 @@
+"""The model contract (spike times -> class scores) and the model registry.
+
+A model is a ``torch.nn.Module`` built from its typed configuration (a frozen dataclass with a
+``type`` tag) and the shape of the spikes it receives:
+
+* input: spike times ``[batch, afferents, k]`` float32, ms from the window start, ``+inf`` = no
+  spike (the encoders' output format, :mod:`tactilesnn.encoders.base`);
+* :meth:`SpikeModel.scores` -> ``[batch, classes]`` (larger = more likely);
+* training: either :meth:`SpikeModel.loss` (differentiable, the trainer runs Adam on it) or
+  :meth:`SpikeModel.rule_update` (a local learning rule applied in place); ``learns_by_rule``
+  says which;
+* learned state lives in ``state_dict()`` (parameters and buffers: weights, momentum);
+* :meth:`SpikeModel.onnx_module` returns the exported graph of the model, with its streaming
+  state (:attr:`SpikeModel.state_names`, ``[batch, units]`` each) as graph inputs and outputs.
+
+Adding a model: one module with a config dataclass and a ``@register_model("name", Config)``
+class; nothing else in the package names it.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Callable
+from typing import ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from ..registry import Registry
+
+MODELS: Registry = Registry("model")
+
+
+def register_model(name: str, config: type) -> Callable[[type], type]:
+    """Class decorator: register a :class:`SpikeModel` under ``name`` with its config class."""
+    return MODELS.register(name, config)
+
+
+class SpikeModel(nn.Module):
+    """Base class of every model; see the module docstring for the contract."""
+
+    #: True: trained by :meth:`rule_update`; False: by Adam on :meth:`loss`
+    learns_by_rule: ClassVar[bool] = False
+    #: the exported module must be scripted (it has a time loop) rather than traced
+    onnx_scripted: ClassVar[bool] = False
+    #: what the scores mean (written into the exported graph's metadata)
+    score_units: ClassVar[str] = "class scores (larger = more likely)"
+
+    def __init__(
+        self,
+        config: object,
+        n_afferents: int,
+        max_spikes: int,
+        n_classes: int,
+        duration_ms: float,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        self.config = config
+        self.n_afferents, self.max_spikes = int(n_afferents), int(max_spikes)
+        self.n_classes, self.duration_ms = int(n_classes), float(duration_ms)
+
+    # ------------------------------------------------------------------ inference
+    @abstractmethod
+    def scores(self, spikes: Tensor) -> Tensor:
+        """Spike times ``[B, A, k]`` -> class scores ``[B, classes]``."""
+
+    def forward(self, spikes: Tensor) -> Tensor:
+        return self.scores(spikes)
+
+    def batch_size(self, spikes: Tensor, budget_bytes: int = 1 << 26) -> int:
+        """Samples per call so one call's intermediates stay within ``budget_bytes``."""
+        per = max(1, self.bytes_per_sample(spikes.shape[1], spikes.shape[2]))
+        return int(max(1, min(4096, budget_bytes // per)))
+
+    def bytes_per_sample(self, afferents: int, k: int) -> int:
+        """Peak intermediate bytes per sample (for batching by a byte budget)."""
+        return 4 * afferents * k
+
+    def early_decision(self, spikes: Tensor) -> tuple[Tensor, Tensor] | None:
+        """``(classes [B], decision_ms [B])`` if the model can decide before the window ends."""
+        return None
+
+    # ------------------------------------------------------------------ training
+    def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        """Differentiable training loss (models that learn by gradient)."""
+        raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")
+
+    def rule_update(self, spikes: Tensor, y: Tensor, epoch: int) -> None:
+        """Apply the model's learning rule for one mini-batch (models that learn by rule)."""
+        raise NotImplementedError(f"{type(self).__name__} learns by gradient, not by a rule")
+
+    def learning_rate(self) -> float:
+        """Adam learning rate for models trained by gradient."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ export
+    @property
+    def state_names(self) -> tuple[tuple[str, int], ...]:
+        """Streaming state carried between windows: ``(graph input name, units)`` pairs."""
+        return ()
+
+    def export_problem(self) -> str | None:
+        """Why this configured model cannot be exported to ONNX (None: it can)."""
+        return None
+
+    @abstractmethod
+    def onnx_module(self) -> nn.Module:
+        """Module ``(spikes [B, A, k], *state) -> (scores, *new state)`` for ONNX export."""
+
+    def upgrade_state(self, state: dict) -> dict:
+        """Map a ``state_dict`` saved before the component layer to the current keys (buffers
+        the old format lacked keep their current values)."""
+        return {**{k: v.numpy() for k, v in self.state_dict().items()}, **state}
+
+    def to_nir(self):
+        """The model as a NIR graph (input: the spike raster); refused where NIR has no match."""
+        raise NotImplementedError(f"{type(self).__name__} has no NIR equivalent")
+
+
+def build_model(
+    config: object,
+    n_afferents: int,
+    max_spikes: int,
+    n_classes: int,
+    duration_ms: float,
+    seed: int = 0,
+) -> SpikeModel:
+    """Instantiate the registered model whose config class ``config`` is (``seed``: weights)."""
+    cls = MODELS.component_for(config)
+    return cls(config, n_afferents, max_spikes, n_classes, duration_ms, seed=seed)
+
+
+def to_tensor_labels(y: object, n_classes: int, n: int) -> Tensor:
+    """Labels as int64 ``[n]`` in ``[0, n_classes)``, or a ValueError."""
+    yt = torch.as_tensor(y)
+    if yt.dtype.is_floating_point or yt.dtype.is_complex or yt.dtype == torch.bool:
+        raise ValueError(f"labels must be integers, got dtype {yt.dtype}")
+    yt = yt.long()
+    if yt.ndim != 1 or yt.shape[0] != n:
+        raise ValueError(f"y must be [N={n}], got shape {tuple(yt.shape)}")
+    if yt.numel() and (int(yt.min()) < 0 or int(yt.max()) >= n_classes):
+        raise ValueError(f"labels must be in [0, {n_classes}), got {yt.unique().tolist()}")
+    return yt

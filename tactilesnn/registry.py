@@ -1,0 +1,91 @@
+"""Registries of components (encoders, models, tasks): a name, a class and its config class.
+
+A registry maps a name to ``(component class, config class)``. Configurations are frozen
+dataclasses; the registry gives each its ``type`` tag, so a configuration alone says which
+component it builds, and code outside the registries never branches on component names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterator
+from typing import Any
+
+
+class Registry:
+    """Named components of one kind (``"encoder"``, ``"model"``, ...)."""
+
+    def __init__(self, kind: str) -> None:
+        self.kind = kind
+        self._entries: dict[str, tuple[type, type | None]] = {}
+
+    def register(self, name: str, config: type | None = None) -> Callable[[type], type]:
+        """Class decorator registering the class under ``name``; names must be unique."""
+
+        def deco(cls: type) -> type:
+            if name in self._entries:
+                raise ValueError(f"{self.kind} {name!r} is already registered")
+            if config is not None:
+                if not dataclasses.is_dataclass(config):
+                    raise TypeError(f"{self.kind} {name!r}: config must be a dataclass")
+                if any(c is config for _, c in self._entries.values()):
+                    raise ValueError(f"{config.__name__} already configures another {self.kind}")
+            self._entries[name] = (cls, config)
+            cls.registry_name = name
+            return cls
+
+        return deco
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(sorted(self._entries))
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(sorted(self._entries))
+
+    def get(self, name: str) -> type:
+        """The component class registered as ``name`` (ValueError listing the choices)."""
+        if name not in self._entries:
+            raise ValueError(
+                f"unknown {self.kind} {name!r}; choose one of: {', '.join(self.names())}"
+            )
+        return self._entries[name][0]
+
+    def config_class(self, name: str) -> type:
+        self.get(name)
+        cfg = self._entries[name][1]
+        if cfg is None:
+            raise ValueError(f"{self.kind} {name!r} has no configuration class")
+        return cfg
+
+    def name_of_config(self, config: object) -> str:
+        """The registered name whose config class ``config`` is an instance of."""
+        for name, (_, cfg) in self._entries.items():
+            if cfg is not None and type(config) is cfg:
+                return name
+        raise TypeError(
+            f"{type(config).__name__} is not the configuration of a registered {self.kind}"
+        )
+
+    def component_for(self, config: object) -> type:
+        return self._entries[self.name_of_config(config)][0]
+
+    def config_from_dict(self, d: dict[str, Any]) -> Any:
+        """``{"type": name, **fields}`` -> the config instance (unknown fields refused)."""
+        if "type" not in d:
+            raise ValueError(f"{self.kind} settings need a 'type' ({', '.join(self.names())})")
+        name = d["type"]
+        cls = self.config_class(name)
+        known = {f.name for f in dataclasses.fields(cls)}
+        values = {k: v for k, v in d.items() if k != "type"}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ValueError(
+                f"{self.kind} {name!r} has no setting(s) {unknown}; its settings: {sorted(known)}"
+            )
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+
+    def config_to_dict(self, config: object) -> dict[str, Any]:
+        return {"type": self.name_of_config(config), **dataclasses.asdict(config)}
