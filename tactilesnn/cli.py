@@ -280,10 +280,29 @@ def cmd_export(args: argparse.Namespace) -> int:
     from .training import load_data_file, load_run
 
     pipe, cfg = load_run(Path(args.run_dir))
+    if args.format == "nir":
+        pipe.model.to_nir()  # refuses models NIR cannot express, before any work
     if cfg.get("data"):
         _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
     else:
         _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
+    if args.format == "nir":
+        from .export.nir import compare, write_nir
+
+        path = write_nir(pipe.model, Path(args.out), overwrite=args.overwrite)
+        rep = compare(pipe.model, pipe.encode(test.X), path)
+        if not rep["simulated"]:
+            print(f"exported {path} (recurrent graph; not simulated by the reference consumer)")
+            return 0
+        print(
+            f"exported {path} (model only; input: the spike raster at "
+            f"{pipe.model.config.dt_ms:g} ms). Read back with nir.read and simulated with nirtorch "
+            f"on {test.y.size} test windows: max score difference "
+            f"{rep['subtract_reset_max_score_diff']:.2e}, predictions agree "
+            f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
+            f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
+        )
+        return 0
     report = export_pipeline(
         pipe,
         Path(args.out),
@@ -421,9 +440,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("export", help="export a run folder to one ONNX graph (window -> scores)")
+    p = sub.add_parser("export", help="export a run folder to ONNX (window -> scores) or NIR")
     p.add_argument("run_dir")
-    p.add_argument("--out", required=True, help="model.onnx to write")
+    p.add_argument("--out", required=True, help="model.onnx (or model.nir) to write")
+    p.add_argument(
+        "--format",
+        choices=("onnx", "nir"),
+        default="onnx",
+        help="onnx: the whole pipeline; nir: the SNN only (input: spike raster), needs 'nir'",
+    )
     p.add_argument("--overwrite", action="store_true")
     p.add_argument(
         "--quantize", action="store_true", help="also write <out>.int8.onnx (dynamic int8)"

@@ -48,8 +48,8 @@ def chain(
 ) -> onnx.ModelProto:
     """Feed outputs of ``first`` into inputs of ``second`` (``io`` pairs); names stay unprefixed
     on the graph boundary, internal names get ``tags``."""
-    a = onnx.compose.add_prefix(first, tags[0], rename_inputs=False, rename_outputs=False)
-    b = onnx.compose.add_prefix(second, tags[1], rename_inputs=False, rename_outputs=False)
+    a = prefixed(first, tags[0])
+    b = prefixed(second, tags[1])
     merged = onnx.compose.merge_models(a, b, io_map=list(io))
     # merge_models lists the default domain once per input model; tools that look it up
     # (onnxruntime's quantizer) need one entry per domain
@@ -59,3 +59,57 @@ def chain(
     del merged.opset_import[:]
     merged.opset_import.extend(onnx.helper.make_opsetid(d, v) for d, v in versions.items())
     return merged
+
+
+def prefixed(model: onnx.ModelProto, prefix: str) -> onnx.ModelProto:
+    """A copy of ``model`` with every internal value and node name prefixed, subgraphs included.
+
+    ``onnx.compose.add_prefix`` leaves a ``Loop`` body's references to outer-scope values
+    unrenamed (the recurrent SNN's ``W_rec`` inside its time loop), which breaks the graph.
+    """
+    out = onnx.ModelProto()
+    out.CopyFrom(model)
+    g = out.graph
+    keep = {v.name for v in g.input} | {v.name for v in g.output}
+    names: set[str] = set()
+    _collect(g, names)
+    mapping = {n: prefix + n for n in names if n and n not in keep}
+    _rename(g, mapping, prefix)
+    return out
+
+
+def _subgraphs(graph: onnx.GraphProto):
+    for node in graph.node:
+        for attr in node.attribute:
+            if attr.HasField("g"):
+                yield attr.g
+            yield from attr.graphs
+
+
+def _collect(graph: onnx.GraphProto, names: set[str]) -> None:
+    for node in graph.node:
+        names.update(node.input)
+        names.update(node.output)
+    names.update(v.name for v in [*graph.input, *graph.output, *graph.value_info])
+    names.update(t.name for t in graph.initializer)
+    for sub in _subgraphs(graph):
+        _collect(sub, names)
+
+
+def _rename(graph: onnx.GraphProto, mapping: dict[str, str], prefix: str) -> None:
+    for node in graph.node:
+        node.name = prefix + node.name if node.name else node.name
+        ins, outs = (
+            [mapping.get(x, x) for x in node.input],
+            [mapping.get(x, x) for x in node.output],
+        )
+        del node.input[:]
+        node.input.extend(ins)
+        del node.output[:]
+        node.output.extend(outs)
+    for v in [*graph.input, *graph.output, *graph.value_info]:
+        v.name = mapping.get(v.name, v.name)
+    for t in graph.initializer:
+        t.name = mapping.get(t.name, t.name)
+    for sub in _subgraphs(graph):
+        _rename(sub, mapping, prefix)

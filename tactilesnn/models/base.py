@@ -114,8 +114,10 @@ class SpikeModel(nn.Module):
         return {**{k: v.numpy() for k, v in self.state_dict().items()}, **state}
 
     def to_nir(self):
-        """The model as a NIR graph (input: the spike raster); refused where NIR has no match."""
-        raise NotImplementedError(f"{type(self).__name__} has no NIR equivalent")
+        """The model as a NIR graph (input: the spike raster); ValueError where NIR has no match."""
+        raise ValueError(
+            f"the {self.registry_name} model has no NIR equivalent; export it with ONNX"
+        )
 
 
 def build_model(

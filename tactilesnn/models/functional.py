@@ -70,9 +70,10 @@ def lif_rec_scan(
 ):
     """Recurrent LIF: the input current adds ``s_{t-1} W_rec^T``; returns ``(spikes, u, s)``."""
     u, s = u0, s0
+    w_t = w_rec.t().contiguous()  # once, outside the loop (inside, the ONNX Loop body breaks)
     out = []
     for t in range(cur.shape[0]):
-        s, u, _ = lif_step(u, cur[t] + torch.matmul(s, w_rec.t()), beta, theta, subtract)
+        s, u, _ = lif_step(u, cur[t] + torch.matmul(s, w_t), beta, theta, subtract)
         out.append(s)
     return torch.stack(out), u, s
 

@@ -373,6 +373,12 @@ class TempotronClassifier(SpikeModel):
     def onnx_module(self) -> nn.Module:
         return _ScoresOnly(self.net)
 
+    def to_nir(self):
+        raise ValueError(
+            "the exact tempotron has no NIR equivalent (its score is the continuous-time maximum "
+            "of a double-exponential PSP sum, not a NIR graph); export it with ONNX"
+        )
+
     def upgrade_state(self, state: dict) -> dict:
         """Runs written before the component layer kept ``weight`` at the top level and the
         momentum outside the state (it restarts at zero)."""

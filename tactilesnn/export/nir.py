@@ -1,0 +1,222 @@
+"""NIR export of the SNN (https://neuroir.org): Affine -> LIF -> Affine -> LI (or LIF) graph.
+
+Mapping (time constants in seconds, from the configured ``dt_ms`` and ``tau_ms``): our layers are
+``u_t = beta u_{t-1} + i_t`` with ``beta = exp(-dt / tau)`` and ``i_t = W x_t + b`` in units of the
+threshold. NIR's LIF is ``tau dv/dt = (v_leak - v) + R I``; integrated exactly for an input held
+over the step (zero-order hold) that is ``v_t = beta v_{t-1} + (1 - beta) R I_t``, so
+``R = 1 / (1 - beta)`` (dimensionless), ``v_leak = 0``, ``v_threshold = theta``. The graph's
+input is the spike raster (counts per ``dt`` step, :func:`tactilesnn.spikes.spike_raster`);
+``metadata["dt_s"]`` gives the step. What NIR has no primitive for, said plainly:
+
+* **reset by subtraction** (our default): NIR's LIF resets *to* ``v_reset``. The graph carries
+  ``v_reset = 0`` and ``metadata["reset"] = "subtract"``; a consumer that honours the metadata
+  reproduces our spikes exactly, a plain reset-to-zero consumer approximates them (both are
+  measured by :func:`compare`);
+* **max / mean readout** over time: not a NIR node; the graph outputs the LI membrane per step and
+  ``metadata["readout"]`` says how to reduce it (``count`` readouts output LIF spikes to sum);
+* **recurrent hidden layer**: exported as an ``Affine`` self-loop edge (``W_rec``, zero bias) on
+  the hidden LIF, as snnTorch's RNN import expects;
+* **the exact tempotron and the encoders**: refused (continuous-time ``V_max`` of a
+  double-exponential kernel, and FFT/latency or exact-crossing converters, are not NIR graphs;
+  export those with ONNX).
+
+:func:`simulate` runs a NIR graph with ``nirtorch`` (its graph wiring and state handling) and
+modules written from NIR's equations (not :mod:`tactilesnn.models.functional`); nirtorch 2.6's
+own ``Affine`` mapping drops the bias (see :func:`_affine`), so ours replaces it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+
+def _require_nir():
+    try:
+        import nir
+    except ImportError as e:  # optional dependency
+        raise ImportError(
+            "NIR export needs the 'nir' package: pip install 'tactilesnn[nir]'"
+        ) from e
+    return nir
+
+
+def snn_to_nir(model: Any):
+    """The SNN component (:class:`~tactilesnn.models.snn.SNNModel`) as a ``nir.NIRGraph``."""
+    nir = _require_nir()
+    net, cfg = model.net, model.config
+    dt_s, tau_s = cfg.dt_ms / 1000.0, cfg.tau_ms / 1000.0
+    beta = math.exp(-cfg.dt_ms / cfg.tau_ms)
+    r = 1.0 / (1.0 - beta)
+
+    def arr(t: Tensor) -> np.ndarray:
+        return t.detach().cpu().numpy().astype(np.float32)
+
+    def full(n: int, v: float) -> np.ndarray:
+        return np.full(n, v, dtype=np.float32)
+
+    n_in, n_h, n_c = net.hidden.fc.in_features, net.hidden.fc.out_features, model.n_classes
+    nodes: dict[str, Any] = {
+        "input": nir.Input(input_type={"input": np.array([n_in])}),
+        "fc1": nir.Affine(weight=arr(net.hidden.fc.weight), bias=arr(net.hidden.fc.bias)),
+        "lif1": nir.LIF(
+            tau=full(n_h, tau_s),
+            r=full(n_h, r),
+            v_leak=full(n_h, 0.0),
+            v_threshold=full(n_h, net.hidden.theta),
+            v_reset=full(n_h, 0.0),
+        ),  # fmt: skip
+        "fc2": nir.Affine(weight=arr(net.out.fc.weight), bias=arr(net.out.fc.bias)),
+        "output": nir.Output(output_type={"output": np.array([n_c])}),
+    }
+    if cfg.readout == "count":
+        nodes["readout"] = nir.LIF(tau=full(n_c, tau_s), r=full(n_c, r), v_leak=full(n_c, 0.0),
+                               v_threshold=full(n_c, net.out.theta), v_reset=full(n_c, 0.0))  # fmt: skip
+    else:
+        nodes["readout"] = nir.LI(tau=full(n_c, tau_s), r=full(n_c, r), v_leak=full(n_c, 0.0))
+    edges = [
+        ("input", "fc1"),
+        ("fc1", "lif1"),
+        ("lif1", "fc2"),
+        ("fc2", "readout"),
+        ("readout", "output"),
+    ]
+    if net.hidden.rec is not None:
+        nodes["rec"] = nir.Affine(weight=arr(net.hidden.rec.weight), bias=np.zeros(n_h, np.float32))
+        edges += [("lif1", "rec"), ("rec", "lif1")]
+    meta = {
+        "producer": "tactilesnn",
+        "dt_s": dt_s,
+        "reset": "subtract",
+        "readout": cfg.readout,
+        "input": "spike counts per dt step (raster of the encoder's spike times)",
+        "steps": int(model.steps),
+    }
+    return nir.NIRGraph(nodes=nodes, edges=edges, metadata=meta)
+
+
+def write_nir(model: Any, path: Path, overwrite: bool = False) -> Path:
+    """Write ``model`` as a NIR file (HDF5) atomically; refuses models NIR cannot express."""
+    nir = _require_nir()
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
+    graph = model.to_nir()
+    tmp = path.with_name(f".{path.name}.tmp")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    nir.write(str(tmp), graph)
+    os.replace(tmp, path)
+    return path
+
+
+# ---------------------------------------------------------------------------------- consumer
+class _NIRLIF(nn.Module):
+    """NIR ``LIF`` stepped exactly over ``dt_s`` for a held input (reset to ``v_reset`` or by
+    subtracting the threshold)."""
+
+    def __init__(self, node: Any, dt_s: float, subtract: bool) -> None:
+        super().__init__()
+        self.decay = torch.from_numpy(np.exp(-dt_s / np.asarray(node.tau, np.float64))).float()
+        self.gain = (1.0 - self.decay) * torch.from_numpy(np.asarray(node.r, np.float32))
+        self.v_leak = torch.from_numpy(np.asarray(node.v_leak, np.float32))
+        self.thr = torch.from_numpy(np.asarray(node.v_threshold, np.float32))
+        self.v_reset = torch.from_numpy(np.asarray(node.v_reset, np.float32))
+        self.subtract = subtract
+
+    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        v = torch.zeros_like(x) if state is None else state
+        v = self.v_leak + self.decay * (v - self.v_leak) + self.gain * x
+        s = (v >= self.thr).to(x.dtype)
+        v = v - s * self.thr if self.subtract else torch.where(s > 0, self.v_reset, v)
+        return s, v
+
+
+class _NIRLI(nn.Module):
+    """NIR ``LI`` stepped exactly over ``dt_s`` for a held input; outputs the membrane."""
+
+    def __init__(self, node: Any, dt_s: float) -> None:
+        super().__init__()
+        self.decay = torch.from_numpy(np.exp(-dt_s / np.asarray(node.tau, np.float64))).float()
+        self.gain = (1.0 - self.decay) * torch.from_numpy(np.asarray(node.r, np.float32))
+        self.v_leak = torch.from_numpy(np.asarray(node.v_leak, np.float32))
+
+    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        v = torch.zeros_like(x) if state is None else state
+        v = self.v_leak + self.decay * (v - self.v_leak) + self.gain * x
+        return v, v
+
+
+def _affine(node: Any) -> nn.Linear:
+    """NIR ``Affine`` (``W x + b``). nirtorch 2.6's default mapping assigns the bias to
+    ``weight.bias`` and so leaves the layer's random initial bias in place."""
+    w = torch.from_numpy(np.asarray(node.weight, np.float32))
+    lin = nn.Linear(w.shape[1], w.shape[0])
+    with torch.no_grad():
+        lin.weight.copy_(w)
+        lin.bias.copy_(torch.from_numpy(np.asarray(node.bias, np.float32)))
+    return lin
+
+
+def simulate(graph: Any, raster: Tensor, honour_reset: bool = True) -> Tensor:
+    """Run a NIR graph on ``raster [T, B, inputs]`` with nirtorch; output per step ``[T, B, out]``.
+
+    ``honour_reset=False`` ignores ``metadata["reset"]`` (plain NIR: reset to ``v_reset``).
+    """
+    import nirtorch
+
+    nir = _require_nir()
+    dt_s = float(graph.metadata["dt_s"])
+    subtract = honour_reset and graph.metadata.get("reset") == "subtract"
+    if "rec" in graph.nodes:
+        raise NotImplementedError("the reference consumer runs feed-forward NIR graphs only")
+    node_map = {
+        nir.LIF: lambda n: _NIRLIF(n, dt_s, subtract),
+        nir.LI: lambda n: _NIRLI(n, dt_s),
+        nir.Affine: _affine,
+    }
+    module = nirtorch.nir_to_torch(graph, node_map)
+    state = None
+    out = []
+    with torch.no_grad():
+        for t in range(raster.shape[0]):
+            y, state = module(raster[t], state)
+            out.append(y)
+    return torch.stack(out)
+
+
+def reduce(out: Tensor, readout: str) -> Tensor:
+    """NIR output per step -> class scores, as ``metadata["readout"]`` says."""
+    if readout == "count":
+        return out.sum(0)
+    if readout == "max":
+        return out.amax(0)
+    return out.mean(0)
+
+
+def compare(model: Any, spikes: Tensor, path: Path | None = None) -> dict[str, float]:
+    """Our scores vs the NIR graph (written and read back if ``path``) on ``spikes [N, A, k]``.
+
+    Reports the largest score difference and the prediction agreement, honouring the
+    subtract-reset metadata and with plain NIR reset-to-zero semantics.
+    """
+    nir = _require_nir()
+    graph = nir.read(str(path)) if path is not None else model.to_nir()
+    if "rec" in graph.nodes:
+        return {"simulated": 0.0}
+    with torch.no_grad():
+        ref = model.scores(spikes)
+    raster = model.raster(spikes)
+    res = {"simulated": 1.0}
+    for name, honour in (("subtract_reset", True), ("nir_reset_to_zero", False)):
+        got = reduce(simulate(graph, raster, honour_reset=honour), graph.metadata["readout"])
+        res[f"{name}_max_score_diff"] = float((got - ref).abs().max()) if len(ref) else 0.0
+        res[f"{name}_prediction_agreement"] = (
+            float((got.argmax(1) == ref.argmax(1)).float().mean()) if len(ref) else 1.0
+        )
+    return res
