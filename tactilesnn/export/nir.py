@@ -71,7 +71,7 @@ def snn_to_nir(model: Any):
             v_leak=full(n_h, 0.0),
             v_threshold=full(n_h, net.hidden.theta),
             v_reset=full(n_h, 0.0),
-        ),  # fmt: skip
+        ),
         "fc2": nir.Affine(weight=arr(net.out.fc.weight), bias=arr(net.out.fc.bias)),
         "output": nir.Output(output_type={"output": np.array([n_c])}),
     }
