@@ -196,9 +196,13 @@ def _task_kwargs(args: argparse.Namespace) -> dict:
     kw = {"difficulty": args.difficulty, "amplitude_spread": args.amplitude_spread}
     kw.update(_parse_task_kw(getattr(args, "task_kw", None)))
     if getattr(args, "faults", None):
-        if args.task == "hook_loop":
-            raise ValueError("--faults applies to the trial tasks, not hook_loop")
         from .datasets_synth import parse_faults
+        from .datasets_synth.base import task_parameters
+
+        if "faults" not in task_parameters(args.task):
+            raise ValueError(
+                f"--faults applies to tasks with a sensor-fault model, not {args.task}"
+            )
 
         parse_faults(args.faults)  # fail early on a typo
         kw["faults"] = args.faults
@@ -249,7 +253,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .datasets_synth import get_task
-    from .training import load_data_file, load_run
+    from .recordings import load_data_file
+    from .training import load_run
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.data:
@@ -265,6 +270,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             )
         if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
             raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")
+        test = _match_channels(test, pipe.channel_names)
     elif cfg.get("data"):
         _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
     else:
@@ -274,10 +280,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _match_channels(data, want: Sequence[str]):
+    """``data`` with its channels in the run's order (by name); ValueError if they differ."""
+    have = tuple(data.channel_names)
+    if have == tuple(want):
+        return data
+    if sorted(have) != sorted(want):
+        raise ValueError(f"the data's channels {list(have)} are not the run's {list(want)}")
+    log.warning("data channels are in another order than the run's: reordered by name")
+    idx = [have.index(c) for c in want]
+    return type(data)(data.X[:, idx], data.y, data.scan, data.fs_hz, data.class_names, tuple(want))
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from .datasets_synth import get_task
     from .export import data_hash, export_pipeline
-    from .training import load_data_file, load_run
+    from .recordings import load_data_file
+    from .training import load_run
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.format == "nir":

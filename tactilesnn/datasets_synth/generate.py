@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from . import get_task
+from .base import get_task
 
 GENERATOR_VERSION = f"tactilesnn {__version__} / tasks v2"
 
@@ -80,9 +80,9 @@ def generate(
     task = get_task(task_name, **kwargs)
     if n < 1 or shard_size < 1:
         raise ValueError(f"n and shard_size must be >= 1, got {n}, {shard_size}")
-    if task_name == "hook_loop" and n > task.n_samples:
-        raise ValueError(f"task {task_name} has {task.n_samples} scans; asked for {n}")
-    if n > task.n_samples:  # trial tasks: sample indices beyond the default size are valid
+    if not task.resizable and n > task.n_samples:
+        raise ValueError(f"task {task_name} has {task.n_samples} samples; asked for {n}")
+    if n > task.n_samples:  # resizable tasks: sample indices beyond the default size are valid
         kwargs["n_samples"] = n
         task = get_task(task_name, **kwargs)
     manifest_path, partial_path = out / "manifest.json", out / "manifest.partial.json"

@@ -18,30 +18,24 @@ amplitude from identifying the texture. Both default to 1.0; 0 gives idealised s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
+from .base import WindowDataset, register_task
 from .capacitive_piezo import CapacitivePiezoStack
 from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
 
 TASK_ID = 1  # mixed into every seed so different tasks never share random streams
 
 
-@dataclass(frozen=True)
-class WindowDataset:
-    """Windows of one split: ``X [N, C, W]`` float32, ``y [N]`` int64, ``scan [N]`` int64."""
-
-    X: np.ndarray
-    y: np.ndarray
-    scan: np.ndarray
-    fs_hz: float
-    class_names: tuple[str, ...]
-    channel_names: tuple[str, ...]
-
-
+@register_task
 @dataclass(frozen=True)
 class HookLoopTask:
     """Seed 001's hook-vs-loop task; deterministic given ``seed`` and the scan index."""
+
+    task_id: ClassVar[int] = TASK_ID
+    resizable: ClassVar[bool] = False  # a scan task: its 200 scans are the seed's protocol
 
     seed: int = 0
     n_planar: int = 100

@@ -27,6 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .base import register_task
 from .indentation import IndentationScene
 from .teng import MATERIALS, TENGArray, TENGParams, layout
 from .trial_task import TrialTask
@@ -42,6 +43,7 @@ STIFFNESS = {"soft": 0.3, "medium": 0.6, "hard": 0.97}  # skin's share of an ove
 CURVATURE_MM = {"flat": np.inf, "round": 25.0, "sharp": 8.0}  # object radius of curvature
 
 
+@register_task
 @dataclass(frozen=True)
 class StiffnessCurvatureTask(TrialTask):
     """9 classes: ``<stiffness>-<curvature>``; 1 s trials of V_T on a TENG finger array."""
@@ -84,6 +86,7 @@ class StiffnessCurvatureTask(TrialTask):
         return v, {"t_contact_s": t_contact, "contacts": contacts, "charge": charge}
 
 
+@register_task
 @dataclass(frozen=True)
 class MaterialTask(TrialTask):
     """5 classes (SPEC 2.2 materials): a slow and a fast press of the flat 15 mm indenter.

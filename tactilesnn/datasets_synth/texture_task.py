@@ -19,12 +19,14 @@ from typing import ClassVar
 
 import numpy as np
 
+from .base import register_task
 from .capacitive_piezo import CapacitivePiezoStack
 from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
 from .textures import TEXTURES
 from .trial_task import TrialTask
 
 
+@register_task
 @dataclass(frozen=True)
 class TextureTask(TrialTask):
     """12 classes (:data:`TEXTURES` order); ``X [N, 2, 200]`` relative units at 200 S/s."""

@@ -20,6 +20,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from .base import register_task
 from .pvdf import PVDFParams, PVDFTriangle
 from .trial_task import TrialTask
 
@@ -31,6 +32,7 @@ MODALITIES = {  # force range (N), contact diameter (mm)
 }
 
 
+@register_task
 @dataclass(frozen=True)
 class TouchModalityTask(TrialTask):
     """4 classes: light poke, hard poke, caress, slap (soft and hard body sites)."""

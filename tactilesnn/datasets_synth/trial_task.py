@@ -19,8 +19,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from .base import WindowDataset
 from .faults import Faults, parse_faults
-from .hook_loop import WindowDataset
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,7 @@ class TrialTask(ABC):
 
     name: ClassVar[str] = "trial"
     task_id: ClassVar[int] = 0
+    resizable: ClassVar[bool] = True  # sample i exists for every i: n_samples can grow
     class_names: ClassVar[tuple[str, ...]] = ()
     units: ClassVar[str] = ""
 

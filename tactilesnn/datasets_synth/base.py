@@ -1,0 +1,97 @@
+"""The data contract of synthetic tasks and recordings, and the task registry.
+
+:class:`WindowDataset` is what every task's ``build()`` and every recordings reader returns:
+``X`` ``[N, channels, window]`` float32 in the sensor's readout units at ``fs_hz``, ``y`` ``[N]``
+int64 class indices, ``scan`` ``[N]`` int64 group ids (a scan, trial or recording: windows of one
+group never straddle a split).
+
+A task is a frozen dataclass satisfying :class:`Task`, registered with ``@register_task`` (unique
+``name`` and ``task_id``; the id is mixed into every random stream, so two tasks never share one).
+Scan tasks (one sample = one long scan cut into windows; fixed size) and trial tasks (one sample =
+one window; ``n_samples`` can grow) are siblings behind the same protocol.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class WindowDataset:
+    """Windows of one split: ``X [N, C, W]`` float32, ``y [N]`` int64, ``scan [N]`` int64."""
+
+    X: np.ndarray
+    y: np.ndarray
+    scan: np.ndarray
+    fs_hz: float
+    class_names: tuple[str, ...]
+    channel_names: tuple[str, ...]
+
+
+@runtime_checkable
+class Task(Protocol):
+    """What the CLI, the generator and the benchmarks use of a task."""
+
+    name: ClassVar[str]
+    task_id: ClassVar[int]
+    #: True if ``n_samples`` can be raised to render more samples (trial tasks)
+    resizable: ClassVar[bool]
+    seed: int
+
+    @property
+    def fs_hz(self) -> float: ...
+    @property
+    def window(self) -> int: ...
+    @property
+    def channel_names(self) -> tuple[str, ...]: ...
+    @property
+    def n_samples(self) -> int: ...
+    def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Sample ``index`` -> its windows ``(X [n, C, W] float32, y [n] int64)``."""
+        ...
+
+    def split(self) -> tuple[np.ndarray, np.ndarray]: ...
+    def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]: ...
+
+
+TASKS: dict[str, type] = {}
+
+
+def register_task(cls: type) -> type:
+    """Class decorator: register a task under its ``name`` (names and ids must be unique)."""
+    name, tid = cls.name, cls.task_id
+    if name in TASKS:
+        raise ValueError(f"task {name!r} is already registered")
+    if not isinstance(tid, int) or tid < 1:
+        raise ValueError(f"task {name!r}: task_id must be an integer >= 1, got {tid!r}")
+    clash = [n for n, c in TASKS.items() if c.task_id == tid]
+    if clash:
+        raise ValueError(f"task {name!r}: task_id {tid} is already used by {clash[0]!r}")
+    TASKS[name] = cls
+    return cls
+
+
+def get_task(name: str, **kwargs: object) -> Task:
+    """Instantiate a registered task by name (``kwargs`` go to its constructor)."""
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
+    known = {f.name for f in dataclasses.fields(TASKS[name])}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise ValueError(
+            f"task {name!r} has no parameter(s) {unknown}; its parameters: {sorted(known)}"
+        )
+    return TASKS[name](**kwargs)
+
+
+def task_parameters(name: str) -> set[str]:
+    """Constructor parameters of a registered task (ValueError for an unknown name)."""
+    get: Callable[[str], type] = TASKS.__getitem__
+    if name not in TASKS:
+        raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
+    return {f.name for f in dataclasses.fields(get(name))}
