@@ -5,6 +5,7 @@ are the registry's list of shipped encoders.
 """
 
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
+from .delta import DeltaConfig, DeltaEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import LatencyCode
 from .lif_population import LIFPopulationConfig, LIFPopulationEncoder
@@ -14,6 +15,8 @@ from .stft import STFTScalogram
 
 __all__ = [
     "ENCODERS",
+    "DeltaConfig",
+    "DeltaEncoder",
     "GWTConfig",
     "GWTLatencyEncoder",
     "GaborScalogram",

@@ -1,0 +1,107 @@
+"""Send-on-delta (level-crossing) encoder, SPEC 3's "delta coding": ``delta``.
+
+Each channel is quantised to levels ``q_t = round(x_t / delta)``; a rise of the level by ``n``
+emits ``n`` spikes on the channel's ON afferent at the sample's time, a fall ``n`` spikes on its
+OFF afferent (afferent ``2 c`` = ON, ``2 c + 1`` = OFF of channel ``c``). The first sample sets
+the reference level and emits nothing, so a constant offset costs no spikes. ``delta`` is
+``threshold`` times the channel's median RMS sample-to-sample change on the training windows
+(fitted, a buffer), so the code adapts to any sensor's units. Each afferent keeps its first
+``max_spikes`` spike times (ms from the window start, sample ``i`` at ``i / fs``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .._checks import check_int, check_positive
+from .base import SpikeEncoder, register_encoder
+
+
+@dataclass(frozen=True)
+class DeltaConfig:
+    threshold: float = 1.0
+    max_spikes: int = 16
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "delta_threshold": "threshold",
+        "delta_max_spikes": "max_spikes",
+    }
+    HELP: ClassVar[dict[str, str]] = {
+        "threshold": "level step in multiples of the channel's RMS sample-to-sample change",
+        "max_spikes": "spike times kept per ON / OFF afferent",
+    }
+
+    def __post_init__(self) -> None:
+        check_positive(self.threshold, "threshold")
+        check_int(self.max_spikes, "max_spikes", 1)
+
+
+class _DeltaGraph(nn.Module):
+    """Levels -> ON/OFF crossings per sample -> first ``k`` spike times (traceable)."""
+
+    def __init__(self, inv_delta: Tensor, dt_ms: float, k: int) -> None:
+        super().__init__()
+        self.register_buffer("inv_delta", inv_delta.clone())
+        self.dt, self.k = float(dt_ms), int(k)
+
+    def forward(self, x: Tensor) -> Tensor:
+        q = torch.round(x * self.inv_delta.view(1, -1, 1))
+        d = q[..., 1:] - q[..., :-1]  # [B, C, W - 1]: crossings arriving at samples 1..W-1
+        counts = torch.stack([d.clamp(min=0.0), (-d).clamp(min=0.0)], dim=2).flatten(1, 2)
+        cum = torch.cumsum(counts, dim=-1)  # [B, 2C, W - 1]
+        t = (torch.arange(1, cum.shape[-1] + 1, dtype=x.dtype) * self.dt).view(1, 1, -1)
+        slots = []
+        for j in range(self.k):
+            hit = cum >= float(j + 1)
+            first = torch.argmax(hit.to(x.dtype), dim=-1, keepdim=True)
+            time = torch.gather(t.expand_as(cum), -1, first)
+            slots.append(torch.where(hit[..., -1:], time, torch.full_like(time, float("inf"))))
+        return torch.cat(slots, dim=-1)
+
+
+@register_encoder("delta", DeltaConfig)
+class DeltaEncoder(SpikeEncoder):
+    """Send-on-delta ON/OFF afferents per channel; see the module docstring."""
+
+    needs_fit = True
+
+    def __init__(self, config: DeltaConfig, fs_hz: float, window: int, n_channels: int) -> None:
+        super().__init__(config, fs_hz, window, n_channels)
+        if self.window < 2:
+            raise ValueError(f"the delta encoder needs windows of >= 2 samples, got {window}")
+        self.register_buffer("delta", torch.ones(n_channels))  # level step, input units
+
+    @property
+    def n_afferents(self) -> int:
+        return 2 * self.n_channels
+
+    @property
+    def max_spikes(self) -> int:
+        return self.config.max_spikes
+
+    def fit(self, X: np.ndarray) -> DeltaEncoder:
+        step = np.diff(np.asarray(X, dtype=np.float64), axis=-1)
+        rms = np.median(np.sqrt((step**2).mean(-1)), axis=0)  # [C]
+        scale = np.abs(np.asarray(X, dtype=np.float64)).max(axis=(0, 2))
+        # a channel that never changes keeps a level step that cannot be crossed by its noise
+        floor = np.maximum(1e-6 * scale, np.finfo(np.float64).tiny)
+        self.delta.copy_(torch.from_numpy(self.config.threshold * np.maximum(rms, floor)))
+        self.fitted.fill_(True)
+        return self
+
+    def bytes_per_window(self) -> int:
+        return 4 * self.n_afferents * self.window * 4
+
+    def graph(self) -> _DeltaGraph:
+        return _DeltaGraph(1.0 / self.delta, 1000.0 / self.fs_hz, self.config.max_spikes)
+
+    def encode_batch(self, x: Tensor) -> Tensor:
+        return self.graph()(x)
+
+    def onnx_module(self) -> nn.Module:
+        return self.graph()
