@@ -242,6 +242,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
     )
+    if "error" in m.get("onnx", {}):
+        print(f"run folder {path} is complete, but the ONNX export failed: {m['onnx']['error']}")
+        print(f"retry with: tactilesnn export {path} --out {path / 'model.onnx'}")
+        return 1
     if "onnx" in m:
         print(
             f"model.onnx: {m['onnx']['nodes']} nodes, onnxruntime vs torch max score difference "

@@ -72,6 +72,14 @@ class RunWriter:
         shutil.rmtree(self.tmp, ignore_errors=True)
 
 
+def write_json_atomic(path: Path, obj: object) -> None:
+    """Replace ``path`` with ``obj`` as JSON (temporary file + rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_jsonable))
+    os.replace(tmp, path)
+
+
 def load_arrays(path: Path) -> dict[str, np.ndarray]:
     """Load a weights file written by :meth:`RunWriter.write_arrays` (pickle disabled)."""
     with np.load(path, allow_pickle=False) as f:

@@ -25,7 +25,7 @@ from .datasets_synth import WindowDataset, get_task
 from .models.base import SpikeModel, to_tensor_labels
 from .pipeline import SpikePipeline, accuracy_ci95
 from .recordings import load_data_file
-from .runs import RunWriter, load_arrays, read_json
+from .runs import RunWriter, load_arrays, read_json, write_json_atomic
 
 log = logging.getLogger("tactilesnn")
 
@@ -392,25 +392,33 @@ def train_run(
             {"labels": list(test.class_names), "matrix": res.confusion.tolist()},
         )
         plot_confusion(res.confusion, test.class_names, writer.file("confusion_matrix.png"))
-        if export:
-            from .export import data_hash, export_pipeline
-
-            rep = export_pipeline(
-                res.pipeline,
-                writer.file("model.onnx"),
-                test.X,
-                metadata={"training_data_sha256": data_hash(run_cfg), "run": out.name},
-            )
-            res.metrics["onnx"] = {
-                k: rep[k] for k in ("nodes", "max_score_diff", "prediction_agreement")
-            }
         writer.write_json("metrics.json", res.metrics)
         path = writer.commit()
         shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
     except BaseException:
         writer.abort()
         raise
+    if export:  # after the run is safely written: an export failure never loses the run
+        res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, run_cfg)
+        write_json_atomic(path / "metrics.json", res.metrics)
     return path, res.metrics
+
+
+def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg: dict) -> dict:
+    """Write ``run/model.onnx`` (verified on ``X_check``); a failure is reported, not raised."""
+    from .export import data_hash, export_pipeline
+
+    try:
+        rep = export_pipeline(
+            pipe,
+            run / "model.onnx",
+            X_check,
+            metadata={"training_data_sha256": data_hash(run_cfg), "run": run.name},
+        )
+    except (MemoryError, RuntimeError, ValueError) as e:
+        log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)
+        return {"error": f"{type(e).__name__}: {e}"}
+    return {k: rep[k] for k in ("nodes", "max_score_diff", "prediction_agreement")}
 
 
 def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:

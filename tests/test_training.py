@@ -137,3 +137,22 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     np.savez(bad, X=np.zeros((3, 100)), y=np.zeros(3), fs=100.0, class_names=np.array(["a"]))
     assert main(["train", "--data", str(bad), "--out", str(tmp_path / "b"), "--quiet"]) == 2
     assert "X must be [N, channels, samples]" in capsys.readouterr().err
+
+
+def test_export_failure_keeps_the_finished_run(tmp_path, monkeypatch, capsys):
+    import tactilesnn.export as export
+
+    def boom(*a, **k):
+        raise MemoryError("cannot allocate 44 GB")
+
+    monkeypatch.setattr(export, "export_pipeline", boom)
+    out = tmp_path / "r"
+    rc = main(["train", "--epochs", "1", "--task-kw", "n_planar=10", "--task-kw", "n_concave=5",
+               "--task-kw", "n_convex=5", "--task-kw", "n_test=4", "--out", str(out), "--quiet"])  # fmt: skip
+    assert rc == 1
+    assert "ONNX export failed" in capsys.readouterr().out
+    m = json.loads((out / "metrics.json").read_text())
+    assert "MemoryError" in m["onnx"]["error"] and m["test_accuracy"] > 0.5
+    assert (out / "weights.npz").is_file() and not (out / "model.onnx").exists()
+    assert not (tmp_path / "r.partial").exists()
+    training.load_run(out)  # the run is usable

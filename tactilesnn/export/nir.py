@@ -36,6 +36,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..models.functional import reduce_readout
+
 
 def _require_nir():
     try:
@@ -190,15 +192,6 @@ def simulate(graph: Any, raster: Tensor, honour_reset: bool = True) -> Tensor:
     return torch.stack(out)
 
 
-def reduce(out: Tensor, readout: str) -> Tensor:
-    """NIR output per step -> class scores, as ``metadata["readout"]`` says."""
-    if readout == "count":
-        return out.sum(0)
-    if readout == "max":
-        return out.amax(0)
-    return out.mean(0)
-
-
 def compare(model: Any, spikes: Tensor, path: Path | None = None) -> dict[str, float]:
     """Our scores vs the NIR graph (written and read back if ``path``) on ``spikes [N, A, k]``.
 
@@ -214,7 +207,8 @@ def compare(model: Any, spikes: Tensor, path: Path | None = None) -> dict[str, f
     raster = model.raster(spikes)
     res = {"simulated": 1.0}
     for name, honour in (("subtract_reset", True), ("nir_reset_to_zero", False)):
-        got = reduce(simulate(graph, raster, honour_reset=honour), graph.metadata["readout"])
+        out = simulate(graph, raster, honour_reset=honour)
+        got = reduce_readout(out, str(graph.metadata["readout"]))
         res[f"{name}_max_score_diff"] = float((got - ref).abs().max()) if len(ref) else 0.0
         res[f"{name}_prediction_agreement"] = (
             float((got.argmax(1) == ref.argmax(1)).float().mean()) if len(ref) else 1.0
