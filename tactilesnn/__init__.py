@@ -1,6 +1,36 @@
 """tactilesnn: tactile sensor models, spike encoders and spiking classifiers.
 
 Data flows one way: scene -> sensor -> raw stream -> encoder -> spikes -> model -> prediction.
+The names below are imported on first use, so ``tactilesnn.service`` (onnxruntime + numpy only)
+never pulls in torch.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
 __version__ = "0.1.0"
+
+_LAZY = {
+    "PipelineConfig": "tactilesnn.config",
+    "TrainConfig": "tactilesnn.config",
+    "SpikePipeline": "tactilesnn.pipeline",
+    "Trainer": "tactilesnn.training",
+    "train_run": "tactilesnn.training",
+    "load_run": "tactilesnn.training",
+    "load_data_file": "tactilesnn.recordings",
+    "export_pipeline": "tactilesnn.export",
+    "ENCODERS": "tactilesnn.encoders",
+    "MODELS": "tactilesnn.models",
+    "TASKS": "tactilesnn.datasets_synth",
+    "get_task": "tactilesnn.datasets_synth",
+}
+
+__all__ = ["__version__", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'tactilesnn' has no attribute {name!r}")

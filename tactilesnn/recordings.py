@@ -2,11 +2,14 @@
 
 Format: ``X`` ``[N, channels, samples]`` float (the sensor's units), ``y`` ``[N]`` int, ``fs``
 (Hz, scalar), ``class_names`` ``[C]`` str; optional ``channel_names`` ``[channels]`` str and
-``split`` ``[N]`` (0 = train, 1 = test). Read with ``allow_pickle=False``.
+``recording`` ``[N]`` (windows of one recording share it: they stay on one side of every split, and
+scores are also accumulated per recording) and ``split`` ``[N]`` (0 = train, 1 = test). Read with
+``allow_pickle=False``.
 """
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -15,53 +18,106 @@ from ._checks import check_finite
 from .datasets_synth import WindowDataset
 
 
-def load_data_file(path: Path, seed: int, test_fraction: float = 0.2):
-    """Real recordings in the documented format -> ``(train, test)`` window datasets.
+def load_data_file(
+    path: Path, seed: int, test_fraction: float = 0.2
+) -> tuple[WindowDataset, WindowDataset]:
+    """Recordings in the documented format -> ``(train, test)`` window datasets.
 
-    ``.npz`` with ``X`` ``[N, channels, samples]`` float, ``y`` ``[N]`` int, ``fs`` (Hz),
-    ``class_names`` ``[C]`` str, optionally ``channel_names`` and ``split`` (``[N]``, 0 = train,
-    1 = test). Without ``split``, a stratified random ``test_fraction`` is held out (from ``seed``).
-    Loaded with ``allow_pickle=False``.
+    ``.npz`` with ``X`` ``[N, channels, samples]`` real numbers, ``y`` ``[N]`` integer labels,
+    ``fs`` (Hz, one number), ``class_names`` ``[C]`` str; optionally ``channel_names``,
+    ``recording`` ``[N]`` (int or str: windows cut from one recording share it, and never straddle
+    train / validation / test) and ``split`` ``[N]`` (0 = train, 1 = test). Without ``split``,
+    ``test_fraction`` of the recordings (stratified by class, from ``seed``) is held out.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"data file {path} does not exist")
-    with np.load(path, allow_pickle=False) as f:
-        missing = [k for k in ("X", "y", "fs", "class_names") if k not in f.files]
-        if missing:
-            raise ValueError(
-                f"{path}: missing {missing}; expected X [N, channels, samples], y [N], fs, "
-                "class_names"
-            )
-        X = np.asarray(f["X"])
-        y = np.asarray(f["y"]).astype(np.int64)
-        fs = float(f["fs"])
-        names = tuple(str(c) for c in f["class_names"])
-        ch = (
-            tuple(str(c) for c in f["channel_names"])
-            if "channel_names" in f.files
-            else tuple(f"ch{i}" for i in range(X.shape[1] if X.ndim == 3 else 0))
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: np.asarray(f[k]) for k in f.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    missing = [k for k in ("X", "y", "fs", "class_names") if k not in arrays]
+    if missing:
+        raise ValueError(
+            f"{path}: missing {missing}; expected X [N, channels, samples], y [N], fs, class_names"
         )
-        split = np.asarray(f["split"]) if "split" in f.files else None
+    X, y_raw, fs_arr = arrays["X"], arrays["y"], arrays["fs"]
+    if X.dtype.kind not in "fiu":
+        raise ValueError(f"{path}: X must hold real numbers, got dtype {X.dtype}")
     if X.ndim != 3:
         raise ValueError(f"{path}: X must be [N, channels, samples], got shape {X.shape}")
-    if y.shape != (X.shape[0],):
-        raise ValueError(f"{path}: y must be [N={X.shape[0]}], got shape {y.shape}")
+    if X.shape[0] == 0 or X.shape[1] == 0 or X.shape[2] < 2:
+        raise ValueError(f"{path}: X needs >= 1 window, channel and >= 2 samples, got {X.shape}")
+    if fs_arr.size != 1 or fs_arr.dtype.kind not in "fiu":
+        raise ValueError(f"{path}: fs must be one sampling rate in Hz, got {fs_arr!r}")
+    fs = float(fs_arr.reshape(()))
     if not np.isfinite(fs) or fs <= 0:
         raise ValueError(f"{path}: fs must be a positive sampling rate in Hz, got {fs}")
+    if y_raw.shape != (X.shape[0],):
+        raise ValueError(f"{path}: y must be [N={X.shape[0]}], got shape {y_raw.shape}")
+    if y_raw.dtype.kind not in "iu":
+        if y_raw.dtype.kind != "f" or not np.array_equal(y_raw, np.round(y_raw)):
+            raise ValueError(f"{path}: y must hold integer class indices, got dtype {y_raw.dtype}")
+    y = y_raw.astype(np.int64)
+    names = tuple(str(c) for c in np.atleast_1d(arrays["class_names"]))
     if y.min() < 0 or y.max() >= len(names):
         raise ValueError(f"{path}: labels must index class_names (0..{len(names) - 1})")
+    ch = tuple(f"ch{i}" for i in range(X.shape[1]))
+    if "channel_names" in arrays:
+        ch = tuple(str(c) for c in np.atleast_1d(arrays["channel_names"]))
+        if len(ch) != X.shape[1] or len(set(ch)) != len(ch):
+            raise ValueError(f"{path}: channel_names must be {X.shape[1]} distinct names")
     check_finite(X.astype(np.float64, copy=False), f"{path}: X")
+    groups = recording_ids(arrays.get("recording"), y.size, path)
+    split = arrays.get("split")
     if split is None:
-        from sklearn.model_selection import train_test_split
+        split = split_by_recording(y, groups, test_fraction, seed)
+    else:
+        split = np.asarray(split)
+        if split.shape != y.shape or not np.isin(split, (0, 1)).all():
+            raise ValueError(f"{path}: split must be [N] of 0 (train) / 1 (test)")
+        if not ((split == 0).any() and (split == 1).any()):
+            raise ValueError(f"{path}: split must put windows in both train (0) and test (1)")
+        straddle = np.intersect1d(groups[split == 0], groups[split == 1])
+        if straddle.size and "recording" in arrays:
+            raise ValueError(
+                f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets"
+            )
 
-        idx = np.arange(y.size)
-        _, te = train_test_split(idx, test_size=test_fraction, random_state=seed, stratify=y)
-        split = np.zeros(y.size, np.int64)
-        split[te] = 1
-    ids = np.arange(y.size)  # each recording is its own group
-
-    def take(m):
-        return WindowDataset(X[m].astype(np.float32), y[m], ids[m], fs, names, ch)
+    def take(m: np.ndarray) -> WindowDataset:
+        return WindowDataset(X[m].astype(np.float32), y[m], groups[m], fs, names, ch)
 
     return take(split == 0), take(split == 1)
+
+
+def recording_ids(recording: np.ndarray | None, n: int, path: Path) -> np.ndarray:
+    """``recording`` labels (any ints or strings) -> group ids ``[n]`` int64 (each window its
+    own group when absent)."""
+    if recording is None:
+        return np.arange(n, dtype=np.int64)
+    rec = np.asarray(recording)
+    if rec.shape != (n,) or rec.dtype.kind not in "iuUS":
+        raise ValueError(f"{path}: recording must be [N={n}] integers or strings")
+    return np.unique(rec, return_inverse=True)[1].astype(np.int64)
+
+
+def split_by_recording(
+    y: np.ndarray, groups: np.ndarray, test_fraction: float, seed: int
+) -> np.ndarray:
+    """0 / 1 per window: ``test_fraction`` of the recordings per class go to test (at least one
+    per class that has two or more); every window of a recording goes with it."""
+    rng = np.random.default_rng([seed, 104729])
+    ids = np.unique(groups)
+    counts = np.zeros((ids.size, int(y.max()) + 1), np.int64)
+    np.add.at(counts, (np.searchsorted(ids, groups), y), 1)
+    label = counts.argmax(1)  # a recording's majority label
+    test: list[int] = []
+    for c in np.unique(label):
+        mine = rng.permutation(ids[label == c])
+        if mine.size >= 2:
+            k = min(mine.size - 1, max(1, round(test_fraction * mine.size)))
+            test += mine[:k].tolist()
+    if not test:
+        raise ValueError("too few recordings to hold out a test split; add a 'split' array")
+    return np.isin(groups, test).astype(np.int64)

@@ -156,3 +156,50 @@ def test_export_failure_keeps_the_finished_run(tmp_path, monkeypatch, capsys):
     assert (out / "weights.npz").is_file() and not (out / "model.onnx").exists()
     assert not (tmp_path / "r.partial").exists()
     training.load_run(out)  # the run is usable
+
+
+def test_recordings_never_straddle_the_split_and_are_scored_whole(tmp_path):
+    from tactilesnn.recordings import load_data_file
+
+    rng = np.random.default_rng(0)
+    n_rec, per = 12, 6  # 12 recordings of 6 windows, 3 classes
+    rec = np.repeat(np.array([f"rec{i:02d}" for i in range(n_rec)]), per)
+    y = np.repeat(np.arange(n_rec) % 3, per)
+    t = np.arange(100) / 200.0
+    X = np.stack([[np.sin(2 * np.pi * (5 + 10 * c) * t) + 0.3 * rng.standard_normal(100)]
+                  for c in y]).astype(np.float32)  # fmt: skip
+    data = tmp_path / "d.npz"
+    np.savez(data, X=X, y=y, fs=200.0, class_names=np.array(["a", "b", "c"]), recording=rec)
+    tr, te = load_data_file(data, seed=0)
+    assert not set(tr.scan.tolist()) & set(te.scan.tolist())
+    assert te.y.size % per == 0 and set(te.y.tolist()) == {0, 1, 2}
+    out = tmp_path / "r"
+    assert main(["train", "--data", str(data), "--channels", "ch0", "--epochs", "3",
+                 "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["n_test_recordings"] == te.y.size // per
+    assert 0.0 <= m["test_accuracy_per_recording"] <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("arrays", "message"),
+    [
+        ({"X": np.zeros((3, 1, 50)), "y": np.array([0.5, 1, 0]), "fs": 100.0}, "integer class"),
+        ({"X": np.zeros((3, 1, 50), complex), "y": np.zeros(3, int), "fs": 100.0}, "real numbers"),
+        ({"X": np.zeros((3, 1, 1)), "y": np.zeros(3, int), "fs": 100.0}, ">= 2 samples"),
+        (
+            {"X": np.zeros((3, 1, 50)), "y": np.zeros(3, int), "fs": np.array([1.0, 2.0])},
+            "one sampling",
+        ),
+    ],
+)
+def test_bad_recording_files_get_specific_errors(tmp_path, arrays, message):
+    from tactilesnn.recordings import load_data_file
+
+    path = tmp_path / "bad.npz"
+    np.savez(path, class_names=np.array(["a", "b"]), **arrays)
+    with pytest.raises(ValueError, match=message):
+        load_data_file(path, seed=0)
+    (tmp_path / "trunc.npz").write_bytes(path.read_bytes()[:100])
+    with pytest.raises(ValueError, match=r"not a readable \.npz"):
+        load_data_file(tmp_path / "trunc.npz", seed=0)
