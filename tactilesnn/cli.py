@@ -150,8 +150,8 @@ def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> tuple[str | No
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{path}: not valid TOML: {e}") from e
     nested = isinstance(table.get("encoder"), dict) or isinstance(table.get("model"), dict)
-    if not nested:
-        table = table.get("train", table)  # the flat form, optionally under [train]
+    if not nested and isinstance(table.get("train"), dict):  # the flat form under [train]
+        table = {**{k: v for k, v in table.items() if k != "train"}, **table["train"]}
     dests = {a.dest for a in sub._actions} - {"help", "config"}
     pipeline_keys = {*registries(), *flat_settings()}
     settings: dict = {}
