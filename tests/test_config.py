@@ -125,6 +125,6 @@ def test_task_registry_checks_unique_names_and_ids():
 
 def test_flat_toml_keys_outside_train_are_checked_too(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text('epochz = 3\n[train]\nepochs = 1\n')
+    bad.write_text("epochz = 3\n[train]\nepochs = 1\n")
     assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
     assert "unknown setting 'epochz'" in capsys.readouterr().err

@@ -15,6 +15,7 @@ lif_first_spikes`, the same function in the exported graph, where it is an ONNX 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -27,6 +28,7 @@ from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes
 
 NORMS = ("train", "window")
+log = logging.getLogger("tactilesnn")
 
 
 @dataclass(frozen=True)
@@ -111,8 +113,17 @@ class LIFPopulationEncoder(SpikeEncoder):
         return self.config.max_spikes
 
     def fit(self, X: np.ndarray) -> LIFPopulationEncoder:
-        rms = np.sqrt((np.asarray(X, dtype=np.float64) ** 2).mean(-1))  # [N, C]
-        self.ref.copy_(torch.from_numpy(np.maximum(np.median(rms, axis=0), 1e-12)))
+        level = np.median(np.sqrt((np.asarray(X, dtype=np.float64) ** 2).mean(-1)), axis=0)  # [C]
+        if not (level > 0).any():
+            raise ValueError("every channel is zero in the training windows: nothing to encode")
+        # a channel silent in most training windows would otherwise be scaled by ~1e12, turning
+        # its noise at test time into saturated spike trains: floor it at 1e-3 of the loudest
+        floor = 1e-3 * level.max()
+        quiet = np.flatnonzero(level < floor)
+        if quiet.size:
+            log.warning("LIF encoder: channel(s) %s nearly silent in training; level floored at "
+                        "1e-3 of the loudest channel", quiet.tolist())  # fmt: skip
+        self.ref.copy_(torch.from_numpy(np.maximum(level, floor)))
         self.fitted.fill_(True)
         return self
 

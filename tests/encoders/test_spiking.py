@@ -93,3 +93,18 @@ def test_refuses_bad_input():
         lif_convert(np.zeros((1, 1, 5)), FS, threshold=-1.0)
     with pytest.raises(ValueError, match="step"):
         delta_encode(np.zeros((1, 1, 5)), FS, 0.0)
+
+
+def test_lif_population_floors_a_channel_silent_in_training():
+    from tactilesnn.encoders import LIFPopulationConfig, build_encoder
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((20, 2, 200)).astype(np.float32)
+    X[:, 1] = 0.0  # a dead taxel during training
+    enc = build_encoder(LIFPopulationConfig(), 1000.0, 200, 2).fit(X)
+    assert float(enc.ref[1]) == pytest.approx(1e-3 * float(enc.ref[0]), rel=1e-5)
+    Xt = X.copy()
+    Xt[:, 1] = 1e-5 * rng.standard_normal((20, 200))  # its noise at test time stays silent
+    assert np.isinf(enc.encode(Xt).numpy()[:, 8:]).all()
+    with pytest.raises(ValueError, match="every channel is zero"):
+        build_encoder(LIFPopulationConfig(), 1000.0, 200, 2).fit(np.zeros_like(X))
