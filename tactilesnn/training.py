@@ -446,7 +446,9 @@ def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg
     except (MemoryError, RuntimeError, ValueError) as e:
         log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)
         return {"error": f"{type(e).__name__}: {e}"}
-    return {k: rep[k] for k in ("nodes", "max_score_diff", "prediction_agreement")}
+    keys = ("nodes", "max_score_diff", "windows_beyond_atol", "prediction_agreement",
+            "encoder_max_time_diff_ms", "model_max_score_diff")  # fmt: skip
+    return {k: rep[k] for k in keys if k in rep}
 
 
 def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:

@@ -100,3 +100,23 @@ def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
     assert q["int8_bytes"] < 0.5 * q["float_bytes"]
     assert abs(q["accuracy_change"]) <= 0.05
     assert q["float_accuracy"] == pytest.approx(pipe.score(test_windows.X, test_windows.y))
+
+
+def test_verification_checks_each_component_graph(tmp_path, test_windows):
+    import torch
+
+    from tactilesnn.export.graph import chain
+    from tactilesnn.export.onnx import build_parts, verify
+
+    cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
+    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    X = test_windows.X[:32]
+    enc, mod = build_parts(pipe)
+    whole = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
+    rep = verify(whole, pipe, X, parts=(enc, mod))
+    assert rep["model_max_score_diff"] <= 1e-4 and rep["encoder_max_time_diff_ms"] <= 1e-2
+    with torch.no_grad():  # the torch model drifts from the graph that was built
+        pipe.model.net.out.fc.bias += 0.5
+    with pytest.raises(RuntimeError, match="exported model differs"):
+        verify(whole, pipe, X, parts=(enc, mod))

@@ -59,6 +59,13 @@ def export_problem(pipe: SpikePipeline) -> str | None:
 
 def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
     """The pipeline as one ONNX graph: ``window`` (+ model state) -> ``scores`` (+ new state)."""
+    enc, model = build_parts(pipe)
+    return chain(enc, model, [("spikes", "spikes_in")], tags=("enc/", "model/"))
+
+
+def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
+    """The encoder graph (``window -> spikes``) and the model graph (``spikes_in`` + state ->
+    ``scores`` + state), each owned by its component."""
     problem = export_problem(pipe)
     if problem:
         raise ValueError(f"cannot export this pipeline: {problem}")
@@ -75,8 +82,7 @@ def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
         names_out = ["scores", *(f"{n}_out" for n, _ in states)]
         torch_to_onnx(pipe.model.onnx_module(), args, model_path, names_in, names_out,
                       scripted=pipe.model.onnx_scripted)  # fmt: skip
-        return chain(onnx.load(str(enc_path)), onnx.load(str(model_path)),
-                     [("spikes", "spikes_in")], tags=("enc/", "model/"))  # fmt: skip
+        return onnx.load(str(enc_path)), onnx.load(str(model_path))
 
 
 def export_pipeline(
@@ -95,7 +101,8 @@ def export_pipeline(
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
     if out.exists() and not out.is_file():
         raise FileExistsError(f"{out} exists and is not a file")
-    model = build_graph(pipe)
+    enc, mod = build_parts(pipe)
+    model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     meta = {
         "tactilesnn_version": __version__,
         "fs_hz": repr(pipe.fs_hz),
@@ -114,7 +121,7 @@ def export_pipeline(
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
     onnx.checker.check_model(model)
-    report = verify(model, pipe, X_check)
+    report = verify(model, pipe, X_check, parts=(enc, mod))
     tmp_out = out.with_name(f".{out.name}.tmp")
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(tmp_out))
@@ -124,27 +131,70 @@ def export_pipeline(
     return report
 
 
-def verify(model: onnx.ModelProto, pipe: SpikePipeline, X: np.ndarray) -> dict:
-    """Run the graph in onnxruntime on ``X`` and compare with the torch pipeline."""
+#: end to end, a spike time within float rounding of a raster step boundary may fall into the
+#: neighbouring step in the graph (MatMul scalogram) and in torch (FFT); that changes a discrete-time
+#: model's score for that window. Such windows may be at most this fraction of the check set.
+MAX_BOUNDARY_FRACTION = 0.002
+TIME_ATOL_MS = 1e-2
+
+
+def verify(
+    model: onnx.ModelProto,
+    pipe: SpikePipeline,
+    X: np.ndarray,
+    parts: tuple[onnx.ModelProto, onnx.ModelProto] | None = None,
+) -> dict:
+    """Run the graph in onnxruntime on ``X`` and compare with the torch pipeline.
+
+    With ``parts`` each component's graph is checked on its own first: the encoder's spike times
+    within ``TIME_ATOL_MS`` (same silent slots), the model's scores within ``SCORE_ATOL`` on the
+    very spike times torch produced. End to end, scores must agree within ``SCORE_ATOL`` except
+    on at most ``MAX_BOUNDARY_FRACTION`` of windows (spikes on a step boundary, see above).
+    """
     import onnxruntime as ort
 
-    sess = ort.InferenceSession(model.SerializeToString())
     x = np.ascontiguousarray(X, dtype=np.float32)
-    feeds = {"window": x}
     states = list(pipe.model.state_names)
-    for name, units in states:
-        feeds[name] = np.zeros((len(x), units), np.float32)
+    zeros = {name: np.zeros((len(x), units), np.float32) for name, units in states}
+    spikes = pipe.encode(x)
+    ref = pipe.scores(spikes).numpy()
+    report: dict = {"n_checked": len(x)}
+    if parts is not None and len(x):
+        enc = ort.InferenceSession(parts[0].SerializeToString())
+        got_t = enc.run(["spikes"], {"window": x})[0]
+        want_t = spikes.numpy()
+        fin = np.isfinite(want_t)
+        if not np.array_equal(np.isfinite(got_t), fin):
+            raise RuntimeError("exported encoder: silent spike slots differ from torch")
+        dt = float(np.abs(got_t[fin] - want_t[fin]).max()) if fin.any() else 0.0
+        if dt > TIME_ATOL_MS:
+            raise RuntimeError(f"exported encoder's spike times differ by {dt:.3g} ms")
+        mod = ort.InferenceSession(parts[1].SerializeToString())
+        got_m = mod.run(["scores"], {"spikes_in": want_t.astype(np.float32), **zeros})[0]
+        dm = float(np.abs(got_m - ref).max())
+        if dm > SCORE_ATOL:
+            raise RuntimeError(f"exported model differs from torch by {dm:.3g} (> {SCORE_ATOL})")
+        report.update(encoder_max_time_diff_ms=dt, model_max_score_diff=dm)
+    sess = ort.InferenceSession(model.SerializeToString())
+    feeds = {"window": x, **zeros}
     got = sess.run(["scores"], feeds)[0]
-    ref = pipe.scores(pipe.encode(x)).numpy()
-    diff = float(np.abs(got - ref).max()) if len(x) else 0.0
-    agree = float((got.argmax(1) == ref.argmax(1)).mean()) if len(x) else 1.0
-    if diff > SCORE_ATOL:
-        raise RuntimeError(f"exported graph differs from torch by {diff:.3g} (> {SCORE_ATOL})")
+    per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
+    off = int((per_window > SCORE_ATOL).sum())
+    if off > MAX_BOUNDARY_FRACTION * len(x):
+        worst = float(per_window.max())
+        raise RuntimeError(
+            f"exported graph differs from torch by up to {worst:.3g} on {off} of {len(x)} windows"
+        )
     if states and len(x):
         feeds2 = {k: (v + 0.5 if k != "window" else v) for k, v in feeds.items()}
         if np.array_equal(sess.run(["scores"], feeds2)[0], got):
-            raise RuntimeError("exported SNN ignores its state inputs: the state was frozen")
-    return {"max_score_diff": diff, "prediction_agreement": agree, "n_checked": len(x)}
+            raise RuntimeError("exported model ignores its state inputs: the state was frozen")
+    report.update(
+        max_score_diff=float(per_window.max()) if len(x) else 0.0,
+        windows_beyond_atol=off,
+        prediction_agreement=float((got.argmax(1) == ref.argmax(1)).mean()) if len(x) else 1.0,
+    )
+    return report
 
 
 def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = False) -> dict:
