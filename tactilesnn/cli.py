@@ -448,6 +448,16 @@ def _write_json(path: Path, obj: dict) -> None:
     print(f"results: {path}")
 
 
+def _port(text: str) -> int:
+    try:
+        port = int(text)
+    except ValueError:
+        port = -1
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port must be an integer in 1-65535, got {text!r}")
+    return port
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tactilesnn", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -509,7 +519,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("serve", help="HTTP inference service (onnxruntime + numpy only)")
     p.add_argument("model")
     p.add_argument("--host", default="127.0.0.1")
-    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--port", type=_port, default=8000, help="TCP port (1-65535)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
     p.set_defaults(func=cmd_serve)
 

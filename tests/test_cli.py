@@ -100,3 +100,9 @@ def test_task_configs_parse(name):
     assert args.task == name
     cfg = _config(args)  # every key is a valid pipeline setting
     assert cfg.channels in (("all",), ("dynamic",))
+
+
+def test_serve_refuses_a_port_out_of_range(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["serve", "model.onnx", "--port", "99999"])
+    assert e.value.code == 2 and "port must be an integer in 1-65535" in capsys.readouterr().err

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import io
 import json
+import math
 import time
 from collections import OrderedDict
 from contextlib import asynccontextmanager
@@ -123,16 +124,20 @@ def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
     if ctype.startswith("application/json") or not ctype:
         try:
             doc = json.loads(body)
-        except json.JSONDecodeError as e:
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise HTTPError(400, f"malformed JSON: {e}") from e
+        except RecursionError as e:
+            raise HTTPError(400, "JSON nested too deeply") from e
         if not isinstance(doc, dict):
             raise HTTPError(400, "JSON body must be an object")
         keys = [k for k in (key, key + "s") if k in doc]
         if not keys:
             raise HTTPError(422, f"JSON body needs a {key!r} (or {key + 's'!r}) field")
         fs = doc.get("fs_hz")
-        if fs is not None and not isinstance(fs, int | float):
-            raise HTTPError(422, "fs_hz must be a number")
+        if fs is not None and (
+            isinstance(fs, bool) or not isinstance(fs, int | float) or not math.isfinite(fs)
+        ):
+            raise HTTPError(422, "fs_hz must be a finite number")
         return doc[keys[0]], fs
     raise HTTPError(415, f"unsupported content type {ctype!r}; use application/json or .npy")
 

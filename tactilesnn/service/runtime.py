@@ -67,6 +67,8 @@ class PipelineSession:
 
     def validate(self, x: object, fs_hz: float | None = None) -> np.ndarray:
         """-> float32 ``[batch, channels, window]``; a single ``[channels, window]`` is batched."""
+        if fs_hz is not None and not np.isfinite(float(fs_hz)):
+            raise InputError(f"sampling rate must be a finite number of Hz, got {fs_hz}")
         if fs_hz is not None and abs(float(fs_hz) - self.fs_hz) > 1e-6 * self.fs_hz:
             raise InputError(f"sampling rate {fs_hz} Hz does not match the model's {self.fs_hz} Hz")
         try:

@@ -64,6 +64,9 @@ def test_classify_json_npy_single_and_batched(served):
         (b"\x93NUMPY garbage", "application/x-npy", 400, ".npy"),
         (b"hello", "text/plain", 415, "content type"),
         (b"x" * 300_000, "application/json", 413, "limit"),
+        (b'{"window": [[1]], "fs_hz": NaN}', "application/json", 422, "finite"),
+        (b'{"window": "\xff\xfe"}', "application/json", 400, "malformed JSON"),
+        (b"[" * 100_000 + b"]" * 100_000, "application/json", 400, "nested too deeply"),
     ],
 )
 def test_bad_requests_get_specific_4xx(served, body, ctype, status, message):
