@@ -188,13 +188,21 @@ def fit_and_evaluate(
     val_fraction: float = 0.0,
     checkpoint: Callable[[int, dict], None] | None = None,
     resume: dict | None = None,
+    require_export: bool = False,
 ) -> TrainResult:
-    """Fit ``config`` on ``train`` (optionally holding out validation scans) and test it."""
+    """Fit ``config`` on ``train`` (optionally holding out validation scans) and test it.
+
+    Building the pipeline checks the configuration against the data (channels, rates, window)
+    and, with ``require_export``, that the model can be exported, before any training.
+    """
     torch.manual_seed(config.seed)
     fit_set, val_set = split_validation(train, val_fraction, config.seed)
     pipe = SpikePipeline(
         config, train.fs_hz, train.X.shape[-1], train.channel_names, train.class_names
     )
+    problem = pipe.model.export_problem() if require_export else None
+    if problem:
+        raise ValueError(f"this pipeline cannot be exported ({problem}); pass --no-export")
     t0 = time.perf_counter()
     pipe.calibrate(fit_set.X)
     s_train = pipe.encode(fit_set.X)
@@ -394,6 +402,7 @@ def train_run(
             val_fraction=val_fraction,
             checkpoint=lambda epoch, st: save_checkpoint(partial, st),
             resume=state,
+            require_export=export,
         )
         res.metrics["trivial_amplitude_baseline_accuracy"] = linear_amplitude_baseline(
             train.X, train.y, test.X, test.y
