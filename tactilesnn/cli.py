@@ -291,8 +291,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
     else:
         _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
-    acc = pipe.score(test.X, test.y)
-    print(json.dumps({"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size)}))
+    pred = pipe.predict(test.X)
+    acc = float((pred == test.y).mean()) if test.y.size else 0.0
+    recall = {
+        name: float((pred[test.y == i] == i).mean()) if (test.y == i).any() else None
+        for i, name in enumerate(pipe.class_names)
+    }
+    if args.json:
+        out = {"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size),
+               "per_class_recall": recall}  # fmt: skip
+        print(json.dumps(out))
+        return 0
+    from .pipeline import accuracy_ci95
+
+    print(f"{args.run_dir}: accuracy {100 * acc:.2f} % (+-{100 * accuracy_ci95(acc, test.y.size):.2f} %"
+          f" 95% CI) on {test.y.size} windows")  # fmt: skip
+    width = max(len(n) for n in pipe.class_names)
+    for name, r in recall.items():
+        print(f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}")
     return 0
 
 
@@ -481,6 +497,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir")
     p.add_argument("--data", help="recordings .npz to evaluate on (its test split)")
     p.add_argument("--all", action="store_true", help="with --data: evaluate on every recording")
+    p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=cmd_evaluate)
 

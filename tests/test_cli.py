@@ -22,7 +22,7 @@ def run_dir(tmp_path_factory):
 def test_train_writes_run_folder(run_dir, capsys):
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.json", "weights.npz", "metrics.json", "confusion_matrix.json"} <= names
-    assert "confusion_matrix.png" in names
+    assert "confusion_matrix.png" in names and "training_error.png" in names
     m = json.loads((run_dir / "metrics.json").read_text())
     assert 0.5 <= m["test_accuracy"] <= 1.0 and len(m["train_error_history"]) == 2
     cm = json.loads((run_dir / "confusion_matrix.json").read_text())
@@ -41,10 +41,14 @@ def test_refuses_to_overwrite(run_dir, capsys):
 
 
 def test_evaluate_reproduces_metrics(run_dir, capsys):
-    assert main(["evaluate", str(run_dir), "--quiet"]) == 0
+    assert main(["evaluate", str(run_dir), "--quiet", "--json"]) == 0
     got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     saved = json.loads((run_dir / "metrics.json").read_text())
     assert got["test_accuracy"] == pytest.approx(saved["test_accuracy"])
+    assert got["per_class_recall"] == pytest.approx(saved["per_class_recall"])
+    assert main(["evaluate", str(run_dir), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert f"accuracy {100 * saved['test_accuracy']:.2f} %" in text and "hook  recall" in text
 
 
 def test_pipeline_refuses_bad_windows(run_dir):

@@ -130,7 +130,7 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["n_test_windows"] == 9 and m["test_accuracy"] > 1 / 3  # above chance on 3 letters
-    assert main(["evaluate", str(out), "--data", str(data), "--all", "--quiet"]) == 0
+    assert main(["evaluate", str(out), "--data", str(data), "--all", "--quiet", "--json"]) == 0
     got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert got["n"] == 45
     bad = tmp_path / "bad.npz"
