@@ -474,6 +474,19 @@ def _port(text: str) -> int:
     return port
 
 
+def _resume_hint(args: argparse.Namespace, argv: list[str]) -> str:
+    """How to continue an interrupted command, if it can be continued."""
+    out = getattr(args, "out", None)
+    if args.command == "train" and out:
+        partial = Path(out).with_name(Path(out).name + ".partial")
+        if (partial / "checkpoint.json").is_file():
+            again = " ".join(a for a in argv if a not in ("--resume", "--overwrite"))
+            return f"; the last finished epoch is saved: tactilesnn {again} --resume"
+    if args.command == "generate":
+        return "; finish it with the same command and --resume"
+    return ""
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tactilesnn", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -588,6 +601,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileExistsError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"interrupted{_resume_hint(args, argv)}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

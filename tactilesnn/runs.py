@@ -26,11 +26,34 @@ def default_run_dir(root: Path, *parts: str) -> Path:
     return path
 
 
+def is_run_folder(path: Path) -> bool:
+    """True if ``path`` is a run folder this package wrote (its ``config.json`` says so)."""
+    cfg = Path(path) / "config.json"
+    try:
+        d = json.loads(cfg.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(d, dict) and "tactilesnn_version" in d and "pipeline" in d
+
+
 def check_writable(path: Path, overwrite: bool) -> None:
-    """Fail early, before any work, when ``path`` exists and ``overwrite`` is False."""
-    if path.exists() and not overwrite:
+    """Fail early, before any work, when ``path`` exists and may not be replaced.
+
+    ``--overwrite`` replaces only a run folder this package wrote: never a file, and never a
+    folder holding anything else (``--out . --overwrite`` must not wipe a working directory).
+    """
+    if not path.exists() and not path.is_symlink():
+        return
+    if not path.is_dir() or path.is_symlink():
+        raise RunExistsError(f"{path} exists and is not a run folder; choose another --out")
+    if not overwrite:
         raise RunExistsError(
             f"run folder {path} already exists; pass --overwrite to replace it or choose another --out"
+        )
+    if any(path.iterdir()) and not is_run_folder(path):
+        raise RunExistsError(
+            f"{path} is not a tactilesnn run folder (no config.json written by tactilesnn): "
+            "refusing to replace it; choose another --out"
         )
 
 

@@ -370,6 +370,9 @@ def train_run(
                 )
             state = load_checkpoint(partial)
             log.info("resuming %s from epoch %d", out, state["epoch"])
+        elif partial.exists() and not (partial / "checkpoint.json").is_file():
+            # a run that failed before its first epoch left only its settings: nothing to resume
+            shutil.rmtree(partial)
         elif partial.exists():
             if not overwrite:
                 raise FileExistsError(

@@ -18,8 +18,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import os
-import shutil
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -28,6 +28,7 @@ import numpy as np
 from .. import __version__
 from .base import get_task
 
+log = logging.getLogger("tactilesnn")
 GENERATOR_VERSION = f"tactilesnn {__version__} / tasks v2"
 
 
@@ -93,8 +94,22 @@ def generate(
             f"{out} is not empty; pass --resume to finish an interrupted generation or "
             "--overwrite to replace it"
         )
-    if overwrite and out.exists():
-        shutil.rmtree(out)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"{out} exists and is not a folder; choose another --out")
+    if overwrite and out.exists() and any(out.iterdir()):
+        ours = manifest_path.exists() or partial_path.exists()
+        if not ours:
+            raise FileExistsError(
+                f"{out} holds files that are not a tactilesnn dataset (no manifest): refusing "
+                "to replace it; choose another --out"
+            )
+        # only what the generator itself wrote goes: manifests and shard files
+        for f in out.iterdir():
+            if f.is_file() and (f.name.startswith("manifest") or f.name.startswith("shard")):
+                f.unlink()
+        leftover = sorted(p.name for p in out.iterdir())
+        if leftover:
+            log.warning("--overwrite kept files the generator did not write: %s", leftover[:5])
     out.mkdir(parents=True, exist_ok=True)
     header = {
         "task": task_name,

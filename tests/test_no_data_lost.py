@@ -1,0 +1,64 @@
+"""Nothing a user wrote is lost: --overwrite replaces only what tactilesnn wrote."""
+
+import json
+
+import tactilesnn.training as training
+from tactilesnn.cli import main
+
+TINY = ["--task-kw", "n_planar=6", "--task-kw", "n_concave=3", "--task-kw", "n_convex=3",
+        "--task-kw", "n_test=3"]  # fmt: skip
+
+
+def test_overwrite_refuses_folders_and_files_it_did_not_write(tmp_path, capsys):
+    mine = tmp_path / "notes"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    rc = main(["train", "--epochs", "1", *TINY, "--out", str(mine), "--overwrite", "--quiet"])
+    assert rc == 2 and "not a tactilesnn run folder" in capsys.readouterr().err
+    assert (mine / "thesis.tex").read_text() == "precious"
+    f = tmp_path / "file.txt"
+    f.write_text("keep")
+    rc = main(["train", "--epochs", "1", *TINY, "--out", str(f), "--overwrite", "--quiet"])
+    assert rc == 2 and "is not a run folder" in capsys.readouterr().err and f.read_text() == "keep"
+    rc = main(["generate", "--task", "texture", "--n", "4", "--out", str(mine), "--overwrite",
+               "--quiet", "--workers", "1"])  # fmt: skip
+    assert rc == 2 and "not a tactilesnn dataset" in capsys.readouterr().err
+    assert (mine / "thesis.tex").read_text() == "precious"
+
+
+def test_overwrite_replaces_its_own_run(tmp_path):
+    out = tmp_path / "r"
+    args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
+    assert main(args) == 0
+    first = json.loads((out / "metrics.json").read_text())
+    assert main([*args, "--overwrite", "--seed", "1"]) == 0
+    assert json.loads((out / "config.json").read_text())["pipeline"]["train"]["seed"] == 1
+    assert first != json.loads((out / "metrics.json").read_text())
+
+
+def test_ctrl_c_says_how_to_resume_and_a_failed_start_needs_no_resume(tmp_path, monkeypatch,
+                                                                       capsys):  # fmt: skip
+    out = tmp_path / "r"
+    real = training.save_checkpoint
+
+    def interrupt(folder, state):
+        real(folder, state)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(training, "save_checkpoint", interrupt)
+    args = ["train", "--epochs", "2", *TINY, "--out", str(out), "--quiet", "--no-export"]
+    assert main(args) == 130
+    err = capsys.readouterr().err
+    assert "interrupted; the last finished epoch is saved" in err and "--resume" in err
+    monkeypatch.setattr(training, "save_checkpoint", real)
+    assert main([*args, "--resume"]) == 0
+
+    def fail(*a, **k):
+        raise ValueError("bad data")
+
+    out2 = tmp_path / "r2"
+    monkeypatch.setattr(training, "fit_and_evaluate", fail)
+    args2 = ["train", "--epochs", "1", *TINY, "--out", str(out2), "--quiet", "--no-export"]
+    assert main(args2) == 2
+    monkeypatch.undo()
+    assert main(args2) == 0  # the failed start left no checkpoint, so no --resume is asked for
