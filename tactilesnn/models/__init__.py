@@ -5,11 +5,14 @@ are the registry's list of shipped models.
 """
 
 from .base import MODELS, SpikeModel, build_model, register_model
+from .li_readout import LIReadout, ReadoutConfig
 from .snn import SNNClassifier, SNNConfig, SNNModel
 from .tempotron import Tempotron, TempotronClassifier, TempotronConfig
 
 __all__ = [
     "MODELS",
+    "LIReadout",
+    "ReadoutConfig",
     "SNNClassifier",
     "SNNConfig",
     "SNNModel",
