@@ -1,14 +1,16 @@
 """User recordings in the documented ``.npz`` format -> train / test :class:`WindowDataset`.
 
 Format: ``X`` ``[N, channels, samples]`` float (the sensor's units), ``y`` ``[N]`` int, ``fs``
-(Hz, scalar), ``class_names`` ``[C]`` str; optional ``channel_names`` ``[channels]`` str and
+(Hz, scalar), ``class_names`` ``[C]`` str; optional ``channel_names`` ``[channels]`` str,
 ``recording`` ``[N]`` (windows of one recording share it: they stay on one side of every split, and
 scores are also accumulated per recording) and ``split`` ``[N]`` (0 = train, 1 = test). Read with
-``allow_pickle=False``.
+``allow_pickle=False``. Event data: ``X`` ``[N, taxels, polarity, bins]`` (events per bin) with
+``bin_ms`` instead of ``fs`` (see :func:`events_as_channels`; train with ``--encoder events``).
 """
 
 from __future__ import annotations
 
+import logging
 import zipfile
 from pathlib import Path
 
@@ -16,6 +18,8 @@ import numpy as np
 
 from ._checks import check_finite
 from .datasets_synth import WindowDataset
+
+log = logging.getLogger("tactilesnn")
 
 
 def load_data_file(
@@ -37,6 +41,8 @@ def load_data_file(
             arrays = {k: np.asarray(f[k]) for k in f.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
+        arrays = events_as_channels(arrays, path)
     missing = [k for k in ("X", "y", "fs", "class_names") if k not in arrays]
     if missing:
         raise ValueError(
@@ -85,10 +91,47 @@ def load_data_file(
                 f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets"
             )
 
+    X = X.astype(np.float32, copy=False)
+
     def take(m: np.ndarray) -> WindowDataset:
-        return WindowDataset(X[m].astype(np.float32), y[m], groups[m], fs, names, ch)
+        return WindowDataset(X[m], y[m], groups[m], fs, names, ch)
 
     return take(split == 0), take(split == 1)
+
+
+def events_as_channels(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.ndarray]:
+    """Event file ``X [N, taxels, polarity, bins]`` (events per bin) -> ``[N, taxels x polarity,
+    bins]`` with channels ``<taxel>:<polarity>`` and ``fs = 1000 / bin_ms`` (Hz).
+
+    ``bin_ms`` (or ``fs``) gives the bin width; without either a bin is taken as 1 ms (logged).
+    Optional ``channel_names`` name the taxels, ``polarity_names`` the polarities (default
+    ``on`` / ``off`` for two).
+    """
+    out = dict(arrays)
+    X = arrays["X"]
+    n, taxels, pols, bins = X.shape
+    if "fs" not in arrays:
+        if "bin_ms" in arrays:
+            bin_ms = float(np.asarray(arrays["bin_ms"]).reshape(()))
+            if not (np.isfinite(bin_ms) and bin_ms > 0):
+                raise ValueError(f"{path}: bin_ms must be a positive number, got {bin_ms}")
+        else:
+            bin_ms = 1.0
+            log.warning("%s: event bins have no stated width (bin_ms): taken as 1 ms", path)
+        out["fs"] = np.array(1000.0 / bin_ms)
+    taxel_names = [f"taxel{i}" for i in range(taxels)]
+    if "channel_names" in arrays:
+        taxel_names = [str(c) for c in np.atleast_1d(arrays["channel_names"])]
+        if len(taxel_names) != taxels:
+            raise ValueError(f"{path}: channel_names must name the {taxels} taxels")
+    pol_names = ["on", "off"] if pols == 2 else [f"p{j}" for j in range(pols)]
+    if "polarity_names" in arrays:
+        pol_names = [str(c) for c in np.atleast_1d(arrays["polarity_names"])]
+        if len(pol_names) != pols:
+            raise ValueError(f"{path}: polarity_names must name the {pols} polarities")
+    out["X"] = X.reshape(n, taxels * pols, bins)
+    out["channel_names"] = np.array([f"{t}:{p}" for t in taxel_names for p in pol_names])
+    return out
 
 
 def recording_ids(recording: np.ndarray | None, n: int, path: Path) -> np.ndarray:

@@ -45,3 +45,21 @@ def clock_times(n: int, k: int, duration_ms: float) -> Tensor:
     if n:
         out[:, 0] = torch.arange(n, dtype=torch.float32) * (duration_ms / n)
     return out
+
+
+def first_spike_times(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) -> Tensor:
+    """Spike counts per sample ``[B, A, W]`` -> the first ``k`` spike times ``[B, A, k]`` (ms).
+
+    Sample ``i`` is at ``t0_ms + i dt_ms``; a count of ``n`` is ``n`` spikes at that time;
+    ``+inf`` fills slots with no spike. Traceable (cumulative sums and ``argmax``), so encoders use
+    it in their exported graphs too.
+    """
+    cum = torch.cumsum(counts, dim=-1)
+    t = (t0_ms + torch.arange(cum.shape[-1], dtype=counts.dtype) * dt_ms).view(1, 1, -1)
+    slots = []
+    for j in range(int(k)):
+        hit = cum >= float(j + 1)
+        first = torch.argmax(hit.to(counts.dtype), dim=-1, keepdim=True)
+        time = torch.gather(t.expand_as(cum), -1, first)
+        slots.append(torch.where(hit[..., -1:], time, torch.full_like(time, math.inf)))
+    return torch.cat(slots, dim=-1)

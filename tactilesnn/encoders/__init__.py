@@ -6,6 +6,7 @@ are the registry's list of shipped encoders.
 
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .delta import DeltaConfig, DeltaEncoder
+from .events import EventsConfig, EventsEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import LatencyCode
 from .lif_population import LIFPopulationConfig, LIFPopulationEncoder
@@ -17,6 +18,8 @@ __all__ = [
     "ENCODERS",
     "DeltaConfig",
     "DeltaEncoder",
+    "EventsConfig",
+    "EventsEncoder",
     "GWTConfig",
     "GWTLatencyEncoder",
     "GaborScalogram",

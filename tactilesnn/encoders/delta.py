@@ -19,6 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from .._checks import check_int, check_positive
+from ..spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
 
 
@@ -53,15 +54,8 @@ class _DeltaGraph(nn.Module):
         q = torch.round(x * self.inv_delta.view(1, -1, 1))
         d = q[..., 1:] - q[..., :-1]  # [B, C, W - 1]: crossings arriving at samples 1..W-1
         counts = torch.stack([d.clamp(min=0.0), (-d).clamp(min=0.0)], dim=2).flatten(1, 2)
-        cum = torch.cumsum(counts, dim=-1)  # [B, 2C, W - 1]
-        t = (torch.arange(1, cum.shape[-1] + 1, dtype=x.dtype) * self.dt).view(1, 1, -1)
-        slots = []
-        for j in range(self.k):
-            hit = cum >= float(j + 1)
-            first = torch.argmax(hit.to(x.dtype), dim=-1, keepdim=True)
-            time = torch.gather(t.expand_as(cum), -1, first)
-            slots.append(torch.where(hit[..., -1:], time, torch.full_like(time, float("inf"))))
-        return torch.cat(slots, dim=-1)
+        # crossings between samples i-1 and i arrive at sample i: times start at one step
+        return first_spike_times(counts, self.dt, self.k, t0_ms=self.dt)
 
 
 @register_encoder("delta", DeltaConfig)

@@ -1,0 +1,48 @@
+"""Event input: the [N, taxels, polarity, bins] file format and the pass-through encoder."""
+
+import numpy as np
+import pytest
+
+from tactilesnn.config import PipelineConfig
+from tactilesnn.encoders import EventsConfig, build_encoder
+from tactilesnn.recordings import load_data_file
+from tactilesnn.training import train_run
+
+
+def event_file(path, n=60, taxels=6, bins=50, seed=0):
+    """Class c: taxel c fires ON events early, the others fire sparse noise."""
+    rng = np.random.default_rng(seed)
+    y = np.arange(n) % 3
+    X = (rng.random((n, taxels, 2, bins)) < 0.02).astype(np.uint8)
+    for i, c in enumerate(y):
+        X[i, c, 0, 5:15:2] = 1
+    np.savez(path, X=X, y=y, bin_ms=2.0, class_names=np.array(["a", "b", "c"]))
+    return X, y
+
+
+def test_event_file_becomes_channels_and_spikes_pass_through(tmp_path):
+    event_file(tmp_path / "ev.npz")
+    tr, _ = load_data_file(tmp_path / "ev.npz", seed=0)
+    assert tr.fs_hz == 500.0 and tr.channel_names[:3] == ("taxel0:on", "taxel0:off", "taxel1:on")
+    assert tr.X.shape[1:] == (12, 50)
+    enc = build_encoder(EventsConfig(max_spikes=4), tr.fs_hz, 50, 12).fit(tr.X)
+    x = np.zeros((1, 12, 50), np.float32)
+    x[0, 3, [0, 7, 7, 40]] = [1, 2, 0, 1]  # a count of 2 is two spikes at the same time
+    x[0, 3, 7] = 2
+    got = enc.encode(x).numpy()
+    np.testing.assert_array_equal(got[0, 3], [0.0, 14.0, 14.0, 80.0])
+    assert np.isinf(np.delete(got[0], 3, axis=0)).all()
+    with pytest.raises(ValueError, match="event counts"):
+        build_encoder(EventsConfig(), 500.0, 50, 12).fit(x + 0.5)
+
+
+@pytest.mark.parametrize("model", ["snn", "readout"])
+def test_events_train_and_export(tmp_path, model):
+    event_file(tmp_path / "ev.npz")
+    kw = {"snn_hidden": 32, "snn_dt_ms": 2.0, "snn_lr": 0.01} if model == "snn" else {}
+    cfg = PipelineConfig.from_flat(encoder="events", model=model, channels=("all",), epochs=30,
+                                   **kw)  # fmt: skip
+    _, m = train_run(None, {}, cfg, tmp_path / "r", progress=False, data=tmp_path / "ev.npz",
+                       export=True)  # fmt: skip
+    assert m["test_accuracy"] >= 0.9
+    assert m["onnx"]["model_max_score_diff"] <= 1e-4 and m["onnx"]["encoder_max_time_diff_ms"] == 0
