@@ -87,9 +87,21 @@ def config_defaults() -> PipelineConfig:
 
 
 def _config(args: argparse.Namespace) -> PipelineConfig:
-    """TOML settings (if any) overridden by the flags given on the command line."""
+    """TOML settings (if any) overridden by the flags given on the command line.
+
+    With ``--data`` the defaults follow the file: every channel, and the ``events`` encoder for
+    event files (``X [N, taxels, polarity, bins]``), unless the settings say otherwise.
+    """
     flat = {k: getattr(args, k) for k in [*registries(), *flat_settings()] if hasattr(args, k)}
     base = getattr(args, "_pipeline_toml", None) or {}
+    if getattr(args, "data", None):
+        from .recordings import is_event_file
+
+        given = {*flat, *base}
+        if "channels" not in given:
+            flat["channels"] = ("all",)
+        if "encoder" not in given and is_event_file(Path(args.data)):
+            flat["encoder"] = "events"
     return apply_flat(base, flat)
 
 

@@ -99,6 +99,23 @@ def load_data_file(
     return take(split == 0), take(split == 1)
 
 
+def is_event_file(path: Path) -> bool:
+    """True if ``path`` is an ``.npz`` whose ``X`` is ``[N, taxels, polarity, bins]`` (reads only
+    the array header)."""
+    try:
+        with zipfile.ZipFile(path) as z, z.open("X.npy") as f:
+            major, _ = np.lib.format.read_magic(f)
+            read = (
+                np.lib.format.read_array_header_1_0
+                if major == 1
+                else np.lib.format.read_array_header_2_0
+            )
+            shape = read(f)[0]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return False
+    return len(shape) == 4
+
+
 def events_as_channels(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.ndarray]:
     """Event file ``X [N, taxels, polarity, bins]`` (events per bin) -> ``[N, taxels x polarity,
     bins]`` with channels ``<taxel>:<polarity>`` and ``fs = 1000 / bin_ms`` (Hz).

@@ -46,3 +46,16 @@ def test_events_train_and_export(tmp_path, model):
                        export=True)  # fmt: skip
     assert m["test_accuracy"] >= 0.9
     assert m["onnx"]["model_max_score_diff"] <= 1e-4 and m["onnx"]["encoder_max_time_diff_ms"] == 0
+
+
+def test_data_defaults_follow_the_file(tmp_path):
+    import json
+
+    from tactilesnn.cli import main
+
+    event_file(tmp_path / "ev.npz")
+    out = tmp_path / "r"
+    assert main(["train", "--data", str(tmp_path / "ev.npz"), "--epochs", "2", "--out", str(out),
+                 "--quiet", "--no-export"]) == 0  # fmt: skip
+    cfg = json.loads((out / "config.json").read_text())["pipeline"]
+    assert cfg["encoder"]["type"] == "events" and cfg["channels"] == ["all"]
