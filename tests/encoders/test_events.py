@@ -59,3 +59,30 @@ def test_data_defaults_follow_the_file(tmp_path):
                  "--quiet", "--no-export"]) == 0  # fmt: skip
     cfg = json.loads((out / "config.json").read_text())["pipeline"]
     assert cfg["encoder"]["type"] == "events" and cfg["channels"] == ["all"]
+
+
+def _shared(rel: str):
+    import os
+    from pathlib import Path
+
+    roots = [Path(os.environ.get("TACTILESNN_SHARED_DATA", "/nonexistent")),
+             Path(__file__).resolve().parents[3] / "shared" / "data", Path("/work/shared/data")]  # fmt: skip
+    return next((r / rel for r in roots if (r / rel).is_file()), None)
+
+
+STM = _shared("st_mnist/st_mnist_events.npz")
+
+
+@pytest.mark.skipif(STM is None, reason="real ST-MNIST events not available")
+def test_real_st_mnist_events_pass_through_exactly():
+    raw = np.load(STM, allow_pickle=False)
+    tr, te = load_data_file(STM, seed=0)
+    assert tr.y.size == int((raw["split"] == 0).sum()) and te.y.size == 1382
+    assert tr.X.shape[1:] == (200, 100) and tr.fs_hz == 1000.0
+    x = tr.X[:40]
+    enc = build_encoder(EventsConfig(max_spikes=100), 1000.0, 100, 200).fit(x)
+    got = enc.encode(x).numpy()
+    n_events = (raw["X"][raw["split"] == 0][:40].reshape(40, 200, 100)).sum(-1)
+    np.testing.assert_array_equal(np.isfinite(got).sum(-1), n_events)  # every event, once
+    b, a, j = np.argwhere(np.isfinite(got))[0]
+    assert x[b, a, int(got[b, a, j])] == 1  # at its bin (1 ms bins)
