@@ -60,6 +60,41 @@ class WindowEncoder(nn.Module):
         return self.code(self.scalogram(x))
 
 
+class GaborConvEncoder(nn.Module):
+    """Gabor scalogram as an edge pad + 1-D convolution (real and imaginary FIR kernels) ->
+    modulus -> latency code. Its size is ``bands x taps``, independent of the window, so long
+    windows export where the ``window^2`` matrices of :class:`WindowEncoder` would not fit.
+    """
+
+    def __init__(self, scalogram: nn.Module, code: LatencyCode, window: int) -> None:
+        super().__init__()
+        self.code = code
+        self.window = int(window)
+        self.pad = scalogram.pad_len(self.window)
+        self.reflect = scalogram.padding == "reflect"
+        self.hop = int(scalogram.hop)
+        k = scalogram.conv_kernels(self.window)  # [F, 2L + 1], lag -L..L
+        self.taps = (k.shape[1] - 1) // 2
+        self.bands = k.shape[0]
+        # conv1d correlates: output t = sum_u in[t + u] w[u], so the kernel is flipped
+        w = torch.cat([k.real, k.imag]).flip(1).unsqueeze(1).float()  # [2F, 1, 2L + 1]
+        self.register_buffer("weight", w.contiguous())
+
+    def scalogram(self, x: torch.Tensor) -> torch.Tensor:
+        b, c, n = x.shape
+        flat = x.reshape(b * c, 1, n)
+        if self.pad:
+            mode = "reflect" if self.reflect else "constant"
+            flat = nn.functional.pad(flat, (self.pad, self.pad), mode=mode)
+        out = nn.functional.conv1d(flat, self.weight, padding=self.taps)
+        out = out[..., self.pad : self.pad + n : self.hop]
+        re, im = out[:, : self.bands], out[:, self.bands :]
+        return torch.sqrt(re * re + im * im).reshape(b, c, self.bands, -1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.code(self.scalogram(x))
+
+
 def export_window_encoder(
     encoder: WindowEncoder, n_channels: int, path: str | Path, opset: int = 17
 ) -> Path:

@@ -168,6 +168,32 @@ class GaborScalogram(nn.Module):
         eye = torch.eye(int(window), dtype=torch.float64).unsqueeze(1)  # unit impulses
         return self.analytic(eye)[:, 0], None
 
+    @torch.no_grad()
+    def conv_kernels(self, window: int, tol: float = 1e-9) -> torch.Tensor:
+        """The transform of a ``window``-sample input as complex FIR kernels ``[bands, 2 L + 1]``.
+
+        Each band's impulse response (the inverse FFT of its analytic Gabor response at the FFT
+        length :meth:`analytic` uses) truncated where its remaining energy falls below ``tol``
+        of the total; ``L`` never exceeds the padding, so with the same edge padding the
+        convolution equals :meth:`analytic` up to the truncation. Size ``bands x (2 L + 1)``, not
+        ``window^2``: what the exported graph of long windows uses.
+        """
+        if self.padding == "periodic":
+            raise ValueError("periodic padding has no FIR form; export it as a matrix")
+        p = self.pad_len(int(window))
+        n_fft = scipy.fft.next_fast_len(int(window) + 2 * p)
+        h = torch.from_numpy(self._filters(n_fft, torch.float64).numpy())
+        k = torch.fft.ifft(h, n=n_fft)  # [F, n_fft], impulse at index 0 (circular)
+        lags = torch.arange(-p, p + 1)
+        taps = k[:, lags % n_fft]  # [F, 2p + 1], lag -p..p
+        power = taps.abs() ** 2
+        by_dist = power[:, p:].clone()  # |lag| = 0..p
+        by_dist[:, 1:] += power[:, :p].flip(1)
+        inside = torch.cumsum(by_dist, dim=1)  # energy within |lag| <= L
+        ok = (inside[:, -1:] - inside <= tol * inside[:, -1:]).all(0)
+        keep = int(torch.nonzero(ok)[0])  # smallest L that keeps all but tol of every band
+        return taps[:, p - keep : p + keep + 1]
+
     def analytic(self, x: torch.Tensor) -> torch.Tensor:
         """Complex wavelet coefficients ``[batch, channels, bands, frames]`` (linear in ``x``)."""
         if x.ndim != 3:

@@ -15,7 +15,7 @@ from torch import Tensor, nn
 
 from .._checks import check_choice, check_int, check_positive
 from .base import SpikeEncoder, register_encoder
-from .export import WindowEncoder
+from .export import GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import MAPPINGS, STATS, LatencyCode
 from .stft import STFTScalogram
@@ -128,8 +128,19 @@ class ScalogramLatencyEncoder(SpikeEncoder):
 class GWTLatencyEncoder(ScalogramLatencyEncoder):
     """Gabor-wavelet scalogram -> latency code (seed 001's winning encoder)."""
 
+    #: above this, the exported scalogram is a convolution instead of ``window^2`` matrices
+    MATRIX_BUDGET_BYTES: ClassVar[int] = 64 << 20
+
     def make_scalogram(self) -> nn.Module:
         return GaborScalogram(self.fs_hz, self.freqs_hz)
+
+    def onnx_module(self) -> nn.Module:
+        # the matrix form is exact at the edges; its size grows with window^2 (a 13,000-sample
+        # window needs ~54 GB), the FIR form with the longest wavelet only
+        matrix_bytes = 8 * self.window * self.config.n_bands * self.window
+        if matrix_bytes <= self.MATRIX_BUDGET_BYTES:
+            return super().onnx_module()
+        return _WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window))
 
 
 @register_encoder("stft", STFTConfig)
