@@ -457,7 +457,7 @@ def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg
             X_check,
             metadata={"training_data_sha256": data_hash(run_cfg), "run": run.name},
         )
-    except (MemoryError, RuntimeError, ValueError) as e:
+    except (MemoryError, RuntimeError, ValueError) as e:  # ExportError is a RuntimeError
         log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)
         return {"error": f"{type(e).__name__}: {e}"}
     keys = ("nodes", "max_score_diff", "windows_beyond_atol", "prediction_agreement",
