@@ -71,8 +71,10 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
             default=argparse.SUPPRESS,
             help=f"{kind} component (default {getattr(config_defaults(), kind + '_type')})",
         )
-    for name, (owner, default, text) in flat_settings().items():
+    for name, (owner, default, text, choices) in flat_settings().items():
         kw: dict = {"default": argparse.SUPPRESS, "help": f"{text} [{owner}; default {default!r}]"}
+        if choices:
+            kw["choices"] = choices
         if isinstance(default, bool):
             kw["action"] = argparse.BooleanOptionalAction
         elif isinstance(default, tuple):

@@ -208,24 +208,25 @@ def owner_of_flag(flag: str) -> tuple[str, tuple[str, ...]] | None:
     return None
 
 
-def flat_settings() -> dict[str, tuple[str, Any, str]]:
-    """Every flat setting name -> ``(owner description, default, help)`` (for the CLI)."""
-    out: dict[str, tuple[str, Any, str]] = {}
+def flat_settings() -> dict[str, tuple[str, Any, str, tuple[str, ...] | None]]:
+    """Every flat setting name -> ``(owner description, default, help, choices)`` (for the CLI)."""
+    out: dict[str, tuple[str, Any, str, tuple[str, ...] | None]] = {}
     defaults = PipelineConfig()
     for name, fld in TOP_FLAGS.items():
-        out[name] = ("pipeline", getattr(defaults, fld), TOP_HELP[name])
+        out[name] = ("pipeline", getattr(defaults, fld), TOP_HELP[name], None)
     for name, fld in TrainConfig.FLAGS.items():
-        out[name] = ("train", getattr(defaults.train, fld), TrainConfig.HELP[name])
+        out[name] = ("train", getattr(defaults.train, fld), TrainConfig.HELP[name], None)
     for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
         for comp in reg.names():
             cfg_cls = reg.config_class(comp)
+            choices = getattr(cfg_cls, "CHOICES", {})
             for flag, fld in cfg_cls.FLAGS.items():
-                default = _field_default(cfg_cls, fld)
                 if flag in out:
-                    owner, d0, h = out[flag]
-                    out[flag] = (f"{owner}, {comp}", d0, h)
+                    owner, d0, h, c = out[flag]
+                    out[flag] = (f"{owner}, {comp}", d0, h, c)
                 else:
-                    out[flag] = (f"{kind} {comp}", default, cfg_cls.HELP.get(fld, ""))
+                    out[flag] = (f"{kind} {comp}", _field_default(cfg_cls, fld),
+                                 cfg_cls.HELP.get(fld, ""), choices.get(fld))  # fmt: skip
     return out
 
 

@@ -48,6 +48,7 @@ class LIFPopulationConfig:
         "lif_max_spikes": "max_spikes",
         "lif_norm": "norm",
     }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"norm": NORMS}
     HELP: ClassVar[dict[str, str]] = {
         "neurons": "LIF converters per channel (thresholds graded from lo to hi)",
         "lo": "lowest threshold, in multiples of the reference level",

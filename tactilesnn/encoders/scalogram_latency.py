@@ -40,6 +40,7 @@ class ScalogramLatencySettings:
         "mapping": "mapping",
         "dynamic_range_db": "dynamic_range_db",
     }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"stats": STATS, "mapping": MAPPINGS}
     HELP: ClassVar[dict[str, str]] = {
         "f_lo_hz": "lowest band centre (Hz)",
         "f_hi_hz": "highest band centre (Hz; capped at 0.45 x the sampling rate)",

@@ -294,6 +294,7 @@ class SNNConfig:
         "snn_recurrent": "recurrent",
         "snn_lr": "lr",
     }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"readout": READOUTS}
     HELP: ClassVar[dict[str, str]] = {
         "hidden": "hidden LIF units",
         "dt_ms": "SNN time step (ms); the window is rasterised at this step",

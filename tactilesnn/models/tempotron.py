@@ -304,6 +304,7 @@ class TempotronConfig:
         "margin": "margin",
         "lr_decay": "lr_decay",
     }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"learning": ("rule", "gradient")}
     HELP: ClassVar[dict[str, str]] = {
         "tau_ms": "tempotron membrane time constant (ms)",
         "tau_s_ms": "tempotron synaptic time constant (ms, < tau)",
