@@ -27,7 +27,8 @@ compresses the negative half-cycle towards cut-off, its output pole, and a 10-bi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from scipy import signal
@@ -40,6 +41,9 @@ EPS0_F_PER_M = 8.8541878128e-12
 @dataclass(frozen=True)
 class CapacitivePiezoParams:
     """Parameters of the stack and its readout chain; defaults are seed 001's values."""
+
+    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("static_noise_rel", "dynamic_noise_rel")
 
     # --- dual-elastomer capacitive channel ---
     # area and gaps put C_SG(0) ~ 220 pF, inside the CTMU's range (dV = I_C dt / C < Vref)
@@ -105,14 +109,9 @@ class CapacitivePiezoStack:
     @classmethod
     def with_noise_scale(cls, scale: float) -> CapacitivePiezoStack:
         """Seed 001's stack with both channels' electronic noise multiplied by ``scale``."""
-        base = CapacitivePiezoParams()
-        return cls(
-            replace(
-                base,
-                static_noise_rel=base.static_noise_rel * scale,
-                dynamic_noise_rel=base.dynamic_noise_rel * scale,
-            )
-        )
+        from .base import noise_scaled
+
+        return cls(noise_scaled(CapacitivePiezoParams(), scale))
 
     @property
     def fs_hz(self) -> float:

@@ -27,6 +27,7 @@ via non-negative least squares.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy import optimize, signal
@@ -86,6 +87,9 @@ def disc_points(diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.nda
 @dataclass(frozen=True)
 class PVDFParams:
     """Seed 004's values; every field can be overridden."""
+
+    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("noise_uV",)
 
     d33_pC_per_N: float = -20.0
     eps_r: float = 12.0

@@ -30,6 +30,7 @@ potentials stay below turn-on, so the rate starts ~1 mm before contact.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 from scipy import signal
@@ -65,6 +66,9 @@ MATERIALS: dict[str, TriboMaterial] = {
 @dataclass(frozen=True)
 class TENGParams:
     """Seed 000's single-sensor figures; every field can be overridden."""
+
+    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("noise_V",)
 
     fs_hz: float = 500.0
     proximity_mm: float = 2.0  # V_T starts rising this far from the skin

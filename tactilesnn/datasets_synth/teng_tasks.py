@@ -27,7 +27,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import register_task
+from .base import noise_scaled, register_task
 from .indentation import IndentationScene
 from .teng import MATERIALS, TENGArray, TENGParams, layout
 from .trial_task import TrialTask
@@ -35,8 +35,7 @@ from .trial_task import TrialTask
 
 def teng_sensor(layout_name: str, difficulty: float) -> TENGArray:
     """The seed's TENG array on a named layout, gate noise scaled by ``difficulty``."""
-    base = TENGParams()
-    return TENGArray(layout(layout_name), replace(base, noise_V=base.noise_V * difficulty))
+    return TENGArray(layout(layout_name), noise_scaled(TENGParams(), difficulty))
 
 
 STIFFNESS = {"soft": 0.3, "medium": 0.6, "hard": 0.97}  # skin's share of an overlap

@@ -15,12 +15,12 @@ ranges' width and the soft-site factor.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from .base import register_task
+from .base import noise_scaled, register_task
 from .pvdf import PVDFParams, PVDFTriangle
 from .trial_task import TrialTask
 
@@ -48,8 +48,8 @@ class TouchModalityTask(TrialTask):
 
     @property
     def sensor(self) -> PVDFTriangle:
-        base = PVDFParams()
-        return PVDFTriangle(replace(base, noise_uV=base.noise_uV * max(self.difficulty, 1e-3)))
+        # a floor keeps the noise-relative skip threshold of the PVDF read meaningful
+        return PVDFTriangle(noise_scaled(PVDFParams(), max(self.difficulty, 1e-3)))
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
         d, a = self.difficulty, self.amplitude_spread

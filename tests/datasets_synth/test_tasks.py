@@ -94,3 +94,20 @@ def test_texture_is_not_solved_by_amplitude():
     base = linear_amplitude_baseline(tr.X, tr.y, te.X, te.y)
     res = fit_and_evaluate(PipelineConfig.from_flat(epochs=10), tr, te)
     assert res.metrics["test_accuracy"] > base + 0.1
+
+
+def test_one_noise_scaling_for_every_sensor():
+    from tactilesnn.datasets_synth.base import noise_scaled
+    from tactilesnn.datasets_synth.capacitive_piezo import CapacitivePiezoParams
+    from tactilesnn.datasets_synth.pvdf import PVDFParams
+    from tactilesnn.datasets_synth.teng import TENGParams
+
+    for params in (CapacitivePiezoParams(), PVDFParams(), TENGParams()):
+        scaled = noise_scaled(params, 2.5)
+        for f in type(params).NOISE_FIELDS:
+            assert getattr(scaled, f) == pytest.approx(2.5 * getattr(params, f))
+        assert noise_scaled(params, 1.0) == params
+    with pytest.raises(ValueError, match="finite"):
+        noise_scaled(TENGParams(), float("nan"))
+    with pytest.raises(TypeError, match="NOISE_FIELDS"):
+        noise_scaled(object(), 1.0)
