@@ -7,6 +7,7 @@ import os
 import shutil
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -105,8 +106,11 @@ def write_json_atomic(path: Path, obj: object) -> None:
 
 def load_arrays(path: Path) -> dict[str, np.ndarray]:
     """Load a weights file written by :meth:`RunWriter.write_arrays` (pickle disabled)."""
-    with np.load(path, allow_pickle=False) as f:
-        return {k: f[k] for k in f.files}
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path} is corrupt or not a weights file ({e})") from e
 
 
 def read_json(path: Path) -> dict:

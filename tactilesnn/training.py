@@ -316,15 +316,21 @@ def save_checkpoint(folder: Path, state: dict) -> None:
 
 
 def load_checkpoint(folder: Path) -> dict:
-    meta = json.loads((folder / "checkpoint.json").read_text())
-    state: dict = dict(meta)
-    with np.load(folder / "checkpoint.npz", allow_pickle=False) as f:
-        for key in f.files:
-            if "/" in key:
-                group, name = key.split("/", 1)
-                state.setdefault(group, {})[name] = f[key]
-            else:
-                state[key] = f[key]
+    """Read a checkpoint written by :func:`save_checkpoint` (ValueError if it is damaged)."""
+    try:
+        meta = json.loads((folder / "checkpoint.json").read_text())
+        state: dict = dict(meta)
+        arrays = load_arrays(folder / "checkpoint.npz")
+    except (OSError, ValueError) as e:
+        raise ValueError(
+            f"the checkpoint in {folder} is damaged ({e}); pass --overwrite to start afresh"
+        ) from e
+    for key, value in arrays.items():
+        if "/" in key:
+            group, name = key.split("/", 1)
+            state.setdefault(group, {})[name] = value
+        else:
+            state[key] = value
     state.setdefault("best", {})
     return state
 

@@ -62,3 +62,35 @@ def test_ctrl_c_says_how_to_resume_and_a_failed_start_needs_no_resume(tmp_path, 
     assert main(args2) == 2
     monkeypatch.undo()
     assert main(args2) == 0  # the failed start left no checkpoint, so no --resume is asked for
+
+
+def test_damaged_files_get_errors_not_tracebacks(tmp_path, capsys):
+    import numpy as np
+
+    out = tmp_path / "r"
+    args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
+    assert main(args) == 0
+    (out / "weights.npz").write_bytes(b"PK\x03\x04 truncated")
+    assert main(["evaluate", str(out), "--quiet"]) == 2
+    assert "corrupt or not a weights file" in capsys.readouterr().err
+    assert main(["serve", str(tmp_path / "missing.onnx")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a graph")
+    assert main(["serve", str(bad)]) == 2
+    assert "not a loadable ONNX model" in capsys.readouterr().err
+    partial = tmp_path / "c.partial"
+    partial.mkdir()
+    (partial / "run.json").write_text("{}")
+    (partial / "checkpoint.json").write_text("{broken")
+    rc = main(
+        ["train", "--epochs", "1", *TINY, "--out", str(tmp_path / "c"), "--resume", "--quiet"]
+    )
+    assert rc == 2 and "damaged" in capsys.readouterr().err
+    # an empty batch is an empty answer, for every encoder
+    from tactilesnn.training import load_run
+
+    assert main([*args[:-4], "--out", str(tmp_path / "s"), "--encoder", "stft", "--quiet",
+                 "--no-export"]) == 0  # fmt: skip
+    pipe, _ = load_run(tmp_path / "s")
+    assert pipe.scores(pipe.encode(np.zeros((0, 2, 100), np.float32))).shape == (0, 2)

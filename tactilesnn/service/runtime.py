@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
@@ -40,7 +41,12 @@ class PipelineSession:
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"model file {path} does not exist")
+        try:
+            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as e:  # onnxruntime raises its own types for unreadable graphs
+            raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.fs_hz = float(meta["fs_hz"])
