@@ -416,7 +416,10 @@ def cmd_generate(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     from .service.app import serve
 
-    serve(args.model, host=args.host, port=args.port, threads=args.threads)
+    if not (args.stream_ttl_s > 0 and np.isfinite(args.stream_ttl_s)):
+        raise ValueError(f"--stream-ttl-s must be a positive number, got {args.stream_ttl_s}")
+    serve(args.model, host=args.host, port=args.port, threads=args.threads,
+          stream_ttl_s=args.stream_ttl_s)  # fmt: skip
     return 0
 
 
@@ -565,6 +568,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=_port, default=8000, help="TCP port (1-65535)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
+    p.add_argument("--stream-ttl-s", type=float, default=300.0,
+                   help="drop a stream after this many seconds without a chunk")  # fmt: skip
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("bench", help="benchmarks")

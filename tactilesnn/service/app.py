@@ -36,6 +36,7 @@ from .runtime import InputError, PipelineSession, StreamState
 
 MAX_BODY_BYTES = 8 << 20
 MAX_STREAMS = 256
+STREAM_TTL_S = 300.0  # a stream idle this long is dropped
 
 
 class HTTPError(Exception):
@@ -147,11 +148,23 @@ def create_app(
     threads: int = 0,
     max_body_bytes: int = MAX_BODY_BYTES,
     batch_window_ms: float = 2.0,
+    max_streams: int = MAX_STREAMS,
+    stream_ttl_s: float = STREAM_TTL_S,
 ) -> Starlette:
+    """The HTTP app. Streams idle for ``stream_ttl_s`` are dropped (so abandoned ids never lock
+    new streams out); each stream is fed under its own lock, off the event loop, so a large
+    chunk on one stream does not hold up the others."""
     session = PipelineSession(model_path, threads=threads)
     batcher = MicroBatcher(session, batch_window_ms)
-    streams: OrderedDict[str, StreamState] = OrderedDict()
-    stream_lock = asyncio.Lock()
+    streams: OrderedDict[str, StreamState] = OrderedDict()  # least recently used first
+    stream_lock = asyncio.Lock()  # guards the table only, never held during inference
+
+    def expire(now: float) -> None:
+        while streams:
+            sid, st = next(iter(streams.items()))
+            if now - st.meta.get("last_used", now) <= stream_ttl_s:
+                break
+            streams.pop(sid)
 
     async def classify(request: Request):
         body = await _read_body(request, max_body_bytes)
@@ -185,16 +198,24 @@ def create_app(
                 422, f"sampling rate {fs} Hz does not match the model's {session.fs_hz}"
             )
         async with stream_lock:
+            now = time.monotonic()
+            expire(now)
             state = streams.get(sid)
             if state is None:
-                if len(streams) >= MAX_STREAMS:
+                if len(streams) >= max_streams:
                     raise HTTPError(
-                        429, f"too many open streams ({MAX_STREAMS}); DELETE unused ones"
+                        429,
+                        f"too many open streams ({max_streams}); DELETE unused ones or wait "
+                        f"{stream_ttl_s:g} s for idle ones to expire",
                     )
                 state = streams[sid] = StreamState()
+                state.meta["lock"] = asyncio.Lock()
+            state.meta["last_used"] = now
             streams.move_to_end(sid)
+        async with state.meta["lock"]:  # one chunk at a time per stream, in arrival order
             loop = asyncio.get_running_loop()
             results = await loop.run_in_executor(None, session.feed_stream, state, data)
+            state.meta["last_used"] = time.monotonic()
         return JSONResponse({"stream": sid, "results": results})
 
     async def model(request: Request):
@@ -231,11 +252,17 @@ def create_app(
     return app
 
 
-def serve(model_path: str, host: str = "127.0.0.1", port: int = 8000, threads: int = 0) -> None:
+def serve(
+    model_path: str,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    threads: int = 0,
+    stream_ttl_s: float = STREAM_TTL_S,
+) -> None:
     import uvicorn
 
     uvicorn.run(
-        create_app(model_path, threads=threads),
+        create_app(model_path, threads=threads, stream_ttl_s=stream_ttl_s),
         host=host,
         port=port,
         log_level="info",

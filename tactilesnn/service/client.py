@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import urllib.error
+import urllib.parse
 import urllib.request
 
 import numpy as np
@@ -14,6 +15,14 @@ class ServiceError(RuntimeError):
     def __init__(self, status: int, message: str) -> None:
         super().__init__(f"HTTP {status}: {message}")
         self.status, self.message = status, message
+
+
+def stream_path(stream_id: str) -> str:
+    """URL path of a stream: the id percent-encoded (``sensor?A`` and ``sensor?B`` stay two
+    streams; a bare ``?`` would start the query string)."""
+    if not stream_id:
+        raise ValueError("stream id must not be empty")
+    return "/v1/stream/" + urllib.parse.quote(stream_id, safe="")
 
 
 class Client:
@@ -51,12 +60,11 @@ class Client:
     def stream(self, stream_id: str, chunk: np.ndarray) -> list[dict]:
         buf = io.BytesIO()
         np.save(buf, np.asarray(chunk, dtype=np.float32), allow_pickle=False)
-        return self._call("POST", f"/v1/stream/{stream_id}", buf.getvalue(), "application/x-npy")[
-            "results"
-        ]
+        path = stream_path(stream_id)
+        return self._call("POST", path, buf.getvalue(), "application/x-npy")["results"]
 
     def close_stream(self, stream_id: str) -> None:
-        self._call("DELETE", f"/v1/stream/{stream_id}")
+        self._call("DELETE", stream_path(stream_id))
 
     def model(self) -> dict:
         return self._call("GET", "/v1/model")

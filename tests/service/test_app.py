@@ -109,3 +109,31 @@ def test_inference_path_imports_no_torch(tmp_path, served):
 
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_idle_streams_expire_and_ids_are_url_encoded(tmp_path, served):
+    import time
+
+    from tactilesnn.export import export_pipeline
+    from tactilesnn.service.client import stream_path
+
+    _, pipe, test = served
+    model = tmp_path / "m.onnx"
+
+    export_pipeline(pipe, model, test.X[:8])
+    app = create_app(str(model), max_streams=3, stream_ttl_s=0.3)
+    chunk = npy(test.X[0][:, :10])
+    with TestClient(app) as c:
+        for i in range(3):
+            assert c.post(f"/v1/stream/s{i}", content=chunk,
+                          headers={"content-type": "application/x-npy"}).status_code == 200  # fmt: skip
+        r = c.post("/v1/stream/new", content=chunk, headers={"content-type": "application/x-npy"})
+        assert r.status_code == 429 and "expire" in r.json()["error"]
+        time.sleep(0.4)  # the three abandoned streams go idle past the TTL
+        r = c.post("/v1/stream/new", content=chunk, headers={"content-type": "application/x-npy"})
+        assert r.status_code == 200
+        a, b = stream_path("sensor?A"), stream_path("sensor?B")
+        assert a != b and "?" not in a
+        for path, sid in ((a, "sensor?A"), (b, "sensor?B")):
+            r = c.post(path, content=chunk, headers={"content-type": "application/x-npy"})
+            assert r.status_code == 200 and r.json()["stream"] == sid  # two streams, not one
