@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from .config import (
+    DEFAULT_ENCODER,
+    DEFAULT_MODEL,
     TOP_FLAGS,
     PipelineConfig,
     TrainConfig,
+    apply_flat,
     flat_settings,
-    is_nested,
-    owner_of_flag,
     registries,
 )
 from .datasets_synth import TASKS
@@ -69,7 +70,7 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
             f"--{kind}",
             choices=reg.names(),
             default=argparse.SUPPRESS,
-            help=f"{kind} component (default {getattr(config_defaults(), kind + '_type')})",
+            help=f"{kind} component (default {DEFAULT_ENCODER if kind == 'encoder' else DEFAULT_MODEL})",
         )
     for name, (owner, default, text, choices) in flat_settings().items():
         kw: dict = {"default": argparse.SUPPRESS, "help": f"{text} [{owner}; default {default!r}]"}
@@ -82,10 +83,6 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         else:
             kw["type"] = type(default)
         g.add_argument("--" + name.replace("_", "-"), **kw)
-
-
-def config_defaults() -> PipelineConfig:
-    return PipelineConfig()
 
 
 def _config(args: argparse.Namespace) -> PipelineConfig:
@@ -105,44 +102,6 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
         if "encoder" not in given and is_event_file(Path(args.data)):
             flat["encoder"] = "events"
     return apply_flat(base, flat)
-
-
-def apply_flat(base: dict, flat: dict) -> PipelineConfig:
-    """``base`` (nested or flat settings) with flat overrides: the command line over a TOML file.
-
-    A flat setting of a component that is not selected is refused (``--lif-neurons`` with
-    ``--encoder gwt``); changing a component's type drops the old component's settings.
-    """
-    if not is_nested(base):
-        return PipelineConfig.from_flat({**base, **flat}, strict=True)
-    d = PipelineConfig.from_dict(base).to_dict()
-    for kind in registries():
-        if kind in flat and flat[kind] != d[kind]["type"]:
-            d[kind] = {"type": flat[kind]}
-    comp = PipelineConfig.from_dict(d)
-    enc_flags, model_flags = type(comp.encoder).FLAGS, type(comp.model).FLAGS
-    for key, value in flat.items():
-        value = tuple(value) if isinstance(value, list) else value
-        if key in registries():
-            continue
-        if key in TOP_FLAGS:
-            d[TOP_FLAGS[key]] = value
-        elif key in TrainConfig.FLAGS:
-            d["train"][TrainConfig.FLAGS[key]] = value
-        elif key in enc_flags:
-            d["encoder"][enc_flags[key]] = value
-        elif key in model_flags:
-            d["model"][model_flags[key]] = value
-        else:
-            owner = owner_of_flag(key)
-            if owner is None:
-                raise ValueError(f"unknown setting {key!r}")
-            kind, names = owner
-            raise ValueError(
-                f"{key!r} is a setting of {kind} {' / '.join(names)}, but the {kind} is "
-                f"{d[kind]['type']!r}"
-            )
-    return PipelineConfig.from_dict(d)
 
 
 def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> tuple[str | None, dict]:

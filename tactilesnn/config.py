@@ -159,35 +159,65 @@ class PipelineConfig:
         flat = {**(d or {}), **kw}
         enc_name = flat.pop("encoder", DEFAULT_ENCODER)
         model_name = flat.pop("model", DEFAULT_MODEL)
-        enc_cls, model_cls = ENCODERS.config_class(enc_name), MODELS.config_class(model_name)
-        parts: dict[str, dict[str, Any]] = {"top": {}, "encoder": {}, "model": {}, "train": {}}
-        for key, value in flat.items():
-            value = tuple(value) if isinstance(value, list) else value
-            placed = False
-            for part, flags in (("top", TOP_FLAGS), ("train", TrainConfig.FLAGS),
-                                ("encoder", enc_cls.FLAGS), ("model", model_cls.FLAGS)):  # fmt: skip
-                if key in flags:
-                    parts[part][flags[key]] = value
-                    placed = True
-                    break
-            if placed:
-                continue
+        parts = place_flat(flat, enc_name, model_name, strict)
+        return cls(
+            encoder=ENCODERS.config_class(enc_name)(**parts["encoder"]),
+            model=MODELS.config_class(model_name)(**parts["model"]),
+            train=TrainConfig(**parts["train"]),
+            **parts["top"],
+        )
+
+
+def place_flat(
+    flat: dict[str, Any], encoder: str, model: str, strict: bool = True
+) -> dict[str, dict[str, Any]]:
+    """Sort flat settings into field values per part (``top``, ``train``, ``encoder``,
+    ``model``) for the named components.
+
+    ``strict``: a setting of a component that is not selected is an error; otherwise ignored.
+    """
+    enc_flags = ENCODERS.config_class(encoder).FLAGS
+    model_flags = MODELS.config_class(model).FLAGS
+    parts: dict[str, dict[str, Any]] = {"top": {}, "train": {}, "encoder": {}, "model": {}}
+    for key, value in flat.items():
+        value = tuple(value) if isinstance(value, list) else value
+        for part, flags in (("top", TOP_FLAGS), ("train", TrainConfig.FLAGS),
+                            ("encoder", enc_flags), ("model", model_flags)):  # fmt: skip
+            if key in flags:
+                parts[part][flags[key]] = value
+                break
+        else:
             owner = owner_of_flag(key)
             if owner is None:
                 raise ValueError(f"unknown pipeline setting {key!r}")
             if strict:
                 kind, names = owner
-                chosen = enc_name if kind == "encoder" else model_name
+                chosen = encoder if kind == "encoder" else model
                 raise ValueError(
                     f"{key!r} is a setting of {kind} {' / '.join(names)}, but the {kind} is "
                     f"{chosen!r}"
                 )
-        return cls(
-            encoder=enc_cls(**parts["encoder"]),
-            model=model_cls(**parts["model"]),
-            train=TrainConfig(**parts["train"]),
-            **parts["top"],
-        )
+    return parts
+
+
+def apply_flat(base: dict[str, Any], flat: dict[str, Any]) -> PipelineConfig:
+    """``base`` (nested or flat settings) with flat overrides: the command line over a TOML file.
+
+    A flat setting of a component that is not selected is refused (``--lif-neurons`` with
+    ``--encoder gwt``); changing a component's type drops the old component's settings.
+    """
+    if not is_nested(base):
+        return PipelineConfig.from_flat({**base, **flat}, strict=True)
+    d = PipelineConfig.from_dict(base).to_dict()
+    for kind in ("encoder", "model"):
+        if kind in flat and flat[kind] != d[kind]["type"]:
+            d[kind] = {"type": flat[kind]}
+    rest = {k: v for k, v in flat.items() if k not in ("encoder", "model")}
+    parts = place_flat(rest, d["encoder"]["type"], d["model"]["type"])
+    d.update(parts.pop("top"))
+    for part, values in parts.items():
+        d[part].update(values)
+    return PipelineConfig.from_dict(d)
 
 
 def is_nested(d: dict[str, Any]) -> bool:

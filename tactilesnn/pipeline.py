@@ -85,12 +85,9 @@ class SpikePipeline:
         return spikes
 
     # ------------------------------------------------------------------ inference
-    @torch.no_grad()
-    def scores(self, spikes: torch.Tensor, batch: int | None = None) -> torch.Tensor:
+    def scores(self, spikes: torch.Tensor) -> torch.Tensor:
         """Spike times -> class scores ``[N, classes]`` in batches bounded by a byte budget."""
-        batch = batch or self.model.batch_size(spikes)
-        parts = [self.model.scores(spikes[i : i + batch]) for i in range(0, spikes.shape[0], batch)]
-        return torch.cat(parts) if parts else torch.zeros(0, len(self.class_names))
+        return self.model.batched_scores(spikes)
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         return self.scores(self.encode(X)).argmax(1).numpy()

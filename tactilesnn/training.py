@@ -76,12 +76,6 @@ class Trainer:
         self.model, self.config, self.progress = model, config, progress
         self.history: dict = {}
 
-    @torch.no_grad()
-    def _scores(self, spikes: torch.Tensor) -> torch.Tensor:
-        batch = self.model.batch_size(spikes)
-        return torch.cat([self.model.scores(spikes[i : i + batch])
-                          for i in range(0, spikes.shape[0], batch)])  # fmt: skip
-
     def fit(
         self,
         spikes: torch.Tensor,
@@ -122,12 +116,12 @@ class Trainer:
                     loss.backward()
                     opt.step()
             model.eval()
-            err = float((self._scores(spikes).argmax(1) != yt).float().mean())
+            err = float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
             st["history"].append(err)
             score = 1.0 - err
             if val is not None:
                 vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
-                score = float((self._scores(val[0]).argmax(1) == vy).float().mean())
+                score = float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
                 st["val_history"].append(score)
             if score > st["best_score"]:
                 st["best_score"], st["stale"] = score, 0
@@ -218,7 +212,8 @@ def fit_and_evaluate(
         resume=resume,
     )
     t_fit = time.perf_counter() - t0 - t_enc
-    pred = pipe.scores(s_test).argmax(1).numpy()
+    test_scores = pipe.scores(s_test).numpy()
+    pred = test_scores.argmax(1)
     early = early_decision_metrics(pipe, s_test, test.y, pred)
     acc = float((pred == test.y).mean())
     cm = confusion_matrix(test.y, pred, labels=np.arange(len(test.class_names)))
@@ -241,7 +236,7 @@ def fit_and_evaluate(
     }
     if early is not None:
         metrics["early_decision"] = early
-    per_rec = recording_accuracy(pipe.scores(s_test).numpy(), test.y, test.scan)
+    per_rec = recording_accuracy(test_scores, test.y, test.scan)
     if per_rec is not None:
         metrics.update(per_rec)
     return TrainResult(pipe, history, metrics, cm)
@@ -275,14 +270,16 @@ def recording_accuracy(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) ->
 @torch.no_grad()
 def early_decision_metrics(pipe: SpikePipeline, spikes: torch.Tensor, y, full_pred) -> dict | None:
     """A model deciding before the window ends (if it can): accuracy, window and spikes skipped."""
-    if spikes.shape[0] == 0 or pipe.model.early_decision(spikes[:1]) is None:
-        return None
     classes, t_dec = [], []
     batch = pipe.model.batch_size(spikes)
     for i in range(0, spikes.shape[0], batch):
-        c, t = pipe.model.early_decision(spikes[i : i + batch])
-        classes.append(c)
-        t_dec.append(t)
+        decided = pipe.model.early_decision(spikes[i : i + batch])
+        if decided is None:  # this model cannot decide early
+            return None
+        classes.append(decided[0])
+        t_dec.append(decided[1])
+    if not classes:
+        return None
     cls, t = torch.cat(classes).numpy(), torch.cat(t_dec).numpy()
     times = spikes.numpy()
     finite = np.isfinite(times)

@@ -14,7 +14,6 @@ one window; ``n_samples`` can grow) are siblings behind the same protocol.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
@@ -87,22 +86,19 @@ def register_task(cls: type) -> type:
     return cls
 
 
-def get_task(name: str, **kwargs: object) -> Task:
-    """Instantiate a registered task by name (``kwargs`` go to its constructor)."""
+def task_parameters(name: str) -> set[str]:
+    """Constructor parameters of a registered task (ValueError for an unknown name)."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
-    known = {f.name for f in dataclasses.fields(TASKS[name])}
+    return {f.name for f in dataclasses.fields(TASKS[name])}
+
+
+def get_task(name: str, **kwargs: object) -> Task:
+    """Instantiate a registered task by name (``kwargs`` go to its constructor)."""
+    known = task_parameters(name)
     unknown = sorted(set(kwargs) - known)
     if unknown:
         raise ValueError(
             f"task {name!r} has no parameter(s) {unknown}; its parameters: {sorted(known)}"
         )
     return TASKS[name](**kwargs)
-
-
-def task_parameters(name: str) -> set[str]:
-    """Constructor parameters of a registered task (ValueError for an unknown name)."""
-    get: Callable[[str], type] = TASKS.__getitem__
-    if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
-    return {f.name for f in dataclasses.fields(get(name))}

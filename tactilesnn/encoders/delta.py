@@ -79,9 +79,9 @@ class DeltaEncoder(SpikeEncoder):
         return self.config.max_spikes
 
     def fit(self, X: np.ndarray) -> DeltaEncoder:
-        step = np.diff(np.asarray(X, dtype=np.float64), axis=-1)
-        rms = np.median(np.sqrt((step**2).mean(-1)), axis=0)  # [C]
-        scale = np.abs(np.asarray(X, dtype=np.float64)).max(axis=(0, 2))
+        arr = np.asarray(X, dtype=np.float64)
+        rms = np.median(np.sqrt((np.diff(arr, axis=-1) ** 2).mean(-1)), axis=0)  # [C]
+        scale = np.abs(arr).max(axis=(0, 2))
         # a channel that never changes keeps a level step that cannot be crossed by its noise
         floor = np.maximum(1e-6 * scale, np.finfo(np.float64).tiny)
         self.delta.copy_(torch.from_numpy(self.config.threshold * np.maximum(rms, floor)))

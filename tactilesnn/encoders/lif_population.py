@@ -73,13 +73,13 @@ class _LIFPopulationGraph(nn.Module):
     """Scaling + converters; scripted for export (the sample loop becomes an ONNX ``Loop``)."""
 
     def __init__(self, ref: Tensor, inv_thr: Tensor, dt_ms: float, tau_ms: float, k: int,
-                 window_norm: bool) -> None:  # fmt: skip
+                 window_norm: bool, early_exit: bool) -> None:  # fmt: skip
         super().__init__()
         self.register_buffer("ref", ref.clone())
         self.register_buffer("inv_thr", inv_thr.clone())
         self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
         self.window_norm = bool(window_norm)
-        self.early_exit = False
+        self.early_exit = bool(early_exit)
 
     def forward(self, x: Tensor) -> Tensor:
         if self.window_norm:
@@ -138,10 +138,9 @@ class LIFPopulationEncoder(SpikeEncoder):
         return 8 * self.n_afferents * (self.window + 4 * self.max_spikes)
 
     def graph(self, early_exit: bool) -> _LIFPopulationGraph:
-        g = _LIFPopulationGraph(self.ref, self.inv_thr, 1000.0 / self.fs_hz, self.config.tau_ms,
-                                self.config.max_spikes, self.config.norm == "window")  # fmt: skip
-        g.early_exit = early_exit
-        return g
+        return _LIFPopulationGraph(self.ref, self.inv_thr, 1000.0 / self.fs_hz,
+                                   self.config.tau_ms, self.config.max_spikes,
+                                   self.config.norm == "window", early_exit)  # fmt: skip
 
     def encode_batch(self, x: Tensor) -> Tensor:
         # float64 for the exact crossing times; the graph runs the same loop in float32

@@ -108,7 +108,8 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         )
 
     def make_scalogram(self) -> nn.Module:
-        raise NotImplementedError
+        """The scalogram module of this encoder (each subclass provides its own)."""
+        raise NotImplementedError(f"{type(self).__name__} does not define its scalogram")
 
     @property
     def n_afferents(self) -> int:

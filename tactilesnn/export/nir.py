@@ -118,27 +118,6 @@ def write_nir(model: Any, path: Path, overwrite: bool = False) -> Path:
 
 
 # ---------------------------------------------------------------------------------- consumer
-class _NIRLIF(nn.Module):
-    """NIR ``LIF`` stepped exactly over ``dt_s`` for a held input (reset to ``v_reset`` or by
-    subtracting the threshold)."""
-
-    def __init__(self, node: Any, dt_s: float, subtract: bool) -> None:
-        super().__init__()
-        self.decay = torch.from_numpy(np.exp(-dt_s / np.asarray(node.tau, np.float64))).float()
-        self.gain = (1.0 - self.decay) * torch.from_numpy(np.asarray(node.r, np.float32))
-        self.v_leak = torch.from_numpy(np.asarray(node.v_leak, np.float32))
-        self.thr = torch.from_numpy(np.asarray(node.v_threshold, np.float32))
-        self.v_reset = torch.from_numpy(np.asarray(node.v_reset, np.float32))
-        self.subtract = subtract
-
-    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        v = torch.zeros_like(x) if state is None else state
-        v = self.v_leak + self.decay * (v - self.v_leak) + self.gain * x
-        s = (v >= self.thr).to(x.dtype)
-        v = v - s * self.thr if self.subtract else torch.where(s > 0, self.v_reset, v)
-        return s, v
-
-
 class _NIRLI(nn.Module):
     """NIR ``LI`` stepped exactly over ``dt_s`` for a held input; outputs the membrane."""
 
@@ -148,10 +127,30 @@ class _NIRLI(nn.Module):
         self.gain = (1.0 - self.decay) * torch.from_numpy(np.asarray(node.r, np.float32))
         self.v_leak = torch.from_numpy(np.asarray(node.v_leak, np.float32))
 
-    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    def integrate(self, x: Tensor, state: Tensor | None) -> Tensor:
         v = torch.zeros_like(x) if state is None else state
-        v = self.v_leak + self.decay * (v - self.v_leak) + self.gain * x
+        return self.v_leak + self.decay * (v - self.v_leak) + self.gain * x
+
+    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        v = self.integrate(x, state)
         return v, v
+
+
+class _NIRLIF(_NIRLI):
+    """NIR ``LIF``: :class:`_NIRLI` plus a threshold, reset to ``v_reset`` or by subtracting
+    the threshold."""
+
+    def __init__(self, node: Any, dt_s: float, subtract: bool) -> None:
+        super().__init__(node, dt_s)
+        self.thr = torch.from_numpy(np.asarray(node.v_threshold, np.float32))
+        self.v_reset = torch.from_numpy(np.asarray(node.v_reset, np.float32))
+        self.subtract = subtract
+
+    def forward(self, x: Tensor, state: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        v = self.integrate(x, state)
+        s = (v >= self.thr).to(x.dtype)
+        v = v - s * self.thr if self.subtract else torch.where(s > 0, self.v_reset, v)
+        return s, v
 
 
 def _affine(node: Any) -> nn.Linear:

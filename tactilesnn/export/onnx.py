@@ -56,11 +56,6 @@ class PipelineEncoderGraph(nn.Module):
         return s
 
 
-def export_problem(pipe: SpikePipeline) -> str | None:
-    """Why ``pipe`` cannot be exported (None: it can); checked before training starts."""
-    return pipe.model.export_problem()
-
-
 def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
     """The pipeline as one ONNX graph: ``window`` (+ model state) -> ``scores`` (+ new state)."""
     enc, model = build_parts(pipe)
@@ -70,7 +65,7 @@ def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
 def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
     """The encoder graph (``window -> spikes``) and the model graph (``spikes_in`` + state ->
     ``scores`` + state), each owned by its component."""
-    problem = export_problem(pipe)
+    problem = pipe.model.export_problem()
     if problem:
         raise ValueError(f"cannot export this pipeline: {problem}")
     pipe.model.eval()

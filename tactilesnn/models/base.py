@@ -73,6 +73,13 @@ class SpikeModel(nn.Module):
         per = max(1, self.bytes_per_sample(spikes.shape[1], spikes.shape[2]))
         return int(max(1, min(4096, budget_bytes // per)))
 
+    @torch.no_grad()
+    def batched_scores(self, spikes: Tensor) -> Tensor:
+        """:meth:`scores` of any number of samples, in batches bounded by a byte budget."""
+        batch = self.batch_size(spikes)
+        parts = [self.scores(spikes[i : i + batch]) for i in range(0, spikes.shape[0], batch)]
+        return torch.cat(parts) if parts else torch.zeros(0, self.n_classes)
+
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         """Peak intermediate bytes per sample (for batching by a byte budget)."""
         return 4 * afferents * k
@@ -92,7 +99,7 @@ class SpikeModel(nn.Module):
 
     def learning_rate(self) -> float:
         """Adam learning rate for models trained by gradient."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")
 
     # ------------------------------------------------------------------ export
     @property
