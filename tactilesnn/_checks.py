@@ -43,6 +43,23 @@ def check_finite(x: np.ndarray, name: str) -> None:
     raise ValueError(f"{name} contains a non-finite value ({value}) at {where}")
 
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_float32_range(x: np.ndarray, name: str) -> None:
+    """Refuse values that are finite here but overflow float32 (the precision the encoders and
+    the exported graph compute in): ``|x| <= 3.4e38``; rescale such data (other units)."""
+    if x.dtype.itemsize <= 4 or x.size == 0:
+        return
+    big = np.abs(x) > FLOAT32_MAX
+    if big.any():
+        idx = tuple(int(i) for i in np.argwhere(big)[0])
+        raise ValueError(
+            f"{name} holds {x[idx]:.3g} at index {idx}, beyond the float32 range "
+            f"(|x| <= {FLOAT32_MAX:.3g}) the encoders compute in: express the data in other units"
+        )
+
+
 def check_positive(value: float, name: str) -> float:
     """Return ``value`` as float, or raise ValueError if it is not a finite positive number."""
     v = float(value)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ._checks import as_float_array, check_finite
+from ._checks import as_float_array, check_finite, check_float32_range
 from .config import PipelineConfig
 from .encoders import build_encoder
 from .models import build_model
@@ -70,6 +70,7 @@ class SpikePipeline:
                 f"got shape {arr.shape}"
             )
         check_finite(arr, "X")
+        check_float32_range(arr, "X")
         return arr
 
     def calibrate(self, X: np.ndarray) -> None:

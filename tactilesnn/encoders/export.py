@@ -86,8 +86,13 @@ class GaborConvEncoder(nn.Module):
         if self.pad:
             mode = "reflect" if self.reflect else "constant"
             flat = nn.functional.pad(flat, (self.pad, self.pad), mode=mode)
-        out = nn.functional.conv1d(flat, self.weight, padding=self.taps)
-        out = out[..., self.pad : self.pad + n : self.hop]
+        # output j is centred on padded sample pad + j * hop and needs taps samples either side
+        extra = self.taps - self.pad
+        if extra > 0:
+            flat = nn.functional.pad(flat, (extra, extra))
+        elif extra < 0:
+            flat = flat[..., -extra : flat.shape[-1] + extra]
+        out = nn.functional.conv1d(flat, self.weight, stride=self.hop)
         re, im = out[:, : self.bands], out[:, self.bands :]
         return torch.sqrt(re * re + im * im).reshape(b, c, self.bands, -1)
 

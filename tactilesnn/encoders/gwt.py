@@ -169,30 +169,34 @@ class GaborScalogram(nn.Module):
         return self.analytic(eye)[:, 0], None
 
     @torch.no_grad()
-    def conv_kernels(self, window: int, tol: float = 1e-9) -> torch.Tensor:
+    def conv_kernels(self, window: int, tol: float = 1e-12) -> torch.Tensor:
         """The transform of a ``window``-sample input as complex FIR kernels ``[bands, 2 L + 1]``.
 
-        Each band's impulse response (the inverse FFT of its analytic Gabor response at the FFT
-        length :meth:`analytic` uses) truncated where its remaining energy falls below ``tol``
-        of the total; ``L`` never exceeds the padding, so with the same edge padding the
-        convolution equals :meth:`analytic` up to the truncation. Size ``bands x (2 L + 1)``, not
+        :meth:`analytic` is a circular convolution of the edge-padded window (``n + 2 p``
+        samples, zero-extended to the FFT length) with each band's impulse response; the lags
+        that reach an output sample lie in ``|lag| <= n + p - 1``, so these taps (the circular
+        impulse response at those lags) reproduce it exactly, wrap-around included (it matters
+        when a wavelet outlasts the window). ``L`` is cut where the remaining energy falls below
+        ``tol`` of every band's total. Size ``bands x (2 L + 1)`` (at most ``~4 window``), not
         ``window^2``: what the exported graph of long windows uses.
         """
         if self.padding == "periodic":
             raise ValueError("periodic padding has no FIR form; export it as a matrix")
-        p = self.pad_len(int(window))
-        n_fft = scipy.fft.next_fast_len(int(window) + 2 * p)
+        n = int(window)
+        p = self.pad_len(n)
+        n_fft = scipy.fft.next_fast_len(n + 2 * p)
         h = torch.from_numpy(self._filters(n_fft, torch.float64).numpy())
         k = torch.fft.ifft(h, n=n_fft)  # [F, n_fft], impulse at index 0 (circular)
-        lags = torch.arange(-p, p + 1)
-        taps = k[:, lags % n_fft]  # [F, 2p + 1], lag -p..p
+        reach = n + p - 1
+        lags = torch.arange(-reach, reach + 1)
+        taps = k[:, lags % n_fft]  # [F, 2 reach + 1], lag -reach..reach
         power = taps.abs() ** 2
-        by_dist = power[:, p:].clone()  # |lag| = 0..p
-        by_dist[:, 1:] += power[:, :p].flip(1)
+        by_dist = power[:, reach:].clone()  # |lag| = 0..reach
+        by_dist[:, 1:] += power[:, :reach].flip(1)
         inside = torch.cumsum(by_dist, dim=1)  # energy within |lag| <= L
         ok = (inside[:, -1:] - inside <= tol * inside[:, -1:]).all(0)
         keep = int(torch.nonzero(ok)[0])  # smallest L that keeps all but tol of every band
-        return taps[:, p - keep : p + keep + 1]
+        return taps[:, reach - keep : reach + keep + 1]
 
     def analytic(self, x: torch.Tensor) -> torch.Tensor:
         """Complex wavelet coefficients ``[batch, channels, bands, frames]`` (linear in ``x``)."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import torch
 from torch import Tensor, nn
 
 from .._checks import check_choice, check_int, check_positive
@@ -120,7 +121,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         return 48 * self.n_channels * (self.config.n_bands + 1) * 3 * self.window
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        return self.code(self.scalogram(x)).unsqueeze(-1)
+        return self.code(self.scalogram(unit_peak(x))).unsqueeze(-1)
 
     def onnx_module(self) -> nn.Module:
         return _WithSlot(WindowEncoder(self.scalogram, self.code, self.window))
@@ -145,6 +146,17 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
         return _WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window))
 
 
+def unit_peak(x: Tensor) -> Tensor:
+    """Each (window, channel) divided by its peak ``|x|`` (all-zero rows stay zero).
+
+    The scalogram is linear and the latency code is normalised per window and channel, so this
+    changes no spike time; it keeps float32 arithmetic in range for any finite float32 input
+    (1e-30 farads and 1e30 pascals alike; the squared modulus would overflow above ~1e19).
+    """
+    peak = x.abs().amax(-1, keepdim=True)
+    return x / torch.where(peak > 0, peak, torch.ones_like(peak))
+
+
 @register_encoder("stft", STFTConfig)
 class STFTLatencyEncoder(ScalogramLatencyEncoder):
     """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison)."""
@@ -164,4 +176,4 @@ class _WithSlot(nn.Module):
         self.inner = inner
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.inner(x).unsqueeze(-1)
+        return self.inner(unit_peak(x)).unsqueeze(-1)

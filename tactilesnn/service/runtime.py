@@ -34,8 +34,23 @@ class StreamState:
         return self.values.get("h_state")
 
 
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _check_float32(arr: np.ndarray) -> None:
+    """Finite values that overflow float32 (the graph's precision) are refused with the range."""
+    if arr.dtype.itemsize > 4 and arr.size and float(np.abs(arr).max()) > _FLOAT32_MAX:
+        raise InputError(
+            f"value {float(np.abs(arr).max()):.3g} is beyond the float32 range (|x| <= "
+            f"{_FLOAT32_MAX:.3g}) the model computes in: send the data in other units"
+        )
+
+
 class PipelineSession:
     """onnxruntime session over an exported ``model.onnx`` with validation and metadata."""
+
+    #: working memory of one onnxruntime call; larger batches are run in slices
+    RUN_BUDGET_BYTES = 256 << 20
 
     def __init__(self, path: str, threads: int = 0) -> None:
         opts = ort.SessionOptions()
@@ -56,6 +71,9 @@ class PipelineSession:
         except (KeyError, ValueError) as e:
             raise ValueError(f"{path} is not a tactilesnn export (metadata: {e})") from e
         self.metadata = dict(meta)
+        # windows per onnxruntime call, so a large batch never needs more than the budget
+        per_window = int(meta.get("bytes_per_window", "0") or 0)
+        self.batch = max(1, self.RUN_BUDGET_BYTES // per_window) if per_window > 0 else 1 << 30
         self.inputs = {i.name: i for i in self.session.get_inputs()}
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
@@ -97,19 +115,26 @@ class PipelineSession:
         if bad.any():
             b, c, s = (int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"non-finite value at batch {b}, channel {c}, sample {s}")
+        _check_float32(arr)
         return np.ascontiguousarray(arr, dtype=np.float32)
 
     def run(self, x: np.ndarray, state: StreamState | None = None) -> np.ndarray:
-        """Scores ``[batch, classes]`` for validated windows (updates ``state`` if given)."""
+        """Scores ``[batch, classes]`` for validated windows (updates ``state`` if given).
+
+        Batches larger than the memory budget run in slices (same results, bounded memory).
+        """
         feeds = {"window": x}
-        if not self.stateful:
-            return self.session.run(["scores"], feeds)[0]
         names = list(self.state_units)
         for name, units in self.state_units.items():
             held = state.values.get(name) if state is not None else None
             feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
-        scores, *new = self.session.run(["scores", *(f"{k}_out" for k in names)], feeds)
-        if state is not None:
+        outputs = ["scores", *(f"{k}_out" for k in names)]
+        parts = [
+            self.session.run(outputs, {k: v[i : i + self.batch] for k, v in feeds.items()})
+            for i in range(0, len(x), self.batch)
+        ]
+        scores, *new = (np.concatenate([p[j] for p in parts]) for j in range(len(outputs)))
+        if state is not None and names:
             state.values = dict(zip(names, new, strict=True))
         return scores
 
@@ -130,9 +155,11 @@ class PipelineSession:
         """
         hop = hop or self.window // 2
         try:
-            arr = np.asarray(chunk, dtype=np.float32)
+            arr = np.asarray(chunk)
         except (TypeError, ValueError) as e:
             raise InputError(f"chunk is not a numeric array: {e}") from e
+        if arr.dtype == object or arr.dtype.kind not in "fiu":
+            raise InputError(f"chunk must be numeric, got dtype {arr.dtype}")
         if arr.ndim != 2 or arr.shape[0] != len(self.channels):
             raise InputError(
                 f"chunk must be [{len(self.channels)} channels, samples], got {list(arr.shape)}"
@@ -140,6 +167,8 @@ class PipelineSession:
         if not np.isfinite(arr).all():
             c, s = (int(i) for i in np.argwhere(~np.isfinite(arr))[0])
             raise InputError(f"non-finite value at channel {c}, sample {s}")
+        _check_float32(arr)
+        arr = arr.astype(np.float32)
         buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
         results = []
         while buf.shape[1] >= self.window:

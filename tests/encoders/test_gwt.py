@@ -106,3 +106,23 @@ def test_rejects_bad_input():
         g.transform(x)
     with pytest.raises(ValueError, match="dimensions"):
         g.transform(np.zeros(50))
+
+
+@pytest.mark.parametrize(
+    ("fs", "n", "hop"), [(4000.0, 2000, 1), (1000.0, 3000, 1), (4000.0, 2000, 4)]
+)
+def test_fir_export_form_matches_fft_path(fs: float, n: int, hop: int) -> None:
+    """The exported FIR form equals the FFT path, also when the lowest wavelet outlasts the
+    window (4 kHz, 0.5 s window, 3 Hz band: the FFT's wrap-around must be reproduced)."""
+    from tactilesnn.encoders.export import GaborConvEncoder
+    from tactilesnn.encoders.gwt import log_bands
+    from tactilesnn.encoders.latency import LatencyCode
+
+    sc = GaborScalogram(fs, log_bands(3.0, 90.0, 20), hop=hop)
+    enc = GaborConvEncoder(sc, LatencyCode(), n).double()
+    x = torch.from_numpy(np.random.default_rng(0).standard_normal((2, 3, n)))
+    ref = sc(x)
+    got = enc.scalogram(x)
+    assert got.shape == ref.shape
+    assert float((got - ref).abs().max() / ref.abs().max()) < 1e-6
+    assert enc.weight.shape[-1] <= 4 * n  # size independent of window^2
