@@ -9,9 +9,14 @@ from sklearn.preprocessing import StandardScaler
 
 
 def amplitude_stats(X: np.ndarray) -> np.ndarray:
-    """Per-window mean and RMS of every channel: ``[N, C, W]`` -> ``[N, 2C]``."""
-    X = np.asarray(X, dtype=np.float64)
-    return np.concatenate([X.mean(-1), np.sqrt((X**2).mean(-1))], axis=1)
+    """Per-window mean and RMS of every channel: ``[N, C, W]`` -> ``[N, 2C]`` (float64,
+    computed in slices of 64 windows, so the memory used does not grow with ``N``)."""
+    X = np.asarray(X)
+    out = np.empty((X.shape[0], 2 * X.shape[1]))
+    for i in range(0, X.shape[0], 64):
+        x = np.asarray(X[i : i + 64], dtype=np.float64)
+        out[i : i + 64] = np.concatenate([x.mean(-1), np.sqrt((x**2).mean(-1))], axis=1)
+    return out
 
 
 def linear_amplitude_baseline(

@@ -93,6 +93,13 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
     """
     flat = {k: getattr(args, k) for k in [*registries(), *flat_settings()] if hasattr(args, k)}
     base = getattr(args, "_pipeline_toml", None) or {}
+    if not getattr(args, "data", None) and "channels" not in {*flat, *base}:
+        from .datasets_synth import get_task
+
+        # the default channel ('dynamic', hook_loop's) where the task has it, else all of them
+        names = get_task(args.task, **_task_kwargs(args)).channel_names
+        if not set(PipelineConfig().channels) <= set(names):
+            flat["channels"] = ("all",)
     if getattr(args, "data", None):
         from .recordings import is_event_file
 

@@ -73,13 +73,25 @@ class SpikePipeline:
         check_float32_range(arr, "X")
         return arr
 
+    def bytes_per_window(self) -> int:
+        """Peak intermediate bytes of one window through encoder and model (byte budgets)."""
+        model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
+        return max(self.encoder.bytes_per_window(), model)
+
+    def _selected(self, X: np.ndarray) -> np.ndarray:
+        """Validated ``X`` restricted to the pipeline's channels (a view when that is all)."""
+        arr = self.validate(X)
+        if list(self.channel_idx) == list(range(arr.shape[1])):
+            return arr
+        return arr[:, self.channel_idx]
+
     def calibrate(self, X: np.ndarray) -> None:
         """Fit the encoder's data-dependent state (e.g. the LIF code's level) on training X."""
-        self.encoder.fit(self.validate(X)[:, self.channel_idx])
+        self.encoder.fit(self._selected(X))
 
     def encode(self, X: np.ndarray) -> torch.Tensor:
         """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent), clock last."""
-        spikes = self.encoder.encode(self.validate(X)[:, self.channel_idx])
+        spikes = self.encoder.encode(self._selected(X))
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
             spikes = torch.cat([spikes, clock.expand(spikes.shape[0], -1, -1)], dim=1)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._checks import check_finite
+from ._checks import check_finite, check_float32_range
 from .datasets_synth import WindowDataset
 
 log = logging.getLogger("tactilesnn")
@@ -74,7 +74,9 @@ def load_data_file(
         ch = tuple(str(c) for c in np.atleast_1d(arrays["channel_names"]))
         if len(ch) != X.shape[1] or len(set(ch)) != len(ch):
             raise ValueError(f"{path}: channel_names must be {X.shape[1]} distinct names")
-    check_finite(X.astype(np.float64, copy=False), f"{path}: X")
+    if X.dtype.kind == "f":  # checked in place: a float64 copy of a large file would double it
+        check_finite(X, f"{path}: X")
+        check_float32_range(X, f"{path}: X")
     groups = recording_ids(arrays.get("recording"), y.size, path)
     split = arrays.get("split")
     if split is None:

@@ -23,7 +23,7 @@ from .baselines import linear_amplitude_baseline
 from .config import PipelineConfig, TrainConfig, is_nested
 from .datasets_synth import WindowDataset, get_task
 from .models.base import SpikeModel, to_tensor_labels
-from .pipeline import SpikePipeline, accuracy_ci95
+from .pipeline import SpikePipeline, accuracy_ci95, select_channels
 from .recordings import load_data_file
 from .runs import RunWriter, load_arrays, read_json, write_json_atomic
 
@@ -389,7 +389,9 @@ def train_run(
         if data is not None:
             train, test = load_data_file(data, config.seed)
         else:
-            train, test = get_task(task_name, **task_kwargs).build(progress=progress)
+            task = get_task(task_name, **task_kwargs)
+            select_channels(config.channels, task.channel_names)  # before any data is made
+            train, test = task.build(progress=progress)
         log.info(
             "%s: %d train / %d test windows (%d x %d samples @ %g Hz) in %.1f s",
             data or task_name,
@@ -460,7 +462,7 @@ def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg
             X_check,
             metadata={"training_data_sha256": data_hash(run_cfg), "run": run.name},
         )
-    except (MemoryError, RuntimeError, ValueError) as e:  # ExportError is a RuntimeError
+    except Exception as e:  # onnxruntime raises its own types too; the run is kept
         log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)
         return {"error": f"{type(e).__name__}: {e}"}
     keys = ("nodes", "max_score_diff", "windows_beyond_atol", "prediction_agreement",

@@ -121,16 +121,20 @@ class TrialTask(ABC):
         """Render every sample and return the ``(train, test)`` datasets."""
         from tqdm.auto import tqdm
 
-        X = np.zeros((self.n_samples, len(self.channel_names), self.window), np.float32)
-        y = np.zeros(self.n_samples, np.int64)
+        parts = self.split()
+        shape = (len(self.channel_names), self.window)
+        # rendered straight into each split's array: no full-size copy at any time
+        Xs = [np.zeros((idx.size, *shape), np.float32) for idx in parts]
+        ys = [np.zeros(idx.size, np.int64) for idx in parts]
+        where = {int(i): (s, j) for s, idx in enumerate(parts) for j, i in enumerate(idx)}
         for i in tqdm(range(self.n_samples), desc=f"{self.name} samples", disable=not progress):
-            X[i], y[i], _ = self.sample(i)
-        train, test = self.split()
-
-        def take(idx: np.ndarray) -> WindowDataset:
-            return WindowDataset(
-                X[idx], y[idx], idx.astype(np.int64), self.fs_hz, self.class_names,
-                self.channel_names,
-            )  # fmt: skip
-
-        return take(train), take(test)
+            if i in where:
+                s, j = where[i]
+                Xs[s][j], ys[s][j], _ = self.sample(i)
+        train, test = (
+            WindowDataset(
+                X, y, idx.astype(np.int64), self.fs_hz, self.class_names, self.channel_names
+            )
+            for X, y, idx in zip(Xs, ys, parts, strict=True)
+        )
+        return train, test

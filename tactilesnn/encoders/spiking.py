@@ -110,6 +110,19 @@ def lif_first_spikes(
     return times
 
 
+def lif_rate_bound(
+    drive: np.ndarray, dt_ms: float, tau_ms: float, theta: float, refractory_ms: float = 0.0
+) -> float:
+    """Upper bound on the spikes one LIF converter emits in one sample for ``drive`` (volts
+    above rest, held ``dt_ms``): from rest a constant drive ``v > theta`` needs ``tau ln(v /
+    (v - theta))`` ms per spike plus the refractory time; a potential carried over adds at
+    most one spike."""
+    v = float(np.max(drive, initial=-np.inf))
+    if not v > theta:
+        return 1.0
+    return dt_ms / (tau_ms * math.log1p(theta / (v - theta)) + refractory_ms) + 1.0
+
+
 def lif_convert(
     x: np.ndarray,
     fs_hz: float,
@@ -119,11 +132,15 @@ def lif_convert(
     v_rest: float = 0.0,
     reset: str = "rest",
     refractory_ms: float = 0.0,
+    max_spikes_per_sample: int = 64,
 ) -> SpikeEvents:
     """LIF analog-to-spike conversion, exact for piecewise-constant input (see module doc).
 
     ``gain`` is R (input units -> volts); ``threshold`` and ``v_rest`` in volts. Computed in
-    float64 with :func:`lif_hold_substep`.
+    float64 with :func:`lif_hold_substep`, one crossing per neuron per step, so the work grows
+    with the spikes per sample: an input that could fire more than ``max_spikes_per_sample``
+    times in one sample (:func:`lif_rate_bound`) is refused before any work (ValueError)
+    instead of running for hours.
     """
     arr, fs = _validate(x, fs_hz)
     tau = check_positive(tau_ms, "tau_ms")
@@ -136,6 +153,14 @@ def lif_convert(
     dt = 1000.0 / fs
     # shifted so that rest is 0: threshold theta - v_rest, drive = R I
     theta = float(threshold - v_rest)
+    bound = lif_rate_bound(gain * arr, dt, tau, theta, refractory_ms)
+    if bound > max_spikes_per_sample:
+        raise ValueError(
+            f"this input could make a LIF converter fire {bound:.3g} times in one "
+            f"{dt:.3g} ms sample (> max_spikes_per_sample={max_spikes_per_sample}): the drive "
+            f"reaches {float((gain * arr).max()):.3g} V against a {theta:.3g} V threshold; "
+            "lower the gain, raise the threshold, or raise max_spikes_per_sample"
+        )
     drive = torch.from_numpy(gain * arr.reshape(b * c, n))
     v = torch.zeros(b * c, dtype=torch.float64)
     refr = torch.zeros(b * c, dtype=torch.float64)  # refractory time left, ms

@@ -114,7 +114,7 @@ def export_pipeline(
         "model": pipe.config.model_type,
         "state_inputs": json.dumps([n for n, _ in pipe.model.state_names]),
         "pipeline_config": json.dumps(pipe.config.to_dict()),
-        "bytes_per_window": str(pipe.encoder.bytes_per_window()),
+        "bytes_per_window": str(pipe.bytes_per_window()),
         **(metadata or {}),
     }
     for k, v in meta.items():
@@ -156,7 +156,6 @@ def verify(
     very spike times torch produced. End to end, scores must agree within ``SCORE_ATOL`` except
     on at most ``MAX_BOUNDARY_FRACTION`` of windows (spikes on a step boundary, see above).
     """
-    import onnxruntime as ort
 
     x = np.ascontiguousarray(X, dtype=np.float32)
     states = list(pipe.model.state_names)
@@ -165,11 +164,11 @@ def verify(
     batch = check_batch(pipe)
     report: dict = {"n_checked": len(x), "check_batch": batch}
     if parts is not None and len(x):
-        enc = ort.InferenceSession(parts[0].SerializeToString())
+        enc = _session(parts[0])
         got_t = run_batched(enc, ["spikes"], {"window": x}, batch)[0]
         tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, tol)
-        mod = ort.InferenceSession(parts[1].SerializeToString())
+        mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         got_m = run_batched(mod, ["scores"], feeds, batch)[0]
         dm = float(np.abs(got_m - ref).max())
@@ -178,7 +177,7 @@ def verify(
         report.update(
             encoder_max_time_diff_ms=dt, encoder_cutoff_flips=flips, model_max_score_diff=dm
         )
-    sess = ort.InferenceSession(model.SerializeToString())
+    sess = _session(model)
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch)[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
@@ -207,7 +206,16 @@ CHECK_BUDGET_BYTES = 256 << 20
 
 def check_batch(pipe: SpikePipeline) -> int:
     """Windows per onnxruntime call so one call stays within :data:`CHECK_BUDGET_BYTES`."""
-    return max(1, min(4096, CHECK_BUDGET_BYTES // max(1, pipe.encoder.bytes_per_window())))
+    return max(1, min(4096, CHECK_BUDGET_BYTES // max(1, pipe.bytes_per_window())))
+
+
+def _session(model: onnx.ModelProto):
+    """A CPU session without the growing memory arena (verification must stay in budget)."""
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.enable_cpu_mem_arena = False
+    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
 def _zero_states(states: list[tuple[str, int]], n: int) -> dict[str, np.ndarray]:

@@ -222,7 +222,8 @@ def create_app(
         return JSONResponse(session.info())
 
     async def health(request: Request):
-        return JSONResponse({"status": "ok", "batches": batcher.calls, "windows": batcher.windows})
+        return JSONResponse({"status": "ok", "batches": batcher.calls, "windows": batcher.windows,
+                             "open_streams": len(streams)})  # fmt: skip
 
     @asynccontextmanager
     async def lifespan(app):

@@ -108,3 +108,17 @@ def test_lif_population_floors_a_channel_silent_in_training():
     assert np.isinf(enc.encode(Xt).numpy()[:, 8:]).all()
     with pytest.raises(ValueError, match="every channel is zero"):
         build_encoder(LIFPopulationConfig(), 1000.0, 200, 2).fit(np.zeros_like(X))
+
+
+def test_lif_convert_refuses_runaway_rates_before_work() -> None:
+    """Amplitudes >= 1e5 used to run for hours (one crossing per loop step); now the rate bound
+    is checked first, and inputs under it still convert exactly."""
+    x = np.ones((1, 1, 1000))
+    with pytest.raises(ValueError, match="max_spikes_per_sample"):
+        lif_convert(x * 1e5, FS)
+    with pytest.raises(ValueError, match="max_spikes_per_sample"):
+        lif_convert(x * 1e30, FS)
+    # a 10x drive at 1 ms samples fires ~1 spike/ms: well under the bound, same as before
+    assert 900 < len(lif_convert(x * 10.0, FS)) < 1000
+    # the bound counts the refractory time: 20 ms refractory keeps even 1e5 under the cap
+    assert len(lif_convert(x * 1e5, FS, refractory_ms=20.0)) <= 1000 / 20 + 1
