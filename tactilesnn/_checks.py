@@ -60,6 +60,27 @@ def check_float32_range(x: np.ndarray, name: str) -> None:
         )
 
 
+def memory_limit_bytes() -> int:
+    """Physical memory, or the process's address-space limit if that is lower."""
+    import os
+    import resource
+
+    phys = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    return min(phys, soft) if soft != resource.RLIM_INFINITY else phys
+
+
+def check_allocation(nbytes: int, what: str, fraction: float = 0.5) -> None:
+    """Refuse, before any work, an array that would take more than ``fraction`` of the memory
+    this process may use (a clear error instead of an out-of-memory kill halfway through)."""
+    limit = fraction * memory_limit_bytes()
+    if nbytes > limit:
+        raise ValueError(
+            f"{what} would need {nbytes / 2**30:.2f} GiB, more than {limit / 2**30:.2f} GiB "
+            f"({fraction:.0%} of the memory available); use fewer windows, channels or bands"
+        )
+
+
 def check_positive(value: float, name: str) -> float:
     """Return ``value`` as float, or raise ValueError if it is not a finite positive number."""
     v = float(value)

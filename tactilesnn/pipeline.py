@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ._checks import as_float_array, check_finite, check_float32_range
+from ._checks import as_float_array, check_allocation, check_finite, check_float32_range
 from .config import PipelineConfig
 from .encoders import build_encoder
 from .models import build_model
@@ -91,6 +91,8 @@ class SpikePipeline:
 
     def encode(self, X: np.ndarray) -> torch.Tensor:
         """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent), clock last."""
+        n = np.shape(X)[0] if np.ndim(X) == 3 else 0
+        check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
         spikes = self.encoder.encode(self._selected(X))
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
@@ -136,6 +138,9 @@ class SpikePipeline:
             if legacy:
                 state = module.upgrade_state(state)
             current = module.state_dict()
+            # buffers added in later versions keep their neutral constructed value
+            for k in getattr(module, "optional_state", ()):
+                state.setdefault(k, current[k].numpy())
             new = {}
             for k, v in current.items():
                 if k not in state:

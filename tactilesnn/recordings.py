@@ -6,6 +6,9 @@ Format: ``X`` ``[N, channels, samples]`` float (the sensor's units), ``y`` ``[N]
 scores are also accumulated per recording) and ``split`` ``[N]`` (0 = train, 1 = test). Read with
 ``allow_pickle=False``. Event data: ``X`` ``[N, taxels, polarity, bins]`` (events per bin) with
 ``bin_ms`` instead of ``fs`` (see :func:`events_as_channels`; train with ``--encoder events``).
+Sensors at other sampling rates in the same recordings: ``X@<name>`` ``[N, channels, samples]``
+with ``fs@<name>`` (and optionally ``channel_names@<name>``) covering the same time span; they are
+resampled to ``fs`` and appended as channels ``<name>:<channel>`` (see :func:`merge_streams`).
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ def load_data_file(
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
     if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
         arrays = events_as_channels(arrays, path)
+    if any(k.startswith("X@") for k in arrays):
+        arrays = merge_streams(arrays, path)
     missing = [k for k in ("X", "y", "fs", "class_names") if k not in arrays]
     if missing:
         raise ValueError(
@@ -116,6 +121,66 @@ def is_event_file(path: Path) -> bool:
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return False
     return len(shape) == 4
+
+
+def merge_streams(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.ndarray]:
+    """Append every extra stream ``X@<name>`` (at ``fs@<name>`` Hz) to ``X`` as channels
+    ``<name>:<channel>``, resampled to ``fs`` with an anti-aliasing polyphase filter
+    (:func:`scipy.signal.resample_poly`, rational factor). Streams must span the window's time
+    (``samples / fs`` equal within one sample of the slower stream); windows of the main stream
+    and of every extra stream share the row index, so each row is one recording segment."""
+    from fractions import Fraction
+
+    from scipy.signal import resample_poly
+
+    out = {k: v for k, v in arrays.items() if "@" not in k}
+    if "X" not in out or "fs" not in out:
+        raise ValueError(f"{path}: extra streams (X@...) need the main X and fs")
+    X = np.asarray(out["X"])
+    fs = float(np.asarray(out["fs"]).reshape(-1)[0])
+    if X.ndim != 3 or not np.isfinite(fs) or fs <= 0:
+        raise ValueError(f"{path}: the main stream needs X [N, channels, samples] and fs > 0")
+    names = [str(c) for c in np.atleast_1d(out.get("channel_names", [f"ch{i}" for i in
+                                                                     range(X.shape[1])]))]  # fmt: skip
+    parts = [X.astype(np.float64)]
+    for key in sorted(k for k in arrays if k.startswith("X@")):
+        name = key[2:]
+        if f"fs@{name}" not in arrays:
+            raise ValueError(f"{path}: stream {key} needs its sampling rate fs@{name}")
+        xs = np.asarray(arrays[key])
+        fs_s = np.asarray(arrays[f"fs@{name}"])
+        if fs_s.size != 1 or fs_s.dtype.kind not in "fiu" or not float(fs_s.reshape(-1)[0]) > 0:
+            raise ValueError(f"{path}: fs@{name} must be one positive sampling rate in Hz")
+        fs_s = float(fs_s.reshape(-1)[0])
+        if xs.ndim != 3 or xs.shape[0] != X.shape[0] or xs.dtype.kind not in "fiu":
+            raise ValueError(
+                f"{path}: {key} must be real [N={X.shape[0]}, channels, samples], got {xs.shape}"
+            )
+        if abs(xs.shape[2] / fs_s - X.shape[2] / fs) > 1.0 / min(fs, fs_s):
+            raise ValueError(
+                f"{path}: {key} spans {xs.shape[2] / fs_s:.4g} s but X spans "
+                f"{X.shape[2] / fs:.4g} s: streams of one recording must cover the same time"
+            )
+        check_finite(xs.astype(np.float64, copy=False), f"{path}: {key}")
+        ratio = Fraction(fs / fs_s).limit_denominator(1000)
+        up = resample_poly(xs.astype(np.float64), ratio.numerator, ratio.denominator, axis=-1)
+        fixed = np.zeros((xs.shape[0], xs.shape[1], X.shape[2]))
+        m = min(up.shape[2], X.shape[2])
+        fixed[..., :m] = up[..., :m]
+        if m < X.shape[2]:  # rounding of the length: hold the last value
+            fixed[..., m:] = up[..., m - 1 : m]
+        parts.append(fixed)
+        sub = arrays.get(f"channel_names@{name}")
+        sub = [str(c) for c in np.atleast_1d(sub)] if sub is not None else [
+            f"ch{i}" for i in range(xs.shape[1])]  # fmt: skip
+        if len(sub) != xs.shape[1]:
+            raise ValueError(f"{path}: channel_names@{name} must name {xs.shape[1]} channels")
+        names += [f"{name}:{c}" for c in sub]
+    out["X"] = np.concatenate(parts, axis=1).astype(X.dtype if X.dtype.kind == "f" else np.float64)
+    out["channel_names"] = np.array(names)
+    log.info("%s: %d stream(s) resampled to %g Hz and appended as channels", path,
+             len(parts) - 1, fs)  # fmt: skip
+    return out
 
 
 def events_as_channels(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.ndarray]:

@@ -46,6 +46,8 @@ class SpikeEncoder(nn.Module):
     onnx_scripted: ClassVar[bool] = False
     #: True when :meth:`fit` learns state that :meth:`encode` needs
     needs_fit: ClassVar[bool] = False
+    #: buffers a saved run may lack (added later); they keep their constructed, neutral value
+    optional_state: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, config: object, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__()

@@ -9,6 +9,11 @@ Each channel drives ``neurons`` LIF converters whose thresholds are graded geome
 * ``"window"``: the peak ``|x|`` of each window over all channels (gain-invariant level
   crossings that keep the channels' relative levels).
 
+With ``keep = "spread"`` (default) each converter keeps every ``m``-th spike, ``m`` fitted so
+that its median spike count over the training windows fills the ``max_spikes`` slots: the kept
+spikes span the whole window (keeping the first spikes put 90 % of them in the first 130 ms of a
+6 s recording). ``keep = "first"`` keeps the first ``max_spikes`` (the behaviour before).
+
 Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
 lif_first_spikes`, the same function in the exported graph, where it is an ONNX ``Loop``).
 """
@@ -28,6 +33,9 @@ from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes
 
 NORMS = ("train", "window")
+KEEPS = ("spread", "first")
+#: a prescaler above this would need more crossings per sample than a graph should loop over
+MAX_EVERY = 64
 log = logging.getLogger("tactilesnn")
 
 
@@ -39,6 +47,7 @@ class LIFPopulationConfig:
     tau_ms: float = 10.0
     max_spikes: int = 8
     norm: str = "train"
+    keep: str = "spread"
 
     FLAGS: ClassVar[dict[str, str]] = {
         "lif_neurons": "neurons",
@@ -47,8 +56,9 @@ class LIFPopulationConfig:
         "lif_tau_ms": "tau_ms",
         "lif_max_spikes": "max_spikes",
         "lif_norm": "norm",
+        "lif_keep": "keep",
     }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"norm": NORMS}
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"norm": NORMS, "keep": KEEPS}
     HELP: ClassVar[dict[str, str]] = {
         "neurons": "LIF converters per channel (thresholds graded from lo to hi)",
         "lo": "lowest threshold, in multiples of the reference level",
@@ -56,6 +66,8 @@ class LIFPopulationConfig:
         "tau_ms": "converter membrane time constant (ms)",
         "max_spikes": "spike times kept per converter",
         "norm": "reference level: train (channel RMS on training data) or window (peak |x|)",
+        "keep": "spread: every m-th spike (m fitted) so the slots span the window; first: the "
+        "first max_spikes",
     }
 
     def __post_init__(self) -> None:
@@ -67,27 +79,36 @@ class LIFPopulationConfig:
         if self.hi < self.lo:
             raise ValueError(f"hi ({self.hi}) must be >= lo ({self.lo})")
         check_choice(self.norm, "norm", NORMS)
+        check_choice(self.keep, "keep", KEEPS)
 
 
 class _LIFPopulationGraph(nn.Module):
     """Scaling + converters; scripted for export (the sample loop becomes an ONNX ``Loop``)."""
 
-    def __init__(self, ref: Tensor, inv_thr: Tensor, dt_ms: float, tau_ms: float, k: int,
-                 window_norm: bool, early_exit: bool) -> None:  # fmt: skip
+    def __init__(self, ref: Tensor, inv_thr: Tensor, every: Tensor, dt_ms: float, tau_ms: float,
+                 k: int, window_norm: bool, early_exit: bool) -> None:  # fmt: skip
         super().__init__()
         self.register_buffer("ref", ref.clone())
         self.register_buffer("inv_thr", inv_thr.clone())
+        self.register_buffer("every", every.clone())
+        self.sub_steps = int(k * max(1.0, float(every.max())))
         self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
         self.window_norm = bool(window_norm)
         self.early_exit = bool(early_exit)
 
-    def forward(self, x: Tensor) -> Tensor:
+    def drive(self, x: Tensor) -> Tensor:
+        """Window ``[N, C, W]`` -> converter drive ``[N, C * neurons, W]`` (threshold 1)."""
         if self.window_norm:
             x = x / x.abs().amax(dim=(1, 2), keepdim=True).clamp_min(1e-30)
         else:
             x = x / self.ref.view(1, -1, 1)
-        drive = (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)  # [N, A, W]
-        return lif_first_spikes(drive, self.dt, self.tau, self.k, self.early_exit)
+        return (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)
+
+    def forward(self, x: Tensor) -> Tensor:
+        drive = self.drive(x)
+        every = self.every.to(drive.dtype)
+        return lif_first_spikes(drive, self.dt, self.tau, self.k, self.early_exit, every,
+                                self.sub_steps)[0]  # fmt: skip
 
 
 @register_encoder("lif", LIFPopulationConfig)
@@ -96,12 +117,16 @@ class LIFPopulationEncoder(SpikeEncoder):
 
     onnx_scripted = True
     needs_fit = True
+    #: runs written before the prescaler existed load with every = 1 (their first-k behaviour)
+    optional_state: ClassVar[tuple[str, ...]] = ("every",)
 
     def __init__(self, config: LIFPopulationConfig, fs_hz: float, window: int, n_channels: int):
         super().__init__(config, fs_hz, window, n_channels)
         thr = np.geomspace(config.lo, config.hi, config.neurons)
         self.register_buffer("inv_thr", torch.as_tensor(1.0 / thr, dtype=torch.float32))
         self.register_buffer("ref", torch.zeros(n_channels))  # per-channel RMS level
+        # prescaler per afferent: keep every m-th spike (1 = the first max_spikes)
+        self.register_buffer("every", torch.ones(self.n_afferents))
         if config.norm == "window":  # nothing to learn
             self.fitted.fill_(True)
 
@@ -125,8 +150,22 @@ class LIFPopulationEncoder(SpikeEncoder):
             log.warning("LIF encoder: channel(s) %s nearly silent in training; level floored at "
                         "1e-3 of the loudest channel", quiet.tolist())  # fmt: skip
         self.ref.copy_(torch.from_numpy(np.maximum(level, floor)))
+        if self.config.keep == "spread":
+            self.every.copy_(self._fit_every(np.asarray(X)))
         self.fitted.fill_(True)
         return self
+
+    def _fit_every(self, X: np.ndarray, n_max: int = 64) -> Tensor:
+        """Prescaler per afferent: median spike count over (up to ``n_max``) training windows
+        divided by the slots, rounded up, in ``[1, MAX_EVERY]``."""
+        idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
+        ones = torch.ones(self.n_afferents, dtype=torch.float64)
+        g = self.graph().double()
+        drive = g.drive(torch.from_numpy(np.asarray(X[idx], dtype=np.float64)))
+        k = self.config.max_spikes
+        _, count = lif_first_spikes(drive, g.dt, g.tau, 1, True, ones, k * MAX_EVERY)
+        med = count.median(dim=0).values
+        return torch.clamp(torch.ceil(med / k), 1, MAX_EVERY).float()
 
     def upgrade_state(self, state: dict) -> dict:
         if "lif_ref" in state:  # the pipeline's attribute before this class existed
@@ -138,7 +177,7 @@ class LIFPopulationEncoder(SpikeEncoder):
         return 8 * self.n_afferents * (self.window + 4 * self.max_spikes)
 
     def graph(self, early_exit: bool = True) -> _LIFPopulationGraph:
-        return _LIFPopulationGraph(self.ref, self.inv_thr, 1000.0 / self.fs_hz,
+        return _LIFPopulationGraph(self.ref, self.inv_thr, self.every, 1000.0 / self.fs_hz,
                                    self.config.tau_ms, self.config.max_spikes,
                                    self.config.norm == "window", early_exit)  # fmt: skip
 

@@ -80,34 +80,48 @@ def lif_hold_substep(v: Tensor, v_inf: Tensor, rem: Tensor, tau_ms: float, theta
 
 
 def lif_first_spikes(
-    drive: Tensor, dt_ms: float, tau_ms: float, k: int, early_exit: bool
-) -> Tensor:
-    """First ``k`` spike times ``[N, A, k]`` (ms; inf = none) of LIF converters (threshold 1,
-    rest 0, reset by subtraction) driven by ``drive [N, A, samples]`` held over each sample.
+    drive: Tensor,
+    dt_ms: float,
+    tau_ms: float,
+    k: int,
+    early_exit: bool,
+    every: Tensor | None = None,
+    sub_steps: int = 0,
+) -> tuple[Tensor, Tensor]:
+    """Spike times ``[N, A, k]`` (ms; inf = none) and spike counts ``[N, A]`` of LIF
+    converters (threshold 1, rest 0, reset by subtraction) driven by ``drive [N, A, samples]``
+    held over each sample.
 
-    At most ``k`` crossings per sample can matter, so the loop per sample is bounded by ``k``
-    (``early_exit`` stops it once nothing fires; the exported graph runs it to ``k``).
+    ``every`` ``[A]`` (whole numbers >= 1, default 1): converter ``a`` keeps every
+    ``every[a]``-th spike (the ``every``-th, ``2 every``-th, ...), a prescaler, so ``k`` slots
+    cover a long window instead of its first spikes. At most ``sub_steps`` crossings per
+    sample are resolved (default ``k``; a prescaler needs ``k x every``); ``early_exit`` stops
+    a sample's loop once nothing fires (the ONNX ``Loop`` condition in the exported graph).
     """
     n, a, w = drive.shape[0], drive.shape[1], drive.shape[2]
     v = torch.zeros(n, a, dtype=drive.dtype)
     count = torch.zeros(n, a, dtype=drive.dtype)
     times = torch.full((n, a, k), math.inf, dtype=drive.dtype)
     slots = torch.arange(k, dtype=drive.dtype).view(1, 1, -1)
+    m = torch.ones(1, a, dtype=drive.dtype) if every is None else every.to(drive.dtype).view(1, a)
+    inner = sub_steps if sub_steps > 0 else k
     for i in range(w):
         vi = drive[:, :, i]
         rem = torch.full((n, a), dt_ms, dtype=drive.dtype)
-        for _ in range(k):
+        for _ in range(inner):
             fires, s, relaxed = lif_hold_substep(v, vi, rem, tau_ms, 1.0)
             quiet = (~fires) & (rem > 0)
             t_abs = i * dt_ms + (dt_ms - rem) + s
-            hit = (slots == count.unsqueeze(-1)) & (fires & (count < k)).unsqueeze(-1)
+            nxt = count + 1.0
+            kept = fires & (torch.remainder(nxt, m) == 0) & (nxt <= m * k)
+            hit = (slots == (nxt / m - 1.0).unsqueeze(-1)) & kept.unsqueeze(-1)
             times = torch.where(hit, t_abs.unsqueeze(-1), times)
             count = count + fires.to(count.dtype)
             v = torch.where(fires, torch.clamp(v, min=1.0) - 1.0, torch.where(quiet, relaxed, v))
             rem = torch.where(fires, rem - s, torch.where(quiet, torch.zeros_like(rem), rem))
             if early_exit and not bool(fires.any()):
                 break
-    return times
+    return times, count
 
 
 def lif_rate_bound(

@@ -122,3 +122,35 @@ def test_lif_convert_refuses_runaway_rates_before_work() -> None:
     assert 900 < len(lif_convert(x * 10.0, FS)) < 1000
     # the bound counts the refractory time: 20 ms refractory keeps even 1e5 under the cap
     assert len(lif_convert(x * 1e5, FS, refractory_ms=20.0)) <= 1000 / 20 + 1
+
+
+def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
+    """6 s recordings: keeping the first 8 spikes put most of them in the first 130 ms; the
+    fitted prescaler keeps every m-th spike so the slots span the window, and the exported graph
+    (same function) matches the float64 encoder."""
+    import torch
+
+    from tactilesnn.encoders.base import ENCODERS, build_encoder
+
+    fs, n = 500.0, 3000
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / fs
+    X = np.sin(2 * np.pi * 5 * t)[None, None] * (1 + 0.2 * rng.standard_normal((12, 2, 1)))
+    X = (X + 0.1 * rng.standard_normal((12, 2, n))).astype(np.float32)
+    cfg = ENCODERS.config_class("lif")
+    first = build_encoder(cfg(keep="first"), fs, n, 2).fit(X).encode(X).numpy()
+    enc = build_encoder(cfg(), fs, n, 2).fit(X)
+    spread = enc.encode(X).numpy()
+    early = lambda s: (s[np.isfinite(s)] < 130).mean()  # noqa: E731
+    assert early(first) > 0.5 and early(spread) < 0.1
+    assert np.median(spread[np.isfinite(spread)]) > 1000  # ms: the middle of the recording
+    assert (enc.every >= 1).all() and enc.every.max() > 1
+    # kept spike j of a prescaled converter is spike (j + 1) * m of the unscaled one
+    m = int(enc.every[0])
+    full = build_encoder(cfg(keep="first", max_spikes=8 * m), fs, n, 2).fit(X).encode(X[:1]).numpy()
+    np.testing.assert_allclose(spread[0, 0, :8], full[0, 0, m - 1 :: m][:8], atol=1e-4)
+    graph = enc.onnx_module()
+    got = graph(torch.from_numpy(X[:2])).numpy()
+    fin = np.isfinite(spread[:2])
+    assert np.array_equal(np.isfinite(got), fin)
+    assert np.abs(got[fin] - spread[:2][fin]).max() < 1e-2
