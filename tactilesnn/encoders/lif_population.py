@@ -9,10 +9,11 @@ Each channel drives ``neurons`` LIF converters whose thresholds are graded geome
 * ``"window"``: the peak ``|x|`` of each window over all channels (gain-invariant level
   crossings that keep the channels' relative levels).
 
-With ``keep = "spread"`` (default) each converter keeps every ``m``-th spike, ``m`` fitted so
-that its median spike count over the training windows fills the ``max_spikes`` slots: the kept
-spikes span the whole window (keeping the first spikes put 90 % of them in the first 130 ms of a
-6 s recording). ``keep = "first"`` keeps the first ``max_spikes`` (the behaviour before).
+With ``keep = "spread"`` each converter keeps every ``m``-th spike, ``m`` fitted so that its
+median spike count over the training windows fills the ``max_spikes`` slots: the kept spikes span
+the whole window (keeping the first spikes put 90 % of them in the first 130 ms of a 6 s
+recording). ``keep = "first"`` (default for now: the measured task settings were tuned with it)
+keeps the first ``max_spikes``.
 
 Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
 lif_first_spikes`, the same function in the exported graph, where it is an ONNX ``Loop``).
@@ -47,7 +48,7 @@ class LIFPopulationConfig:
     tau_ms: float = 10.0
     max_spikes: int = 8
     norm: str = "train"
-    keep: str = "spread"
+    keep: str = "first"
 
     FLAGS: ClassVar[dict[str, str]] = {
         "lif_neurons": "neurons",

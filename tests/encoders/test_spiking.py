@@ -139,7 +139,7 @@ def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
     X = (X + 0.1 * rng.standard_normal((12, 2, n))).astype(np.float32)
     cfg = ENCODERS.config_class("lif")
     first = build_encoder(cfg(keep="first"), fs, n, 2).fit(X).encode(X).numpy()
-    enc = build_encoder(cfg(), fs, n, 2).fit(X)
+    enc = build_encoder(cfg(keep="spread"), fs, n, 2).fit(X)
     spread = enc.encode(X).numpy()
     early = lambda s: (s[np.isfinite(s)] < 130).mean()  # noqa: E731
     assert early(first) > 0.5 and early(spread) < 0.1
