@@ -94,3 +94,21 @@ def test_damaged_files_get_errors_not_tracebacks(tmp_path, capsys):
                  "--no-export"]) == 0  # fmt: skip
     pipe, _ = load_run(tmp_path / "s")
     assert pipe.scores(pipe.encode(np.zeros((0, 2, 100), np.float32))).shape == (0, 2)
+
+
+def test_nan_weights_are_refused_by_evaluate_and_export(tmp_path, capsys):
+    import numpy as np
+
+    out = tmp_path / "r"
+    assert main(["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet",
+                 "--no-export"]) == 0  # fmt: skip
+    with np.load(out / "weights.npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    key = next(k for k, v in arrays.items() if k.startswith("model.") and v.dtype.kind == "f")
+    arrays[key] = arrays[key].copy()
+    arrays[key].flat[0] = np.nan
+    np.savez(out / "weights.npz", **arrays)
+    assert main(["evaluate", str(out), "--quiet"]) == 2
+    assert "NaN" in capsys.readouterr().err
+    assert main(["export", str(out), "--out", str(tmp_path / "m.onnx")]) == 2
+    assert "NaN" in capsys.readouterr().err and not (tmp_path / "m.onnx").exists()
