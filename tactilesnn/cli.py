@@ -389,7 +389,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks")
+BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks", "real")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -401,6 +401,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         res = bench_serve.run(args.model, clients=args.clients, seconds=args.seconds)
         if args.out:
             _write_json(Path(args.out) / "serve.json", res)
+        return 0
+    if args.name == "real":
+        from .bench import real
+
+        if args.out is None:
+            raise ValueError("bench real needs --out DIR")
+        real.run(Path(args.out), data_root=Path(args.data_root), seeds=args.seeds or 3,
+                 datasets=args.datasets, pipelines=args.pipelines,
+                 epochs=args.bench_epochs, progress=not args.quiet)  # fmt: skip
         return 0
     if args.name == "tasks":
         from .bench import tasks
@@ -427,7 +436,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.out is None:
         raise ValueError("gwt-vs-stft needs --out DIR")
     gwt_vs_stft.run(
-        seeds=args.seeds,
+        seeds=args.seeds or 5,
         out=Path(args.out),
         overwrite=args.overwrite,
         epochs=args.epochs,
@@ -540,7 +549,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bench", help="benchmarks")
     p.add_argument("name", choices=BENCHMARKS)
-    p.add_argument("--seeds", type=int, default=5, help="gwt-vs-stft: dataset/training seeds")
+    p.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="gwt-vs-stft (default 5) / real (default 3): dataset and training seeds",
+    )
     p.add_argument("--out", help="output folder")
     p.add_argument("--repeats", type=int, default=7, help="encoders: timed runs per case")
     p.add_argument("--sparse", action="store_true", help="encoders: activity-gate benchmark")
@@ -552,6 +566,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--epochs", type=int, default=TrainConfig().epochs)
     p.add_argument("--difficulty", type=float, default=1.0)
     p.add_argument("--quiet", action="store_true")
+    p.add_argument(
+        "--data-root",
+        default="../shared/data",
+        help="real: folder holding the real datasets (never copied into the repo)",
+    )
+    p.add_argument("--datasets", nargs="+", help="real: subset of datasets (default: all found)")
+    p.add_argument("--pipelines", nargs="+", help="real: subset of spike pipelines")
+    p.add_argument(
+        "--bench-epochs",
+        type=int,
+        default=None,
+        help="real: epochs (default: each model's own default, as train --data)",
+    )
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -44,6 +44,13 @@ def load_data_file(
             arrays = {k: np.asarray(f[k]) for k in f.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    return datasets_from_arrays(arrays, path, seed, test_fraction)
+
+
+def datasets_from_arrays(
+    arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2
+) -> tuple[WindowDataset, WindowDataset]:
+    """:func:`load_data_file` on arrays already in memory (``path`` names them in errors)."""
     if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
         arrays = events_as_channels(arrays, path)
     if any(k.startswith("X@") for k in arrays):

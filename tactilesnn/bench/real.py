@@ -1,0 +1,263 @@
+"""``tactilesnn bench real``: spike pipelines on real recordings against non-spiking references.
+
+Every real dataset found under ``--data-root`` (default ``../shared/data``; never copied into the
+repository) x the spike pipelines with the ``--data`` defaults (no per-dataset flag), against
+references fitted on the identical split:
+
+* ``logreg_logspec``: logistic regression on each channel's log power spectrum (16 log-spaced
+  bands of the window's periodogram, plus the channel mean), standardised;
+* ``rf_counts``: random forest (300 trees) on per-channel totals (event counts, or the mean
+  and mean absolute value of an analog channel);
+* ``mlp_spikes``: a small non-spiking MLP (one hidden layer of 128) on the very spike times
+  the default encoder produces (``1 - t / window`` per slot, 0 when silent).
+
+Mean and sd over seeds (split and training seed), per window and, where recordings hold several
+windows, per recording (scores accumulated). Writes ``real.json``, ``real.md`` and ``real.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..config import PipelineConfig
+from ..datasets_synth import WindowDataset
+from ..recordings import datasets_from_arrays, load_data_file
+
+log = logging.getLogger("tactilesnn")
+
+Loader = Callable[[Path, int], tuple[WindowDataset, WindowDataset]]
+
+
+def _braille(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
+    """iCub fingertip Braille A/B/C (``X [trials, samples, taxels]`` + timestamps ``t``)."""
+    path = root / "braille_icub_abc" / "braille_abc_icub.npz"
+    with np.load(path, allow_pickle=False) as f:
+        X, y, t = f["X"], f["y"], f["t"]
+        names = f["class_names"] if "class_names" in f.files else np.array(["A", "B", "C"])
+    fs = 1.0 / float(np.median(np.diff(t, axis=1)))
+    arrays = {
+        "X": np.ascontiguousarray(X.transpose(0, 2, 1), dtype=np.float32),
+        "y": y.astype(np.int64),
+        "fs": np.array(fs),
+        "class_names": names,
+        "channel_names": np.array([f"taxel{i}" for i in range(X.shape[2])]),
+        "recording": np.arange(len(y)),
+    }
+    return datasets_from_arrays(arrays, path, seed)
+
+
+def _st_mnist(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
+    return load_data_file(root / "st_mnist" / "st_mnist_events.npz", seed)
+
+
+#: shipped real datasets: name -> (file that must exist under the root, loader, event data?)
+REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
+    "braille_icub_abc": ("braille_icub_abc/braille_abc_icub.npz", _braille, False),
+    "st_mnist": ("st_mnist/st_mnist_events.npz", _st_mnist, True),
+}
+#: spike pipelines: (label, encoder or None for the --data default, model)
+PIPELINES = (
+    ("default+tempotron", None, "tempotron"),
+    ("default+readout", None, "readout"),
+    ("default+snn", None, "snn"),
+    ("lif+readout", "lif", "readout"),
+)
+
+
+def default_config(events: bool, encoder: str | None, model: str, seed: int):
+    """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S`` would use."""
+    flat: dict = {"channels": ("all",), "model": model, "seed": seed}
+    if encoder is None and events:
+        encoder = "events"
+    if encoder is not None:
+        flat["encoder"] = encoder
+    if encoder == "lif" and events:
+        return None  # the LIF converter is for analog channels
+    return PipelineConfig.from_flat(flat, strict=True)
+
+
+# ---------------------------------------------------------------- non-spiking references
+def log_spectrum(X: np.ndarray, fs: float, n_bands: int = 16) -> np.ndarray:
+    """``[N, C, W]`` -> per channel log power in ``n_bands`` log-spaced bands + the mean."""
+    X = np.asarray(X, dtype=np.float64)
+    mean = X.mean(-1)
+    spec = np.abs(np.fft.rfft(X - mean[..., None], axis=-1)) ** 2
+    f = np.fft.rfftfreq(X.shape[-1], 1.0 / fs)
+    edges = np.geomspace(max(f[1], 1e-3), f[-1] + 1e-9, n_bands + 1)
+    idx = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_bands - 1)
+    power = np.zeros((*X.shape[:2], n_bands))
+    for b in range(n_bands):
+        sel = (idx == b) & (f > 0)
+        if sel.any():
+            power[..., b] = spec[..., sel].mean(-1)
+    feats = np.log10(power + 1e-12 * (power.max() + 1e-300))
+    return np.concatenate([feats.reshape(len(X), -1), mean], axis=1)
+
+
+def counts(X: np.ndarray) -> np.ndarray:
+    """Per-channel totals: the mean and mean absolute value over the window."""
+    X = np.asarray(X, dtype=np.float64)
+    return np.concatenate([X.mean(-1), np.abs(X).mean(-1)], axis=1)
+
+
+def spike_features(spikes, duration_ms: float) -> np.ndarray:
+    t = spikes.numpy().reshape(spikes.shape[0], -1)
+    return np.where(np.isfinite(t), 1.0 - t / duration_ms, 0.0)
+
+
+def references(train: WindowDataset, test: WindowDataset, pipe, seed: int) -> dict:
+    """Test accuracy of each non-spiking reference on the identical split."""
+    from sklearn.ensemble import RandomForestClassifier
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.neural_network import MLPClassifier
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    out = {}
+    lr = make_pipeline(StandardScaler(), LogisticRegression(max_iter=3000))
+    lr.fit(log_spectrum(train.X, train.fs_hz), train.y)
+    out["logreg_logspec"] = float(lr.score(log_spectrum(test.X, test.fs_hz), test.y))
+    rf = RandomForestClassifier(n_estimators=300, random_state=seed, n_jobs=-1)
+    rf.fit(counts(train.X), train.y)
+    out["rf_counts"] = float(rf.score(counts(test.X), test.y))
+    f_tr = spike_features(pipe.encode(train.X), pipe.duration_ms)
+    f_te = spike_features(pipe.encode(test.X), pipe.duration_ms)
+    mlp = make_pipeline(
+        StandardScaler(),
+        MLPClassifier((128,), max_iter=300, early_stopping=len(train.y) >= 50, random_state=seed),
+    )
+    mlp.fit(f_tr, train.y)
+    out["mlp_spikes"] = float(mlp.score(f_te, test.y))
+    return out
+
+
+# ---------------------------------------------------------------- the benchmark
+def run(
+    out: Path,
+    data_root: Path = Path("../shared/data"),
+    seeds: int = 3,
+    datasets: list[str] | None = None,
+    pipelines: list[str] | None = None,
+    epochs: int | None = None,
+    progress: bool = True,
+) -> dict:
+    from ..training import fit_and_evaluate
+
+    data_root = Path(data_root)
+    rows: list[dict] = []
+    names = datasets or list(REAL_DATASETS)
+    unknown = sorted(set(names) - set(REAL_DATASETS))
+    if unknown:
+        raise ValueError(f"unknown dataset(s) {unknown}; choose from {sorted(REAL_DATASETS)}")
+    chosen = [p for p in PIPELINES if pipelines is None or p[0] in pipelines]
+    if pipelines and len(chosen) != len(pipelines):
+        raise ValueError(f"unknown pipeline(s); choose from {[p[0] for p in PIPELINES]}")
+    for name in names:
+        rel, loader, events = REAL_DATASETS[name]
+        if not (data_root / rel).is_file():
+            log.warning("bench real: %s not found under %s, skipped", rel, data_root)
+            continue
+        for seed in range(seeds):
+            train, test = loader(data_root, seed)
+            log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
+                     train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
+            ref_pipe = None
+            for label, enc, model in chosen:
+                cfg = default_config(events, enc, model, seed)
+                if cfg is None:
+                    continue
+                if epochs is not None:
+                    cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
+                t0 = time.perf_counter()
+                res = fit_and_evaluate(cfg, train, test, progress=progress)
+                m = res.metrics
+                rows.append({
+                    "dataset": name, "seed": seed, "method": label, "kind": "spike",
+                    "accuracy": m["test_accuracy"],
+                    "accuracy_per_recording": m.get("test_accuracy_per_recording"),
+                    "seconds": time.perf_counter() - t0,
+                })  # fmt: skip
+                if enc is None and ref_pipe is None:
+                    ref_pipe = res.pipeline
+            if ref_pipe is not None:
+                t0 = time.perf_counter()
+                for label, acc in references(train, test, ref_pipe, seed).items():
+                    rows.append({"dataset": name, "seed": seed, "method": label,
+                                 "kind": "reference", "accuracy": acc,
+                                 "accuracy_per_recording": None,
+                                 "seconds": time.perf_counter() - t0})  # fmt: skip
+    summary = summarise(rows)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "real.json").write_text(json.dumps({"rows": rows, "summary": summary}, indent=2))
+    (out / "real.md").write_text(table(summary))
+    plot(summary, out / "real.png")
+    print(table(summary))
+    return {"rows": rows, "summary": summary}
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """Mean and sd over seeds per (dataset, method); the gap to the best reference."""
+    keys = sorted({(r["dataset"], r["method"], r["kind"]) for r in rows})
+    out = []
+    for ds, method, kind in keys:
+        sel = [r for r in rows if r["dataset"] == ds and r["method"] == method]
+        acc = np.array([r["accuracy"] for r in sel])
+        rec = [r["accuracy_per_recording"] for r in sel if r["accuracy_per_recording"] is not None]
+        out.append({
+            "dataset": ds, "method": method, "kind": kind, "seeds": len(sel),
+            "mean": float(acc.mean()), "sd": float(acc.std(ddof=1)) if acc.size > 1 else 0.0,
+            "per_recording_mean": float(np.mean(rec)) if rec else None,
+            "seconds_mean": float(np.mean([r["seconds"] for r in sel])),
+        })  # fmt: skip
+    for ds in {s["dataset"] for s in out}:
+        best_ref = max((s["mean"] for s in out if s["dataset"] == ds and s["kind"] ==
+                        "reference"), default=None)  # fmt: skip
+        for s in out:
+            if s["dataset"] == ds and best_ref is not None:
+                s["gap_to_best_reference_points"] = 100 * (s["mean"] - best_ref)
+    return out
+
+
+def table(summary: list[dict]) -> str:
+    head = ("dataset", "method", "kind", "accuracy % (mean +- sd)", "per recording %",
+            "vs best reference (points)", "s / run")  # fmt: skip
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for s in summary:
+        rec = "-" if s["per_recording_mean"] is None else f"{100 * s['per_recording_mean']:.2f}"
+        gap = s.get("gap_to_best_reference_points")
+        lines.append(
+            f"| {s['dataset']} | {s['method']} | {s['kind']} | {100 * s['mean']:.2f} +- "
+            f"{100 * s['sd']:.2f} (n={s['seeds']}) | {rec} | "
+            f"{'-' if gap is None else f'{gap:+.2f}'} | {s['seconds_mean']:.1f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sets = sorted({s["dataset"] for s in summary})
+    fig, axes = plt.subplots(1, max(1, len(sets)), figsize=(6 * max(1, len(sets)), 4),
+                             squeeze=False)  # fmt: skip
+    for ax, ds in zip(axes[0], sets, strict=False):
+        rows = [s for s in summary if s["dataset"] == ds]
+        colours = ["tab:blue" if s["kind"] == "spike" else "tab:grey" for s in rows]
+        ax.barh([s["method"] for s in rows], [100 * s["mean"] for s in rows],
+                xerr=[100 * s["sd"] for s in rows], color=colours)  # fmt: skip
+        ax.set_xlim(0, 100)
+        ax.set_xlabel("test accuracy (%)")
+        ax.set_title(f"{ds} (blue: spike pipelines, grey: references)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
