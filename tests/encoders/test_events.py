@@ -59,6 +59,7 @@ def test_data_defaults_follow_the_file(tmp_path):
                  "--quiet", "--no-export"]) == 0  # fmt: skip
     cfg = json.loads((out / "config.json").read_text())["pipeline"]
     assert cfg["encoder"]["type"] == "events" and cfg["channels"] == ["all"]
+    assert cfg["model"]["type"] == "readout"
 
 
 def _shared(rel: str):
