@@ -21,6 +21,7 @@ from .config import (
     PipelineConfig,
     TrainConfig,
     apply_flat,
+    data_file_defaults,
     flat_settings,
     registries,
 )
@@ -105,14 +106,9 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
         from .recordings import is_event_file
 
         given = {*flat, *base}
-        if "channels" not in given:
-            flat["channels"] = ("all",)
-        if "encoder" not in given and is_event_file(Path(args.data)):
-            flat["encoder"] = "events"
-        if "model" not in given:
-            # the linear-cost readout: on real recordings (bench real) it beats the tempotron,
-            # whose gradient training fails with hundreds of inputs (Braille 81.5 vs 70.4 %)
-            flat["model"] = "readout"
+        for key, value in data_file_defaults(is_event_file(Path(args.data))).items():
+            if key not in given:
+                flat[key] = value
     return apply_flat(base, flat)
 
 

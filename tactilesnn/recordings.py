@@ -147,8 +147,13 @@ def merge_streams(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.nda
     fs = float(np.asarray(out["fs"]).reshape(-1)[0])
     if X.ndim != 3 or not np.isfinite(fs) or fs <= 0:
         raise ValueError(f"{path}: the main stream needs X [N, channels, samples] and fs > 0")
-    names = [str(c) for c in np.atleast_1d(out.get("channel_names", [f"ch{i}" for i in
-                                                                     range(X.shape[1])]))]  # fmt: skip
+
+    def channel_names(key: str, n: int) -> list[str]:
+        given = arrays.get(key)
+        return [str(c) for c in np.atleast_1d(given)] if given is not None else [
+            f"ch{i}" for i in range(n)]  # fmt: skip
+
+    names = channel_names("channel_names", X.shape[1])
     parts = [X.astype(np.float64)]
     for key in sorted(k for k in arrays if k.startswith("X@")):
         name = key[2:]
@@ -168,7 +173,8 @@ def merge_streams(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.nda
                 f"{path}: {key} spans {xs.shape[2] / fs_s:.4g} s but X spans "
                 f"{X.shape[2] / fs:.4g} s: streams of one recording must cover the same time"
             )
-        check_finite(xs.astype(np.float64, copy=False), f"{path}: {key}")
+        if xs.dtype.kind == "f":
+            check_finite(xs, f"{path}: {key}")
         ratio = Fraction(fs / fs_s).limit_denominator(1000)
         up = resample_poly(xs.astype(np.float64), ratio.numerator, ratio.denominator, axis=-1)
         fixed = np.zeros((xs.shape[0], xs.shape[1], X.shape[2]))
@@ -177,9 +183,7 @@ def merge_streams(arrays: dict[str, np.ndarray], path: Path) -> dict[str, np.nda
         if m < X.shape[2]:  # rounding of the length: hold the last value
             fixed[..., m:] = up[..., m - 1 : m]
         parts.append(fixed)
-        sub = arrays.get(f"channel_names@{name}")
-        sub = [str(c) for c in np.atleast_1d(sub)] if sub is not None else [
-            f"ch{i}" for i in range(xs.shape[1])]  # fmt: skip
+        sub = channel_names(f"channel_names@{name}", xs.shape[1])
         if len(sub) != xs.shape[1]:
             raise ValueError(f"{path}: channel_names@{name} must name {xs.shape[1]} channels")
         names += [f"{name}:{c}" for c in sub]

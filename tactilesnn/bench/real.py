@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import PipelineConfig
+from ..config import PipelineConfig, data_file_defaults
 from ..datasets_synth import WindowDataset
 from ..recordings import datasets_from_arrays, load_data_file
 
@@ -62,24 +62,20 @@ REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
     "braille_icub_abc": ("braille_icub_abc/braille_abc_icub.npz", _braille, False),
     "st_mnist": ("st_mnist/st_mnist_events.npz", _st_mnist, True),
 }
-#: spike pipelines: (label, encoder or None for the --data default, model)
+#: spike pipelines: (label, encoder or None for the --data default, model, analog data only)
 PIPELINES = (
-    ("default+tempotron", None, "tempotron"),
-    ("default+readout", None, "readout"),
-    ("default+snn", None, "snn"),
-    ("lif+readout", "lif", "readout"),
+    ("default+tempotron", None, "tempotron", False),
+    ("default+readout", None, "readout", False),
+    ("default+snn", None, "snn", False),
+    ("lif+readout", "lif", "readout", True),  # a level converter: not for event counts
 )
 
 
-def default_config(events: bool, encoder: str | None, model: str, seed: int):
+def default_config(events: bool, encoder: str | None, model: str, seed: int) -> PipelineConfig:
     """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S`` would use."""
-    flat: dict = {"channels": ("all",), "model": model, "seed": seed}
-    if encoder is None and events:
-        encoder = "events"
+    flat = {**data_file_defaults(events), "model": model, "seed": seed}
     if encoder is not None:
         flat["encoder"] = encoder
-    if encoder == "lif" and events:
-        return None  # the LIF converter is for analog channels
     return PipelineConfig.from_flat(flat, strict=True)
 
 
@@ -169,10 +165,10 @@ def run(
             log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
                      train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
             ref_pipe = None
-            for label, enc, model in chosen:
-                cfg = default_config(events, enc, model, seed)
-                if cfg is None:
+            for label, enc, model, analog_only in chosen:
+                if analog_only and events:
                     continue
+                cfg = default_config(events, enc, model, seed)
                 if epochs is not None:
                     cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
                 t0 = time.perf_counter()

@@ -28,6 +28,7 @@ from torch import Tensor, nn
 
 from .. import __version__
 from ..pipeline import SpikePipeline
+from ..service.runtime import run_batched
 from ..spikes import clock_times
 from .graph import chain, torch_to_onnx
 
@@ -220,16 +221,6 @@ def _session(model: onnx.ModelProto):
 
 def _zero_states(states: list[tuple[str, int]], n: int) -> dict[str, np.ndarray]:
     return {name: np.zeros((n, units), np.float32) for name, units in states}
-
-
-def run_batched(sess, outputs: list[str], feeds: dict[str, np.ndarray], batch: int) -> list:
-    """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated."""
-    n = len(next(iter(feeds.values())))
-    parts = [
-        sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()})
-        for i in range(0, n, batch)
-    ]
-    return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
 
 
 def compare_spike_times(

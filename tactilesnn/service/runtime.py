@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from .._checks import check_float32_range
+
 
 class InputError(ValueError):
     """The request's data is unusable (wrong shape, dtype, rate, NaN...): a client error."""
@@ -34,16 +36,22 @@ class StreamState:
         return self.values.get("h_state")
 
 
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
-
-
-def _check_float32(arr: np.ndarray) -> None:
+def _check_float32(arr: np.ndarray, name: str) -> None:
     """Finite values that overflow float32 (the graph's precision) are refused with the range."""
-    if arr.dtype.itemsize > 4 and arr.size and float(np.abs(arr).max()) > _FLOAT32_MAX:
-        raise InputError(
-            f"value {float(np.abs(arr).max()):.3g} is beyond the float32 range (|x| <= "
-            f"{_FLOAT32_MAX:.3g}) the model computes in: send the data in other units"
-        )
+    try:
+        check_float32_range(arr, name)
+    except ValueError as e:
+        raise InputError(str(e)) from e
+
+
+def run_batched(sess, outputs: list[str], feeds: dict[str, np.ndarray], batch: int) -> list:
+    """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated."""
+    n = len(next(iter(feeds.values())))
+    parts = [
+        sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()})
+        for i in range(0, max(n, 1), batch)  # an empty batch still runs once (empty answer)
+    ]
+    return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
 
 
 class PipelineSession:
@@ -115,7 +123,7 @@ class PipelineSession:
         if bad.any():
             b, c, s = (int(i) for i in np.argwhere(bad)[0])
             raise InputError(f"non-finite value at batch {b}, channel {c}, sample {s}")
-        _check_float32(arr)
+        _check_float32(arr, "window")
         return np.ascontiguousarray(arr, dtype=np.float32)
 
     def run(self, x: np.ndarray, state: StreamState | None = None) -> np.ndarray:
@@ -129,11 +137,7 @@ class PipelineSession:
             held = state.values.get(name) if state is not None else None
             feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
         outputs = ["scores", *(f"{k}_out" for k in names)]
-        parts = [
-            self.session.run(outputs, {k: v[i : i + self.batch] for k, v in feeds.items()})
-            for i in range(0, len(x), self.batch)
-        ]
-        scores, *new = (np.concatenate([p[j] for p in parts]) for j in range(len(outputs)))
+        scores, *new = run_batched(self.session, outputs, feeds, self.batch)
         if state is not None and names:
             state.values = dict(zip(names, new, strict=True))
         return scores
@@ -167,7 +171,7 @@ class PipelineSession:
         if not np.isfinite(arr).all():
             c, s = (int(i) for i in np.argwhere(~np.isfinite(arr))[0])
             raise InputError(f"non-finite value at channel {c}, sample {s}")
-        _check_float32(arr)
+        _check_float32(arr, "chunk")
         arr = arr.astype(np.float32)
         buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
         results = []
