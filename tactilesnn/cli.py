@@ -46,6 +46,17 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
     p.add_argument("--data", help="real recordings .npz (X [N,C,S], y, fs, class_names)")
     p.add_argument(
+        "--data-window-s",
+        type=float,
+        help="with --data: cut each recording into windows of this many seconds (scores are "
+        "then also summed per recording); default: one window per recording",
+    )
+    p.add_argument(
+        "--data-hop-s",
+        type=float,
+        help="with --data-window-s: seconds between window starts (default: half a window)",
+    )
+    p.add_argument(
         "--difficulty",
         type=float,
         default=1.0,
@@ -203,6 +214,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     if args.resume and not args.out:
         raise ValueError("--resume needs the --out folder of the interrupted run")
+    if (args.data_window_s or args.data_hop_s) and not args.data:
+        raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
     task_kwargs = dict(_task_kwargs(args), seed=config.seed)
     path, m = train_run(
         args.task,
@@ -212,6 +225,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=not args.quiet,
         data=Path(args.data) if args.data else None,
+        data_window_s=args.data_window_s,
+        data_hop_s=args.data_hop_s,
         resume=args.resume,
         val_fraction=args.val_fraction,
         config_text=getattr(args, "_config_text", None),
@@ -223,6 +238,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
     )
+    if "test_accuracy_per_recording" in m:
+        print(f"per recording (scores summed over its windows): "
+              f"{100 * m['test_accuracy_per_recording']:.2f} % on {m['n_test_recordings']}")  # fmt: skip
     if "error" in m.get("onnx", {}):
         print(f"run folder {path} is complete, but the ONNX export failed: {m['onnx']['error']}")
         print(f"retry with: tactilesnn export {path} --out {path / 'model.onnx'}")
@@ -251,11 +269,12 @@ def _parity(rep: dict) -> str:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .datasets_synth import get_task
     from .recordings import load_data_file
-    from .training import load_run
+    from .training import load_run, recording_accuracy, run_data
 
     pipe, cfg = load_run(Path(args.run_dir))
-    if args.data:
-        tr, test = load_data_file(Path(args.data), pipe.config.seed)
+    if args.data:  # cut as the run's own data was
+        tr, test = load_data_file(Path(args.data), pipe.config.seed,
+                                  window_s=cfg.get("data_window_s"), hop_s=cfg.get("data_hop_s"))  # fmt: skip
         if args.all:
             test = type(test)(
                 np.concatenate([tr.X, test.X]),
@@ -269,10 +288,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")
         test = _match_channels(test, pipe.channel_names)
     elif cfg.get("data"):
-        _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
+        _, test = run_data(cfg, pipe.config.seed)
     else:
         _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
-    pred = pipe.predict(test.X)
+    scores = pipe.scores(pipe.encode(test.X)).numpy()
+    pred = scores.argmax(1)
+    per_rec = recording_accuracy(scores, test.y, test.scan)
     acc = float((pred == test.y).mean()) if test.y.size else 0.0
     recall = {
         name: float((pred[test.y == i] == i).mean()) if (test.y == i).any() else None
@@ -280,13 +301,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     }
     if args.json:
         out = {"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size),
-               "per_class_recall": recall}  # fmt: skip
+               "per_class_recall": recall, **(per_rec or {})}  # fmt: skip
         print(json.dumps(out))
         return 0
     from .pipeline import accuracy_ci95
 
     print(f"{args.run_dir}: accuracy {100 * acc:.2f} % (+-{100 * accuracy_ci95(acc, test.y.size):.2f} %"
           f" 95% CI) on {test.y.size} windows")  # fmt: skip
+    if per_rec is not None:
+        a, n = per_rec["test_accuracy_per_recording"], per_rec["n_test_recordings"]
+        print(f"  per recording (scores summed over its windows): {100 * a:.2f} % "
+              f"(+-{100 * per_rec['test_accuracy_per_recording_ci95']:.2f} %) on {n} recordings")  # fmt: skip
     width = max(len(n) for n in pipe.class_names)
     for name, r in recall.items():
         print(f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}")
@@ -308,14 +333,13 @@ def _match_channels(data, want: Sequence[str]):
 def cmd_export(args: argparse.Namespace) -> int:
     from .datasets_synth import get_task
     from .export import data_hash, export_pipeline
-    from .recordings import load_data_file
-    from .training import load_run
+    from .training import load_run, run_data
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.format == "nir":
         pipe.model.to_nir()  # refuses models NIR cannot express, before any work
     if cfg.get("data"):
-        _, test = load_data_file(Path(cfg["data"]), pipe.config.seed)
+        _, test = run_data(cfg, pipe.config.seed)
     else:
         _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
     if args.format == "nir":

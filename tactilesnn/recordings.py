@@ -19,14 +19,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ._checks import check_finite, check_float32_range
+from ._checks import check_allocation, check_finite, check_float32_range, check_positive
 from .datasets_synth import WindowDataset
 
 log = logging.getLogger("tactilesnn")
 
 
 def load_data_file(
-    path: Path, seed: int, test_fraction: float = 0.2
+    path: Path,
+    seed: int,
+    test_fraction: float = 0.2,
+    window_s: float | None = None,
+    hop_s: float | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:
     """Recordings in the documented format -> ``(train, test)`` window datasets.
 
@@ -35,6 +39,9 @@ def load_data_file(
     ``recording`` ``[N]`` (int or str: windows cut from one recording share it, and never straddle
     train / validation / test) and ``split`` ``[N]`` (0 = train, 1 = test). Without ``split``,
     ``test_fraction`` of the recordings (stratified by class, from ``seed``) is held out.
+    ``window_s`` (and ``hop_s``): after the split, cut every recording into windows of that
+    length (:func:`cut_windows`); they keep their recording's id, so scores are also accumulated
+    per recording.
     """
     path = Path(path)
     if not path.is_file():
@@ -44,7 +51,36 @@ def load_data_file(
             arrays = {k: np.asarray(f[k]) for k in f.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
-    return datasets_from_arrays(arrays, path, seed, test_fraction)
+    train, test = datasets_from_arrays(arrays, path, seed, test_fraction)
+    if window_s is None:
+        if hop_s is not None:
+            raise ValueError("a hop (--data-hop-s) needs a window length (--data-window-s)")
+        return train, test
+    return cut_windows(train, window_s, hop_s), cut_windows(test, window_s, hop_s)
+
+
+def cut_windows(ds: WindowDataset, window_s: float, hop_s: float | None = None) -> WindowDataset:
+    """Cut each recording ``[C, S]`` into windows of ``round(window_s * fs)`` samples, one every
+    ``round(hop_s * fs)`` samples (default: half a window); the tail shorter than a window is
+    dropped. Each window keeps its recording's label and id (``scan``), so its windows stay on
+    one side of a split and their scores can be summed per recording."""
+    window_s = check_positive(window_s, "the window length (--data-window-s, seconds)")
+    hop_s = window_s / 2 if hop_s is None else check_positive(hop_s, "the hop (--data-hop-s)")
+    n_win = round(window_s * ds.fs_hz)
+    hop = max(1, round(hop_s * ds.fs_hz))
+    n, c, s = ds.X.shape
+    if n_win < 2 or n_win > s:
+        raise ValueError(
+            f"a {window_s} s window is {n_win} samples at {ds.fs_hz:g} Hz; it must be 2..{s} "
+            f"(the recordings' length, {s / ds.fs_hz:g} s)"
+        )
+    starts = np.arange(0, s - n_win + 1, hop)
+    check_allocation(n * starts.size * c * n_win * ds.X.itemsize, "the cut windows")
+    view = np.lib.stride_tricks.sliding_window_view(ds.X, n_win, axis=2)[:, :, starts]
+    X = np.ascontiguousarray(view.transpose(0, 2, 1, 3)).reshape(-1, c, n_win)
+    rep = np.repeat(np.arange(n), starts.size)
+    log.info("cut %d recordings into %d windows of %d samples (hop %d)", n, X.shape[0], n_win, hop)
+    return WindowDataset(X, ds.y[rep], ds.scan[rep], ds.fs_hz, ds.class_names, ds.channel_names)
 
 
 def datasets_from_arrays(

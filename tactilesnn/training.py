@@ -344,6 +344,8 @@ def train_run(
     val_fraction: float = 0.0,
     config_text: str | None = None,
     export: bool = False,
+    data_window_s: float | None = None,
+    data_hop_s: float | None = None,
 ) -> tuple[Path, dict]:
     """Build the data, train, evaluate and write ``out`` atomically; returns its metrics.
 
@@ -358,6 +360,7 @@ def train_run(
         "task": task_name if data is None else None,
         "task_kwargs": task_kwargs if data is None else {},
         "data": str(data) if data is not None else None,
+        **({"data_window_s": data_window_s, "data_hop_s": data_hop_s} if data_window_s else {}),
         "pipeline": config.to_dict(),
         "val_fraction": val_fraction,
     }
@@ -387,7 +390,7 @@ def train_run(
         (partial / "run.json").write_text(json.dumps(run_cfg, indent=2))
         t0 = time.perf_counter()
         if data is not None:
-            train, test = load_data_file(data, config.seed)
+            train, test = run_data(run_cfg, config.seed)
         else:
             task = get_task(task_name, **task_kwargs)
             select_channels(config.channels, task.channel_names)  # before any data is made
@@ -449,6 +452,13 @@ def train_run(
         res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, run_cfg)
         write_json_atomic(path / "metrics.json", res.metrics)
     return path, res.metrics
+
+
+def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
+    """The ``(train, test)`` windows of a run trained on a data file, cut as it was cut."""
+    return load_data_file(
+        Path(cfg["data"]), seed, window_s=cfg.get("data_window_s"), hop_s=cfg.get("data_hop_s")
+    )
 
 
 def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg: dict) -> dict:

@@ -52,3 +52,37 @@ def test_stream_without_rate_is_refused(tmp_path: Path) -> None:
              class_names=np.array(["a", "b"]), **{"X@b": np.zeros((4, 1, 5))})  # fmt: skip
     with pytest.raises(ValueError, match="fs@b"):
         load_data_file(tmp_path / "d.npz", seed=0)
+
+
+def test_cut_windows_are_the_recordings_slices_and_keep_their_ids() -> None:
+    from tactilesnn.datasets_synth import WindowDataset
+    from tactilesnn.recordings import cut_windows
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((3, 2, 100)).astype(np.float32)
+    ds = WindowDataset(X, np.array([0, 1, 1]), np.array([7, 8, 9]), 50.0, ("a", "b"), ("u", "v"))
+    cut = cut_windows(ds, 0.5, 0.2)  # 25 samples every 10: starts 0..70 -> 8 per recording
+    assert cut.X.shape == (24, 2, 25) and cut.X.flags.c_contiguous
+    for i in range(3):
+        for k, start in enumerate(range(0, 76, 10)):
+            np.testing.assert_array_equal(cut.X[8 * i + k], X[i, :, start : start + 25])
+    np.testing.assert_array_equal(cut.scan, np.repeat([7, 8, 9], 8))
+    np.testing.assert_array_equal(cut.y, np.repeat([0, 1, 1], 8))
+    assert cut_windows(ds, 1.0).X.shape[0] == 3 * 3  # default hop: half a window
+    with pytest.raises(ValueError, match=r"must be 2\.\.100"):
+        cut_windows(ds, 3.0)
+    with pytest.raises(ValueError, match="finite positive"):
+        cut_windows(ds, 0.5, -1.0)
+
+
+def test_windows_cut_at_load_never_straddle_the_split(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    y = np.arange(20) % 2
+    path = tmp_path / "long.npz"
+    np.savez(path, X=rng.standard_normal((20, 1, 400)).astype(np.float32), y=y, fs=100.0,
+             class_names=np.array(["a", "b"]))  # fmt: skip
+    tr, te = load_data_file(path, seed=0, window_s=1.0, hop_s=0.5)
+    assert tr.X.shape[1:] == (1, 100) and tr.y.size == 16 * 7 and te.y.size == 4 * 7
+    assert not set(tr.scan.tolist()) & set(te.scan.tolist())
+    with pytest.raises(ValueError, match="needs a window length"):
+        load_data_file(path, seed=0, hop_s=0.5)

@@ -181,6 +181,35 @@ def test_recordings_never_straddle_the_split_and_are_scored_whole(tmp_path):
     assert 0.0 <= m["test_accuracy_per_recording"] <= 1.0
 
 
+def test_long_recordings_cut_into_windows_are_scored_per_recording(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    y = np.arange(24) % 3
+    t = np.arange(600) / 200.0  # 3 s recordings, one frequency per class
+    X = np.stack([[np.sin(2 * np.pi * (5 + 12 * c) * t) + 0.5 * rng.standard_normal(t.size)]
+                  for c in y]).astype(np.float32)  # fmt: skip
+    data = tmp_path / "long.npz"
+    np.savez(data, X=X, y=y, fs=200.0, class_names=np.array(["a", "b", "c"]))
+    out = tmp_path / "r"
+    assert main(["train", "--data", str(data), "--data-window-s", "0.5", "--data-hop-s", "0.25",
+                 "--epochs", "5", "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
+    cfg = json.loads((out / "config.json").read_text())
+    assert (cfg["data_window_s"], cfg["data_hop_s"], cfg["window"]) == (0.5, 0.25, 100)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["n_test_windows"] == m["n_test_recordings"] * 11  # (600 - 100) / 50 + 1 windows
+    assert m["test_accuracy_per_recording"] >= m["test_accuracy"] - 1e-9
+    assert m["test_accuracy_per_recording"] > 0.9
+    capsys.readouterr()
+    assert main(["evaluate", str(out)]) == 0  # cut as in training, without repeating the flags
+    text = capsys.readouterr().out
+    assert f"{100 * m['test_accuracy']:.2f} %" in text
+    assert f"per recording (scores summed over its windows): " \
+           f"{100 * m['test_accuracy_per_recording']:.2f} %" in text  # fmt: skip
+    assert main(["evaluate", str(out), "--data", str(data), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["n_test_recordings"] == m["n_test_recordings"]
+    assert main(["train", "--data-window-s", "0.5", "--out", str(tmp_path / "x"), "--quiet"]) != 0
+    assert "cut a --data file" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     ("arrays", "message"),
     [
