@@ -16,7 +16,8 @@ recording). ``keep = "first"`` (default for now: the measured task settings were
 keeps the first ``max_spikes``.
 
 Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
-lif_first_spikes`, the same function in the exported graph, where it is an ONNX ``Loop``).
+lif_first_spikes`: every crossing of a sample in closed form, so the cost does not grow with the
+firing rate; the same function in the exported graph, where the sample loop is an ONNX ``Loop``).
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ from .spiking import lif_first_spikes
 
 NORMS = ("train", "window")
 KEEPS = ("spread", "first")
-#: a prescaler above this would need more crossings per sample than a graph should loop over
-MAX_EVERY = 64
+#: spike counts stay exact in the float32 exported graph while every x max_spikes <= 2^24
+COUNT_LIMIT = 2**24
 log = logging.getLogger("tactilesnn")
 
 
@@ -87,15 +88,13 @@ class _LIFPopulationGraph(nn.Module):
     """Scaling + converters; scripted for export (the sample loop becomes an ONNX ``Loop``)."""
 
     def __init__(self, ref: Tensor, inv_thr: Tensor, every: Tensor, dt_ms: float, tau_ms: float,
-                 k: int, window_norm: bool, early_exit: bool) -> None:  # fmt: skip
+                 k: int, window_norm: bool) -> None:  # fmt: skip
         super().__init__()
         self.register_buffer("ref", ref.clone())
         self.register_buffer("inv_thr", inv_thr.clone())
         self.register_buffer("every", every.clone())
-        self.sub_steps = int(k * max(1.0, float(every.max())))
         self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
         self.window_norm = bool(window_norm)
-        self.early_exit = bool(early_exit)
 
     def drive(self, x: Tensor) -> Tensor:
         """Window ``[N, C, W]`` -> converter drive ``[N, C * neurons, W]`` (threshold 1)."""
@@ -108,8 +107,7 @@ class _LIFPopulationGraph(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         drive = self.drive(x)
         every = self.every.to(drive.dtype)
-        return lif_first_spikes(drive, self.dt, self.tau, self.k, self.early_exit, every,
-                                self.sub_steps)[0]  # fmt: skip
+        return lif_first_spikes(drive, self.dt, self.tau, self.k, every)[0]
 
 
 @register_encoder("lif", LIFPopulationConfig)
@@ -158,15 +156,15 @@ class LIFPopulationEncoder(SpikeEncoder):
 
     def _fit_every(self, X: np.ndarray, n_max: int = 64) -> Tensor:
         """Prescaler per afferent: median spike count over (up to ``n_max``) training windows
-        divided by the slots, rounded up, in ``[1, MAX_EVERY]``."""
+        divided by the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
         idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
         ones = torch.ones(self.n_afferents, dtype=torch.float64)
         g = self.graph().double()
         drive = g.drive(torch.from_numpy(np.asarray(X[idx], dtype=np.float64)))
         k = self.config.max_spikes
-        _, count = lif_first_spikes(drive, g.dt, g.tau, 1, True, ones, k * MAX_EVERY)
+        _, count = lif_first_spikes(drive, g.dt, g.tau, 1, ones)
         med = count.median(dim=0).values
-        return torch.clamp(torch.ceil(med / k), 1, MAX_EVERY).float()
+        return torch.clamp(torch.ceil(med / k), 1, COUNT_LIMIT // k).float()
 
     def upgrade_state(self, state: dict) -> dict:
         if "lif_ref" in state:  # the pipeline's attribute before this class existed
@@ -177,16 +175,14 @@ class LIFPopulationEncoder(SpikeEncoder):
     def bytes_per_window(self) -> int:
         return 8 * self.n_afferents * (self.window + 4 * self.max_spikes)
 
-    def graph(self, early_exit: bool = True) -> _LIFPopulationGraph:
+    def graph(self) -> _LIFPopulationGraph:
         return _LIFPopulationGraph(self.ref, self.inv_thr, self.every, 1000.0 / self.fs_hz,
                                    self.config.tau_ms, self.config.max_spikes,
-                                   self.config.norm == "window", early_exit)  # fmt: skip
+                                   self.config.norm == "window")  # fmt: skip
 
     def encode_batch(self, x: Tensor) -> Tensor:
         # float64 for the exact crossing times; the graph runs the same loop in float32
         return self.graph().double()(x.double()).float()
 
     def onnx_module(self) -> nn.Module:
-        # the early exit becomes the ONNX Loop's condition: measured 18x faster to export and
-        # 5x faster in onnxruntime than running all max_spikes sub-steps of every sample
         return self.graph()

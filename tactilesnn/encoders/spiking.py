@@ -79,48 +79,54 @@ def lif_hold_substep(v: Tensor, v_inf: Tensor, rem: Tensor, tau_ms: float, theta
     return fires, torch.where(fires, s, torch.full_like(s, math.inf)), relaxed
 
 
+def lif_hold_sample(v: Tensor, v_inf: Tensor, dt_ms: float, tau_ms: float):
+    """Every crossing of threshold 1 in one sample held at ``v_inf``, for converters that reset
+    by subtraction from ``v < 1``, in closed form: a held drive above threshold fires
+    periodically after the first crossing.
+
+    Returns ``(n, s1, isi, v_end)``: spikes in the sample (float, whole numbers), the first at
+    ``s1`` ms into it, then one every ``isi`` ms (``tau ln(v_inf / (v_inf - 1))``, since the
+    subtraction at threshold restarts from 0); ``v_end`` the potential at the sample's end.
+    Same crossings as :func:`lif_hold_substep` repeated, without a loop per crossing.
+    """
+    drive_above = v_inf > 1.0
+    safe = torch.where(drive_above, v_inf, torch.full_like(v_inf, 2.0))
+    s1 = tau_ms * torch.log((safe - v) / (safe - 1.0))
+    isi = tau_ms * torch.log1p(1.0 / (safe - 1.0))
+    fires = drive_above & (s1 <= dt_ms)
+    n = torch.where(fires, torch.floor((dt_ms - s1) / isi) + 1.0, torch.zeros_like(v))
+    t_last = s1 + (n - 1.0) * isi
+    v_fired = safe * (1.0 - torch.exp(-(dt_ms - t_last) / tau_ms))  # no expm1 in ONNX
+    v_quiet = v_inf + (v - v_inf) * math.exp(-dt_ms / tau_ms)
+    return n, s1, isi, torch.where(fires, v_fired, v_quiet)
+
+
 def lif_first_spikes(
-    drive: Tensor,
-    dt_ms: float,
-    tau_ms: float,
-    k: int,
-    early_exit: bool,
-    every: Tensor | None = None,
-    sub_steps: int = 0,
+    drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor | None = None
 ) -> tuple[Tensor, Tensor]:
     """Spike times ``[N, A, k]`` (ms; inf = none) and spike counts ``[N, A]`` of LIF
     converters (threshold 1, rest 0, reset by subtraction) driven by ``drive [N, A, samples]``
-    held over each sample.
+    held over each sample (:func:`lif_hold_sample`: every crossing counted exactly, so the
+    cost per sample does not grow with the firing rate).
 
     ``every`` ``[A]`` (whole numbers >= 1, default 1): converter ``a`` keeps every
     ``every[a]``-th spike (the ``every``-th, ``2 every``-th, ...), a prescaler, so ``k`` slots
-    cover a long window instead of its first spikes. At most ``sub_steps`` crossings per
-    sample are resolved (default ``k``; a prescaler needs ``k x every``); ``early_exit`` stops
-    a sample's loop once nothing fires (the ONNX ``Loop`` condition in the exported graph).
+    cover a long window instead of its first spikes.
     """
     n, a, w = drive.shape[0], drive.shape[1], drive.shape[2]
     v = torch.zeros(n, a, dtype=drive.dtype)
     count = torch.zeros(n, a, dtype=drive.dtype)
     times = torch.full((n, a, k), math.inf, dtype=drive.dtype)
-    slots = torch.arange(k, dtype=drive.dtype).view(1, 1, -1)
     m = torch.ones(1, a, dtype=drive.dtype) if every is None else every.to(drive.dtype).view(1, a)
-    inner = sub_steps if sub_steps > 0 else k
+    # global spike number kept in each slot: m, 2m, ..., k m
+    wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
     for i in range(w):
-        vi = drive[:, :, i]
-        rem = torch.full((n, a), dt_ms, dtype=drive.dtype)
-        for _ in range(inner):
-            fires, s, relaxed = lif_hold_substep(v, vi, rem, tau_ms, 1.0)
-            quiet = (~fires) & (rem > 0)
-            t_abs = i * dt_ms + (dt_ms - rem) + s
-            nxt = count + 1.0
-            kept = fires & (torch.remainder(nxt, m) == 0) & (nxt <= m * k)
-            hit = (slots == (nxt / m - 1.0).unsqueeze(-1)) & kept.unsqueeze(-1)
-            times = torch.where(hit, t_abs.unsqueeze(-1), times)
-            count = count + fires.to(count.dtype)
-            v = torch.where(fires, torch.clamp(v, min=1.0) - 1.0, torch.where(quiet, relaxed, v))
-            rem = torch.where(fires, rem - s, torch.where(quiet, torch.zeros_like(rem), rem))
-            if early_exit and not bool(fires.any()):
-                break
+        fired, s1, isi, v = lif_hold_sample(v, drive[:, :, i], dt_ms, tau_ms)
+        j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
+        hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
+        t_abs = i * dt_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)
+        times = torch.where(hit, t_abs, times)
+        count = count + fired
     return times, count
 
 

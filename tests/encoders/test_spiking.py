@@ -154,3 +154,32 @@ def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
     fin = np.isfinite(spread[:2])
     assert np.array_equal(np.isfinite(got), fin)
     assert np.abs(got[fin] - spread[:2][fin]).max() < 1e-2
+
+
+def test_closed_form_sample_matches_the_crossing_by_crossing_converter() -> None:
+    """lif_first_spikes counts every crossing of a held sample in closed form; lif_convert
+    (subtractive reset) locates them one at a time: same spike times and counts, float64, from
+    silent to ~20 spikes per sample, negative drive included."""
+    import torch
+
+    from tactilesnn.encoders.spiking import lif_first_spikes
+
+    rng = np.random.default_rng(3)
+    fs, tau = 1000.0, 10.0
+    x = np.concatenate([rng.uniform(-2, 3, (2, 3, 400)),
+                        rng.uniform(0, 200, (1, 3, 400))])  # fmt: skip
+    ev = lif_convert(x, fs, tau_ms=tau, reset="subtract")
+    k = 4000
+    times, count = lif_first_spikes(torch.from_numpy(x), 1000.0 / fs, tau, k)
+    for b in range(3):
+        for c in range(3):
+            ref = ev.times(b, c)
+            assert count[b, c].item() == ref.size
+            got, n = times[b, c].numpy(), min(k, ref.size)
+            np.testing.assert_allclose(got[:n], ref[:n], rtol=0, atol=1e-9)
+            assert np.isinf(got[n:]).all()
+    assert count[2].min() > 400 * 5  # the fast converters fire many times per sample
+    # a prescaler keeps spikes m, 2m, ... of the same train
+    every = torch.full((3,), 7.0, dtype=torch.float64)
+    kept, _ = lif_first_spikes(torch.from_numpy(x), 1000.0 / fs, tau, 50, every)
+    np.testing.assert_allclose(kept[2, 1].numpy(), times[2, 1, 6::7][:50].numpy(), atol=1e-9)
