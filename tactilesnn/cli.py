@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import (
+    DATA_ENCODER_CANDIDATES,
     DEFAULT_ENCODER,
     DEFAULT_MODEL,
     TOP_FLAGS,
@@ -22,6 +23,7 @@ from .config import (
     TrainConfig,
     apply_flat,
     data_file_defaults,
+    encoder_settings_given,
     flat_settings,
     registries,
 )
@@ -49,7 +51,9 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         "--data-window-s",
         type=float,
         help="with --data: cut each recording into windows of this many seconds (scores are "
-        "then also summed per recording); default: one window per recording",
+        "then also summed per recording); 0: one window per recording; default: rows of >= 2 s "
+        "and 256 samples without recording ids are cut into 7 windows (a quarter of the row, "
+        "every eighth), shorter rows are kept whole",
     )
     p.add_argument(
         "--data-hop-s",
@@ -217,6 +221,25 @@ def cmd_train(args: argparse.Namespace) -> int:
     if (args.data_window_s or args.data_hop_s) and not args.data:
         raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
     task_kwargs = dict(_task_kwargs(args), seed=config.seed)
+    select = None
+    window_s, hop_s = args.data_window_s, args.data_hop_s
+    if args.data:
+        from .recordings import auto_window, is_event_file
+
+        if window_s is None and hop_s is None:
+            window_s, hop_s = auto_window(Path(args.data)) or (None, None)
+            if window_s is not None:
+                log.info("recordings of %s cut into %.3g s windows every %.3g s (--data-window-s 0 "
+                         "keeps them whole)", args.data, window_s, hop_s)  # fmt: skip
+        elif window_s == 0:
+            if hop_s is not None:
+                raise ValueError("--data-hop-s needs a window length (--data-window-s > 0)")
+            window_s = None
+
+        given = {*(k for k in [*registries(), *flat_settings()] if hasattr(args, k)),
+                 *(getattr(args, "_pipeline_toml", None) or {})}  # fmt: skip
+        if not is_event_file(Path(args.data)) and not encoder_settings_given(given):
+            select = DATA_ENCODER_CANDIDATES
     path, m = train_run(
         args.task,
         task_kwargs,
@@ -225,15 +248,23 @@ def cmd_train(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         progress=not args.quiet,
         data=Path(args.data) if args.data else None,
-        data_window_s=args.data_window_s,
-        data_hop_s=args.data_hop_s,
+        data_window_s=window_s,
+        data_hop_s=hop_s,
+        select_encoders=select,
         resume=args.resume,
         val_fraction=args.val_fraction,
         config_text=getattr(args, "_config_text", None),
         export=args.export,
     )
+    encoder = config.encoder_type
+    if "encoder_selection_val_accuracy" in m:
+        encoder = json.loads((path / "config.json").read_text())["pipeline"]["encoder"]["type"]
+        held = ", ".join(
+            f"{k} {100 * v:.1f} %" for k, v in m["encoder_selection_val_accuracy"].items()
+        )
+        print(f"encoder chosen on held-out training recordings: {encoder} ({held})")
     print(
-        f"{source} {config.encoder_type}+{config.model_type}: test accuracy "
+        f"{source} {encoder}+{config.model_type}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"

@@ -149,18 +149,54 @@ def datasets_from_arrays(
     return take(split == 0), take(split == 1)
 
 
+#: recordings at least this long (and of ``AUTO_CUT_MIN_SAMPLES``) are cut by default
+AUTO_CUT_MIN_S = 2.0
+AUTO_CUT_MIN_SAMPLES = 256
+
+
+def auto_cut(samples: int, fs_hz: float, has_recording_ids: bool) -> tuple[float, float] | None:
+    """The default cut of ``train --data`` (``(window_s, hop_s)``, or None for whole rows):
+    analog rows without ``recording`` ids lasting >= 2 s and >= 256 samples are cut into windows
+    of a quarter of a row every eighth (7 windows per recording, scores summed per recording), so
+    a long recording becomes a sequence of windows rather than one."""
+    if has_recording_ids or samples < AUTO_CUT_MIN_SAMPLES or samples / fs_hz < AUTO_CUT_MIN_S:
+        return None
+    window = samples // 4
+    return window / fs_hz, (window // 2) / fs_hz
+
+
+def auto_window(path: Path) -> tuple[float, float] | None:
+    """:func:`auto_cut` for the analog ``.npz`` at ``path`` (reads only headers and ``fs``)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            has_ids = "recording.npy" in z.namelist()
+        shape = _npy_shape(path, "X.npy")
+        with np.load(path, allow_pickle=False) as f:
+            fs = float(np.asarray(f["fs"]).reshape(-1)[0])
+    except (OSError, KeyError, ValueError, IndexError, zipfile.BadZipFile):
+        return None  # the loader reports what is wrong with the file
+    if len(shape) != 3 or not np.isfinite(fs) or fs <= 0:
+        return None
+    return auto_cut(shape[2], fs, has_ids)
+
+
+def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
+    """Shape of ``member`` of the ``.npz`` at ``path`` from its header (no data read)."""
+    with zipfile.ZipFile(path) as z, z.open(member) as f:
+        major, _ = np.lib.format.read_magic(f)
+        read = (
+            np.lib.format.read_array_header_1_0
+            if major == 1
+            else np.lib.format.read_array_header_2_0
+        )
+        return tuple(read(f)[0])
+
+
 def is_event_file(path: Path) -> bool:
     """True if ``path`` is an ``.npz`` whose ``X`` is ``[N, taxels, polarity, bins]`` (reads only
     the array header)."""
     try:
-        with zipfile.ZipFile(path) as z, z.open("X.npy") as f:
-            major, _ = np.lib.format.read_magic(f)
-            read = (
-                np.lib.format.read_array_header_1_0
-                if major == 1
-                else np.lib.format.read_array_header_2_0
-            )
-            shape = read(f)[0]
+        shape = _npy_shape(path, "X.npy")
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return False
     return len(shape) == 4

@@ -242,6 +242,36 @@ def fit_and_evaluate(
     return TrainResult(pipe, history, metrics, cm)
 
 
+def select_encoder(
+    config: PipelineConfig,
+    train: WindowDataset,
+    candidates: tuple[str, ...],
+    fraction: float = 0.25,
+    progress: bool = False,
+) -> tuple[PipelineConfig, dict[str, float]]:
+    """The candidate encoder (each with its default settings, the rest of ``config`` unchanged)
+    that scores best on ``fraction`` of the training recordings held out (whole recordings;
+    per-recording accuracy first where recordings hold several windows, then per window; ties
+    go to the earlier candidate). Returns the chosen config and each candidate's score."""
+    from .encoders import ENCODERS
+
+    fit_set, val_set = split_validation(train, fraction, config.seed + 1)
+    assert val_set is not None
+    scores: dict[str, float] = {}
+    best, best_key = config, (-1.0, -1.0)
+    for name in candidates:
+        cfg = config.replace(encoder=ENCODERS.config_class(name)())
+        m = fit_and_evaluate(cfg, fit_set, val_set, progress=False).metrics
+        key = (m.get("test_accuracy_per_recording", m["test_accuracy"]), m["test_accuracy"])
+        scores[name] = float(key[1])
+        log.info("encoder selection: %s scores %.2f %% on %d held-out windows", name,
+                 100 * key[1], val_set.y.size)  # fmt: skip
+        if key > best_key:
+            best, best_key = cfg, key
+    log.info("encoder selection: %s", best.encoder_type)
+    return best, scores
+
+
 def recording_accuracy(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> dict | None:
     """Evidence accumulated over the windows of each recording (mean score, then argmax).
 
@@ -346,6 +376,7 @@ def train_run(
     export: bool = False,
     data_window_s: float | None = None,
     data_hop_s: float | None = None,
+    select_encoders: tuple[str, ...] | None = None,
 ) -> tuple[Path, dict]:
     """Build the data, train, evaluate and write ``out`` atomically; returns its metrics.
 
@@ -361,6 +392,7 @@ def train_run(
         "task_kwargs": task_kwargs if data is None else {},
         "data": str(data) if data is not None else None,
         **({"data_window_s": data_window_s, "data_hop_s": data_hop_s} if data_window_s else {}),
+        **({"select_encoders": list(select_encoders)} if select_encoders else {}),
         "pipeline": config.to_dict(),
         "val_fraction": val_fraction,
     }
@@ -405,6 +437,9 @@ def train_run(
             train.fs_hz,
             time.perf_counter() - t0,
         )
+        selection = None
+        if select_encoders:
+            config, selection = select_encoder(config, train, select_encoders, progress=progress)
         res = fit_and_evaluate(
             config,
             train,
@@ -419,10 +454,13 @@ def train_run(
             train.X, train.y, test.X, test.y
         )
         res.metrics["train_error_history"] = res.history
+        if selection is not None:
+            res.metrics["encoder_selection_val_accuracy"] = selection
         writer.write_json(
             "config.json",
             {
                 **run_cfg,
+                "pipeline": config.to_dict(),
                 "fs_hz": train.fs_hz,
                 "window": int(train.X.shape[-1]),
                 "channel_names": list(train.channel_names),

@@ -66,7 +66,7 @@ def test_toml_sections_and_flag_precedence(tmp_path):
                  "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
     cfg = json.loads((out / "config.json").read_text())["pipeline"]
     assert cfg["encoder"] == {"type": "lif", "neurons": 3, "lo": 0.25, "hi": 4.0, "tau_ms": 5.0,
-                              "max_spikes": 8, "norm": "train", "keep": "first"}  # fmt: skip
+                              "max_spikes": 8, "norm": "train", "keep": "spread"}  # fmt: skip
     assert cfg["model"]["hidden"] == 8 and cfg["train"]["epochs"] == 1
 
 

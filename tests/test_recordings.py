@@ -86,3 +86,45 @@ def test_windows_cut_at_load_never_straddle_the_split(tmp_path: Path) -> None:
     assert not set(tr.scan.tolist()) & set(te.scan.tolist())
     with pytest.raises(ValueError, match="needs a window length"):
         load_data_file(path, seed=0, hop_s=0.5)
+
+
+def test_auto_cut_rule_and_file_probe(tmp_path: Path) -> None:
+    from tactilesnn.recordings import auto_cut, auto_window
+
+    assert auto_cut(350, 94.0, False) == pytest.approx((87 / 94.0, 43 / 94.0))  # 3.7 s rows
+    assert auto_cut(350, 94.0, True) is None  # the file already says what a recording is
+    assert auto_cut(200, 50.0, False) is None  # 4 s but too few samples to cut
+    assert auto_cut(2000, 4000.0, False) is None  # 0.5 s: already a window
+    path = tmp_path / "a.npz"
+    X = np.zeros((4, 2, 600), np.float32)
+    np.savez(path, X=X, y=np.zeros(4, int), fs=100.0, class_names=np.array(["a"]))
+    assert auto_window(path) == pytest.approx((1.5, 0.75))
+    np.savez(path, X=X, y=np.zeros(4, int), fs=100.0, class_names=np.array(["a"]),
+             recording=np.arange(4))  # fmt: skip
+    assert auto_window(path) is None
+    np.savez(path, X=np.zeros((4, 2, 2, 600), np.uint8), y=np.zeros(4, int), bin_ms=1.0,
+             class_names=np.array(["a"]))  # fmt: skip
+    assert auto_window(path) is None  # event data are not cut
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    assert auto_window(tmp_path / "junk.npz") is None  # the loader reports it
+
+
+def test_encoder_selection_picks_the_code_that_keeps_what_separates_the_classes() -> None:
+    """Classes that differ only in level: the window-normalised latency codes (GWT, STFT)
+    cannot see it, the LIF population (levels calibrated on training data) can."""
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.datasets_synth import WindowDataset
+    from tactilesnn.training import select_encoder
+
+    rng = np.random.default_rng(0)
+    y = np.arange(60) % 2
+    t = np.arange(200) / 200.0
+    shape = np.sin(2 * np.pi * 8 * t + rng.uniform(0, 6, (60, 1, 1)))
+    shape = shape + 0.05 * rng.standard_normal(shape.shape)  # same waveforms and SNR in both
+    X = ((1 + 2 * y)[:, None, None] * shape).astype(np.float32)
+    train = WindowDataset(X, y, np.arange(60), 200.0, ("lo", "hi"), ("ch0",))
+    cfg = PipelineConfig.from_flat(channels=("all",), model="readout", epochs=10)
+    best, scores = select_encoder(cfg, train, ("gwt", "stft", "lif"))
+    assert best.encoder_type == "lif" and set(scores) == {"gwt", "stft", "lif"}
+    assert scores["lif"] > 0.9 and scores["lif"] > max(scores["gwt"], scores["stft"]) + 0.2
+    assert best.model == cfg.model and best.train == cfg.train  # only the encoder changes

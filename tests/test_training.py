@@ -107,29 +107,28 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
         class_names=np.array(["A", "B", "C"]),
         channel_names=np.array([f"taxel{i}" for i in range(12)]),
     )
+    # defaults, no flag: 3.7 s rows cut into 7 windows, the encoder chosen on held-out training
+    # recordings, scores summed per recording -> every test recording right (seeds 0-2 measured)
+    out = tmp_path / "defaults"
+    assert main(["train", "--data", str(data), "--out", str(out), "--quiet", "--no-export"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    cfg = json.loads((out / "config.json").read_text())
+    assert m["n_test_windows"] == 9 * 7 and m["n_test_recordings"] == 9
+    assert set(m["encoder_selection_val_accuracy"]) == {"gwt", "stft", "lif"}
+    assert cfg["pipeline"]["encoder"]["type"] == max(
+        m["encoder_selection_val_accuracy"], key=m["encoder_selection_val_accuracy"].get
+    )
+    assert m["test_accuracy_per_recording"] == 1.0 and m["test_accuracy"] > 0.85
+    # whole rows and an explicit encoder: no cut, no selection
     out = tmp_path / "braille_run"
     channels = [f"taxel{i}" for i in range(12)]
-    rc = main(
-        [
-            "train",
-            "--data",
-            str(data),
-            "--channels",
-            *channels,
-            "--encoder",
-            "gwt",
-            "--f-lo-hz",
-            "0.5",
-            "--epochs",
-            "30",
-            "--out",
-            str(out),
-            "--quiet",
-        ]
-    )
+    rc = main(["train", "--data", str(data), "--data-window-s", "0", "--channels", *channels,
+               "--encoder", "gwt", "--f-lo-hz", "0.5", "--epochs", "30", "--out", str(out),
+               "--quiet"])  # fmt: skip
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["n_test_windows"] == 9 and m["test_accuracy"] > 1 / 3  # above chance on 3 letters
+    assert "encoder_selection_val_accuracy" not in m
     assert main(["evaluate", str(out), "--data", str(data), "--all", "--quiet", "--json"]) == 0
     got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert got["n"] == 45

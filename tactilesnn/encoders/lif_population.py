@@ -2,18 +2,20 @@
 
 Each channel drives ``neurons`` LIF converters whose thresholds are graded geometrically from
 ``lo`` to ``hi`` times a reference level; converter ``j`` of channel ``c`` is afferent
-``c * neurons + j`` and keeps its first ``max_spikes`` spike times. The reference level is
+``c * neurons + j`` and keeps ``max_spikes`` spike times. The reference level is
 (``norm``):
 
 * ``"train"``: each channel's median RMS over the training windows (fitted, a buffer);
 * ``"window"``: the peak ``|x|`` of each window over all channels (gain-invariant level
   crossings that keep the channels' relative levels).
 
-With ``keep = "spread"`` each converter keeps every ``m``-th spike, ``m`` fitted so that its
-median spike count over the training windows fills the ``max_spikes`` slots: the kept spikes span
-the whole window (keeping the first spikes put 90 % of them in the first 130 ms of a 6 s
-recording). ``keep = "first"`` (default for now: the measured task settings were tuned with it)
-keeps the first ``max_spikes``.
+With ``keep = "spread"`` (default) each converter keeps every ``m``-th spike, ``m`` fitted so that
+its median spike count over the training windows fills the ``max_spikes`` slots (``m = 1`` where
+they already fit, which is ``keep = "first"``): the kept spikes span the whole window (keeping the
+first spikes put 90 % of them in the first 130 ms of a 6 s recording). Since the closed-form
+converter both cost the same; accuracy, seed 0, first -> spread: Braille LIF + readout 92.59 ->
+92.59 % (1 s windows 95.68 -> 96.30 %), hook_loop LIF + SNN 86.61 -> 87.17 %, material 64.44 ->
+65.00 %, stiffness x curvature 87.22 -> 84.44 % (within its +-5 point interval).
 
 Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
 lif_first_spikes`: every crossing of a sample in closed form, so the cost does not grow with the
@@ -49,7 +51,7 @@ class LIFPopulationConfig:
     tau_ms: float = 10.0
     max_spikes: int = 8
     norm: str = "train"
-    keep: str = "first"
+    keep: str = "spread"
 
     FLAGS: ClassVar[dict[str, str]] = {
         "lif_neurons": "neurons",
@@ -68,7 +70,7 @@ class LIFPopulationConfig:
         "tau_ms": "converter membrane time constant (ms)",
         "max_spikes": "spike times kept per converter",
         "norm": "reference level: train (channel RMS on training data) or window (peak |x|)",
-        "keep": "spread: every m-th spike (m fitted) so the slots span the window; first: the "
+        "keep": "spread (default): every m-th spike (m fitted) so the slots span the window; first: the "
         "first max_spikes",
     }
 
