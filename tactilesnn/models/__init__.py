@@ -5,12 +5,15 @@ are the registry's list of shipped models.
 """
 
 from .base import MODELS, SpikeModel, build_model, register_model
+from .conv_snn import ConvSNNConfig, ConvSNNModel
 from .li_readout import LIReadout, ReadoutConfig
 from .snn import SNNClassifier, SNNConfig, SNNModel
 from .tempotron import Tempotron, TempotronClassifier, TempotronConfig
 
 __all__ = [
     "MODELS",
+    "ConvSNNConfig",
+    "ConvSNNModel",
     "LIReadout",
     "ReadoutConfig",
     "SNNClassifier",

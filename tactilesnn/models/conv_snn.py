@@ -1,0 +1,208 @@
+"""Convolutional surrogate-gradient SNN for taxel arrays: ``csnn``.
+
+A tactile array is an image: neighbouring taxels see the same contact. The spike raster's grid
+afferents ``[steps, B, taxels x polarity]`` (taxel-major, row-major taxels: the events file layout,
+``<taxel>:on``, ``<taxel>:off``) are arranged as ``[B, polarity, rows, cols]`` at every step and go
+through two 3 x 3 convolutions, each into LIF neurons (``u_t = beta u_{t-1} + i_t``, threshold 1,
+subtractive reset, ``beta = exp(-dt / tau)``; the same :mod:`~tactilesnn.models.functional` step as
+the dense SNN), with 2 x 2 average pooling between them; their spikes (plus any afferents beyond
+the grid, e.g. clock afferents) drive a leaky-integrator readout whose maximum over time is the
+class score. The convolutions are applied to all steps at once; only the membranes recur.
+
+``grid = "auto"``: a square grid of ``n x n`` taxels with 2 or 1 polarities, the one that leaves
+the fewest afferents over (at most 16, e.g. clock afferents; ties: 2 polarities); otherwise set
+``"ROWSxCOLS"``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from torch import Tensor, nn
+
+from .._checks import check_choice, check_int, check_positive
+from ..spikes import raster_steps, spike_raster
+from .base import SpikeModel, register_model
+from .functional import decay_factor, li_scan, lif_scan, reduce_readout
+from .snn import _LIFScan
+
+READOUTS = ("max", "mean")
+#: afferents beyond an inferred grid (clock afferents) that ``grid = "auto"`` accepts
+MAX_EXTRA = 16
+
+
+@dataclass(frozen=True)
+class ConvSNNConfig:
+    grid: str = "auto"
+    channels: int = 16
+    dt_ms: float = 5.0
+    tau_ms: float = 50.0
+    readout: str = "max"
+    lr: float = 0.003
+
+    FLAGS: ClassVar[dict[str, str]] = {
+        "csnn_grid": "grid",
+        "csnn_channels": "channels",
+        "csnn_dt_ms": "dt_ms",
+        "csnn_tau_ms": "tau_ms",
+        "csnn_readout": "readout",
+        "csnn_lr": "lr",
+    }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"readout": READOUTS}
+    HELP: ClassVar[dict[str, str]] = {
+        "grid": "taxel grid ROWSxCOLS (row-major taxels, polarities interleaved) or auto (square)",
+        "channels": "feature maps of the first convolution (the second has twice as many)",
+        "dt_ms": "time step (ms); the window is rasterised at this step",
+        "tau_ms": "membrane time constant of every layer (ms)",
+        "readout": "class score: max or mean over time of the leaky-integrator output",
+        "lr": "Adam learning rate",
+    }
+
+    def __post_init__(self) -> None:
+        if self.grid != "auto":
+            parse_grid(self.grid)
+        check_int(self.channels, "channels", 1)
+        check_positive(self.dt_ms, "dt_ms")
+        check_positive(self.tau_ms, "tau_ms")
+        check_choice(self.readout, "readout", READOUTS)
+        check_positive(self.lr, "lr")
+
+
+def parse_grid(text: str) -> tuple[int, int]:
+    """``"10x10"`` -> ``(10, 10)``; ValueError otherwise."""
+    parts = str(text).lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise ValueError(f"grid must be ROWSxCOLS (e.g. 10x10) or auto, got {text!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def grid_layout(n_afferents: int, grid: str) -> tuple[int, int, int, int]:
+    """``(polarities, rows, cols, extra afferents)`` of the spike input; ValueError if none fits."""
+    if grid != "auto":
+        rows, cols = parse_grid(grid)
+        for pol in (2, 1):
+            if pol * rows * cols <= n_afferents and n_afferents - pol * rows * cols <= MAX_EXTRA:
+                return pol, rows, cols, n_afferents - pol * rows * cols
+        raise ValueError(f"a {rows}x{cols} grid does not match {n_afferents} afferents")
+    fits = []
+    for pol in (2, 1):
+        side = math.isqrt(n_afferents // pol)
+        if side >= 2 and n_afferents - pol * side * side <= MAX_EXTRA:
+            fits.append((n_afferents - pol * side * side, pol, side))
+    if fits:  # the fewest afferents left over, then 2 polarities
+        extra, pol, side = min(fits, key=lambda f: (f[0], -f[1]))
+        return pol, side, side, extra
+    raise ValueError(
+        f"{n_afferents} afferents do not form a square taxel grid; set --csnn-grid ROWSxCOLS"
+    )
+
+
+class _ConvSNNCore(nn.Module):
+    """The network on a raster ``[steps, B, A]``; ``scan`` is the membrane recurrence."""
+
+    def __init__(self, layout: tuple[int, int, int, int], channels: int, n_classes: int,
+                 beta: float) -> None:  # fmt: skip
+        super().__init__()
+        self.pol, self.rows, self.cols, self.extra = layout
+        self.conv1 = nn.Conv2d(self.pol, channels, 3, padding=1)
+        self.conv2 = nn.Conv2d(channels, 2 * channels, 3, padding=1)
+        self.pool = (min(2, self.rows), min(2, self.cols))
+        r2, c2 = -(-self.rows // self.pool[0]), -(-self.cols // self.pool[1])
+        self.n1 = channels * self.rows * self.cols
+        self.n2 = 2 * channels * r2 * c2
+        self.out = nn.Linear(self.n2 + self.extra, n_classes)
+        self.beta = float(beta)
+
+    def conv_input(self, raster: Tensor) -> Tensor:
+        steps, batch = raster.shape[0], raster.shape[1]
+        g = raster[:, :, : self.pol * self.rows * self.cols]
+        g = g.reshape(steps, batch, self.rows, self.cols, self.pol).permute(0, 1, 4, 2, 3)
+        return g.reshape(steps * batch, self.pol, self.rows, self.cols)
+
+    def layer2_input(self, s1: Tensor) -> Tensor:
+        steps, batch = s1.shape[0], s1.shape[1]
+        x = s1.reshape(steps * batch, self.conv1.out_channels, self.rows, self.cols)
+        x = nn.functional.avg_pool2d(x, self.pool, ceil_mode=True)
+        return self.conv2(x).reshape(steps, batch, self.n2)
+
+    def readout_input(self, s2: Tensor, raster: Tensor) -> Tensor:
+        extra = raster[:, :, self.pol * self.rows * self.cols :]
+        return self.out(torch.cat([s2, extra], dim=-1))
+
+
+@register_model("csnn", ConvSNNConfig)
+class ConvSNNModel(SpikeModel):
+    """Spike times -> raster -> conv LIF -> pool -> conv LIF -> LI readout; see the module doc.
+
+    Streaming state (``[batch, units]``): ``h1_state``, ``h2_state`` (the two layers' membranes)
+    and ``o_state`` (the readout membrane).
+    """
+
+    onnx_scripted = True
+    score_units = "max (or mean) over time of the leaky-integrator output membrane"
+
+    def __init__(self, config: ConvSNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
+                 duration_ms: float, seed: int = 0) -> None:  # fmt: skip
+        super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
+        layout = grid_layout(n_afferents, config.grid)
+        torch.manual_seed(int(seed))  # the layers draw their initial weights from the global RNG
+        beta = decay_factor(config.dt_ms, config.tau_ms)
+        self.core = _ConvSNNCore(layout, config.channels, n_classes, beta)
+        self.steps = raster_steps(duration_ms, config.dt_ms)
+
+    def raster(self, spikes: Tensor) -> Tensor:
+        return spike_raster(spikes, self.config.dt_ms, self.steps)
+
+    def scores(self, spikes: Tensor) -> Tensor:
+        c, raster = self.core, self.raster(spikes)
+        steps, batch = raster.shape[0], raster.shape[1]
+        cur1 = c.conv1(c.conv_input(raster)).reshape(steps, batch, c.n1)
+        zero = cur1.new_zeros(batch, c.n1)
+        s1, _ = _LIFScan.apply(cur1, zero, c.beta, 1.0, "subtract", "fast_sigmoid", 10.0)
+        cur2 = c.layer2_input(s1)
+        s2, _ = _LIFScan.apply(cur2, cur2.new_zeros(batch, c.n2), c.beta, 1.0, "subtract",
+                               "fast_sigmoid", 10.0)  # fmt: skip
+        out, _ = li_scan(c.readout_input(s2, raster), cur2.new_zeros(batch, self.n_classes), c.beta)
+        return reduce_readout(out, self.config.readout)
+
+    def bytes_per_sample(self, afferents: int, k: int) -> int:
+        c = self.core
+        return 4 * self.steps * (afferents * (k + 1) + 4 * c.n1 + 4 * c.n2 + 2 * self.n_classes)
+
+    def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        return nn.functional.cross_entropy(self.scores(spikes), y)
+
+    def learning_rate(self) -> float:
+        return self.config.lr
+
+    @property
+    def state_names(self) -> tuple[tuple[str, int], ...]:
+        return (("h1_state", self.core.n1), ("h2_state", self.core.n2),
+                ("o_state", self.n_classes))  # fmt: skip
+
+    def onnx_module(self) -> nn.Module:
+        return _ConvSNNGraph(self)
+
+
+class _ConvSNNGraph(nn.Module):
+    """Exported network: the same layers, :func:`~tactilesnn.models.functional.lif_scan` /
+    ``li_scan`` as ONNX ``Loop``s, streaming state in and out."""
+
+    def __init__(self, model: ConvSNNModel) -> None:
+        super().__init__()
+        self.core = model.core
+        self.dt, self.steps = float(model.config.dt_ms), int(model.steps)
+        self.readout = model.config.readout
+
+    def forward(self, spikes: Tensor, h1: Tensor, h2: Tensor, o: Tensor):
+        c = self.core
+        raster = spike_raster(spikes, self.dt, self.steps)
+        steps, batch = raster.shape[0], raster.shape[1]
+        cur1 = c.conv1(c.conv_input(raster)).reshape(steps, batch, c.n1)
+        s1, h1_new = lif_scan(cur1, h1, c.beta, 1.0, True)
+        s2, h2_new = lif_scan(c.layer2_input(s1), h2, c.beta, 1.0, True)
+        out, o_new = li_scan(c.readout_input(s2, raster), o, c.beta)
+        return reduce_readout(out, self.readout), h1_new, h2_new, o_new
