@@ -118,11 +118,16 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
         if not set(PipelineConfig().channels) <= set(names):
             flat["channels"] = ("all",)
     if getattr(args, "data", None):
-        from .recordings import is_event_file
+        from .recordings import event_grid, is_event_file
 
         given = {*flat, *base}
-        for key, value in data_file_defaults(is_event_file(Path(args.data))).items():
-            if key not in given:
+        events = is_event_file(Path(args.data))
+        grid = event_grid(Path(args.data)) if events else None
+        owners = flat_settings()
+        for key, value in data_file_defaults(events, grid).items():
+            # a default setting of the default model (or encoder) only goes with that component
+            part = owners[key][0].split()[0] if key in owners else None
+            if key not in given and part not in given:
                 flat[key] = value
     return apply_flat(base, flat)
 

@@ -168,14 +168,17 @@ class PipelineConfig:
         )
 
 
-def data_file_defaults(events: bool) -> dict[str, Any]:
+def data_file_defaults(events: bool, grid: str | None = None) -> dict[str, Any]:
     """Flat settings ``train --data FILE`` starts from (each yields to an explicit setting):
     every channel, the linear-cost ``readout`` model (on real recordings it beats the tempotron,
     whose gradient training fails with hundreds of inputs: Braille 81.5 vs 70.4 %), and for
-    event files (``X [N, taxels, polarity, bins]``) the ``events`` encoder."""
+    event files (``X [N, taxels, polarity, bins]``) the ``events`` encoder; event taxels that form
+    a ``grid`` (``"ROWSxCOLS"``, declared or square) get the convolutional ``csnn`` model."""
     out: dict[str, Any] = {"channels": ("all",), "model": "readout"}
     if events:
         out["encoder"] = "events"
+    if events and grid is not None:
+        out.update(model="csnn", csnn_grid=grid)
     return out
 
 

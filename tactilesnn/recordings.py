@@ -5,7 +5,8 @@ Format: ``X`` ``[N, channels, samples]`` float (the sensor's units), ``y`` ``[N]
 ``recording`` ``[N]`` (windows of one recording share it: they stay on one side of every split, and
 scores are also accumulated per recording) and ``split`` ``[N]`` (0 = train, 1 = test). Read with
 ``allow_pickle=False``. Event data: ``X`` ``[N, taxels, polarity, bins]`` (events per bin) with
-``bin_ms`` instead of ``fs`` (see :func:`events_as_channels`; train with ``--encoder events``).
+``bin_ms`` instead of ``fs`` (see :func:`events_as_channels`; train with ``--encoder events``) and
+optionally ``grid`` ``[rows, cols]`` (row-major taxels; a square taxel count is taken as square).
 Sensors at other sampling rates in the same recordings: ``X@<name>`` ``[N, channels, samples]``
 with ``fs@<name>`` (and optionally ``channel_names@<name>``) covering the same time span; they are
 resampled to ``fs`` and appended as channels ``<name>:<channel>`` (see :func:`merge_streams`).
@@ -14,6 +15,7 @@ resampled to ``fs`` and appended as channels ``<name>:<channel>`` (see :func:`me
 from __future__ import annotations
 
 import logging
+import math
 import zipfile
 from pathlib import Path
 
@@ -190,6 +192,30 @@ def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
             else np.lib.format.read_array_header_2_0
         )
         return tuple(read(f)[0])
+
+
+def event_grid(path: Path) -> str | None:
+    """``"ROWSxCOLS"`` of an event file's taxels: its ``grid`` ``[2]`` if given (rows x cols must
+    equal the taxels), else a square when the taxel count is one (>= 4), else None."""
+    try:
+        shape = _npy_shape(path, "X.npy")
+        with zipfile.ZipFile(path) as z:
+            declared = "grid.npy" in z.namelist()
+        grid = np.load(path, allow_pickle=False)["grid"] if declared else None
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None  # the loader reports what is wrong with the file
+    if len(shape) != 4:
+        return None
+    taxels = shape[1]
+    if grid is not None:
+        g = np.asarray(grid).reshape(-1)
+        if g.size != 2 or g.dtype.kind not in "iu" or int(g[0]) * int(g[1]) != taxels:
+            raise ValueError(
+                f"{path}: grid must be [rows, cols] with rows x cols = {taxels} taxels"
+            )
+        return f"{int(g[0])}x{int(g[1])}"
+    side = math.isqrt(taxels)
+    return f"{side}x{side}" if side >= 2 and side * side == taxels else None
 
 
 def is_event_file(path: Path) -> bool:

@@ -65,12 +65,13 @@ REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
     "braille_icub_abc": ("braille_icub_abc/braille_abc_icub.npz", _braille, False),
     "st_mnist": ("st_mnist/st_mnist_events.npz", _st_mnist, True),
 }
-#: spike pipelines: (label, encoder or None for the --data default, model, analog data only)
+#: spike pipelines: (label, encoder or None for the --data default, model, data it applies to)
 PIPELINES = (
-    ("default+tempotron", None, "tempotron", False),
-    ("default+readout", None, "readout", False),
-    ("default+snn", None, "snn", False),
-    ("lif+readout", "lif", "readout", True),  # a level converter: not for event counts
+    ("default+tempotron", None, "tempotron", "any"),
+    ("default+readout", None, "readout", "any"),
+    ("default+snn", None, "snn", "any"),
+    ("lif+readout", "lif", "readout", "analog"),  # a level converter: not for event counts
+    ("events+csnn", "events", "csnn", "events"),  # convolutions need a taxel grid
 )
 
 
@@ -178,8 +179,8 @@ def run(
             log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
                      train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
             ref_pipe = None
-            for label, enc, model, analog_only in chosen:
-                if analog_only and events:
+            for label, enc, model, applies in chosen:
+                if applies == ("analog" if events else "events"):
                     continue
                 cfg = default_config(events, enc, model, seed)
                 if epochs is not None:

@@ -23,7 +23,7 @@ from typing import ClassVar
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_int, check_positive
+from .._checks import check_choice, check_int, check_positive, check_range
 from ..spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model
 from .functional import decay_factor, li_scan, lif_scan, reduce_readout
@@ -37,14 +37,18 @@ MAX_EXTRA = 16
 @dataclass(frozen=True)
 class ConvSNNConfig:
     grid: str = "auto"
-    channels: int = 16
+    channels: int = 32
     dt_ms: float = 5.0
     tau_ms: float = 50.0
-    readout: str = "max"
+    readout: str = "mean"
     lr: float = 0.003
+    shift: int = 1
+    dropout: float = 0.2
 
     FLAGS: ClassVar[dict[str, str]] = {
         "csnn_grid": "grid",
+        "csnn_shift": "shift",
+        "csnn_dropout": "dropout",
         "csnn_channels": "channels",
         "csnn_dt_ms": "dt_ms",
         "csnn_tau_ms": "tau_ms",
@@ -59,6 +63,8 @@ class ConvSNNConfig:
         "tau_ms": "membrane time constant of every layer (ms)",
         "readout": "class score: max or mean over time of the leaky-integrator output",
         "lr": "Adam learning rate",
+        "shift": "training only: each sample's grid moved by up to this many taxels (0 = off)",
+        "dropout": "training only: dropout on the second layer's spikes",
     }
 
     def __post_init__(self) -> None:
@@ -69,6 +75,8 @@ class ConvSNNConfig:
         check_positive(self.tau_ms, "tau_ms")
         check_choice(self.readout, "readout", READOUTS)
         check_positive(self.lr, "lr")
+        check_int(self.shift, "shift", 0)
+        check_range(self.dropout, "dropout", 0.0, 0.9)
 
 
 def parse_grid(text: str) -> tuple[int, int]:
@@ -100,6 +108,22 @@ def grid_layout(n_afferents: int, grid: str) -> tuple[int, int, int, int]:
     )
 
 
+def random_shift(g: Tensor, shift: int) -> Tensor:
+    """Move each sample's grid ``g [T, B, P, R, C]`` by a random whole number of taxels in
+    ``[-shift, shift]`` along rows and columns (zeros shifted in): a contact a taxel or two away
+    is the same contact (training augmentation; global torch RNG, seeded by the trainer)."""
+    rows, cols, batch = g.shape[3], g.shape[4], g.shape[1]
+    pad = nn.functional.pad(g, (shift, shift, shift, shift))
+    off = torch.randint(0, 2 * shift + 1, (2, batch))
+    out = torch.empty_like(g)
+    for dr in range(2 * shift + 1):
+        for dc in range(2 * shift + 1):
+            sel = (off[0] == dr) & (off[1] == dc)
+            if bool(sel.any()):
+                out[:, sel] = pad[:, sel, :, dr : dr + rows, dc : dc + cols]
+    return out
+
+
 class _ConvSNNCore(nn.Module):
     """The network on a raster ``[steps, B, A]``; ``scan`` is the membrane recurrence."""
 
@@ -116,10 +140,12 @@ class _ConvSNNCore(nn.Module):
         self.out = nn.Linear(self.n2 + self.extra, n_classes)
         self.beta = float(beta)
 
-    def conv_input(self, raster: Tensor) -> Tensor:
+    def conv_input(self, raster: Tensor, shift: int = 0) -> Tensor:
         steps, batch = raster.shape[0], raster.shape[1]
         g = raster[:, :, : self.pol * self.rows * self.cols]
         g = g.reshape(steps, batch, self.rows, self.cols, self.pol).permute(0, 1, 4, 2, 3)
+        if shift:
+            g = random_shift(g, shift)
         return g.reshape(steps * batch, self.pol, self.rows, self.cols)
 
     def layer2_input(self, s1: Tensor) -> Tensor:
@@ -156,15 +182,19 @@ class ConvSNNModel(SpikeModel):
     def raster(self, spikes: Tensor) -> Tensor:
         return spike_raster(spikes, self.config.dt_ms, self.steps)
 
-    def scores(self, spikes: Tensor) -> Tensor:
+    def scores(self, spikes: Tensor, training: bool = False) -> Tensor:
+        """Class scores; ``training`` adds the shift augmentation and dropout."""
         c, raster = self.core, self.raster(spikes)
         steps, batch = raster.shape[0], raster.shape[1]
-        cur1 = c.conv1(c.conv_input(raster)).reshape(steps, batch, c.n1)
+        shift = self.config.shift if training else 0
+        cur1 = c.conv1(c.conv_input(raster, shift)).reshape(steps, batch, c.n1)
         zero = cur1.new_zeros(batch, c.n1)
         s1, _ = _LIFScan.apply(cur1, zero, c.beta, 1.0, "subtract", "fast_sigmoid", 10.0)
         cur2 = c.layer2_input(s1)
         s2, _ = _LIFScan.apply(cur2, cur2.new_zeros(batch, c.n2), c.beta, 1.0, "subtract",
                                "fast_sigmoid", 10.0)  # fmt: skip
+        if training and self.config.dropout > 0:
+            s2 = nn.functional.dropout(s2, self.config.dropout)
         out, _ = li_scan(c.readout_input(s2, raster), cur2.new_zeros(batch, self.n_classes), c.beta)
         return reduce_readout(out, self.config.readout)
 
@@ -173,7 +203,7 @@ class ConvSNNModel(SpikeModel):
         return 4 * self.steps * (afferents * (k + 1) + 4 * c.n1 + 4 * c.n2 + 2 * self.n_classes)
 
     def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
-        return nn.functional.cross_entropy(self.scores(spikes), y)
+        return nn.functional.cross_entropy(self.scores(spikes, training=True), y)
 
     def learning_rate(self) -> float:
         return self.config.lr

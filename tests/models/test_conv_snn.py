@@ -26,9 +26,10 @@ def test_grid_layout_from_the_afferents():
         ConvSNNConfig(grid="ten by ten")
 
 
-def test_scores_equal_a_step_by_step_float64_reference():
+@pytest.mark.parametrize("readout", ["max", "mean"])
+def test_scores_equal_a_step_by_step_float64_reference(readout):
     rng = np.random.default_rng(0)
-    cfg = ConvSNNConfig(grid="4x4", channels=3, dt_ms=5.0, tau_ms=20.0)
+    cfg = ConvSNNConfig(grid="4x4", channels=3, dt_ms=5.0, tau_ms=20.0, readout=readout)
     model = build_model(cfg, 2 * 16 + 1, 3, 4, 50.0, seed=1)
     with torch.no_grad():  # large weights so that both layers spike
         for p in model.parameters():
@@ -44,7 +45,7 @@ def test_scores_equal_a_step_by_step_float64_reference():
     wo, bo = c.out.weight.detach().double().numpy(), c.out.bias.detach().double().numpy()
     for b in range(2):
         u1, u2, v = np.zeros((3, 4, 4)), np.zeros((6, 2, 2)), np.zeros(4)
-        best = np.full(4, -np.inf)
+        best, total = np.full(4, -np.inf), np.zeros(4)
         for t in range(10):
             counts = ((spikes[b] >= 5 * t) & (spikes[b] < 5 * (t + 1))).sum(-1).astype(float)
             img = np.zeros((2, 4, 4))
@@ -61,8 +62,9 @@ def test_scores_equal_a_step_by_step_float64_reference():
             s2 = (u2 >= 1.0).astype(float)
             u2 = u2 - s2
             v = beta * v + wo @ np.concatenate([s2.ravel(), counts[32:]]) + bo
-            best = np.maximum(best, v)
-        np.testing.assert_allclose(got[b], best, rtol=1e-4, atol=1e-4)
+            best, total = np.maximum(best, v), total + v
+        want = best if readout == "max" else total / 10
+        np.testing.assert_allclose(got[b], want, rtol=1e-4, atol=1e-4)
 
 
 def test_learns_where_on_the_array_the_touch_is_and_exports(tmp_path, capsys):
@@ -85,3 +87,50 @@ def test_learns_where_on_the_array_the_touch_is_and_exports(tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())
     assert m["test_accuracy"] > 0.9
     assert m["onnx"]["model_max_score_diff"] < 1e-4 and m["onnx"]["prediction_agreement"] == 1.0
+
+
+def test_shift_augmentation_moves_each_sample_whole_and_only_in_training():
+    from tactilesnn.models.conv_snn import random_shift
+
+    torch.manual_seed(0)
+    g = torch.rand(3, 40, 2, 5, 6)  # [T, B, P, R, C]
+    out = random_shift(g, 1)
+    for b in range(40):  # one offset per sample, the same at every step, zeros shifted in
+        match = []
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                want = torch.zeros_like(g[:, b])
+                src = g[:, b, :, max(0, dr) : 5 + min(0, dr), max(0, dc) : 6 + min(0, dc)]
+                want[:, :, max(0, -dr) : 5 + min(0, -dr), max(0, -dc) : 6 + min(0, -dc)] = src
+                match.append(bool(torch.equal(out[:, b], want)))
+        assert sum(match) == 1
+    model = build_model(ConvSNNConfig(grid="4x4", channels=2), 32, 2, 3, 20.0, seed=0)
+    spikes = torch.rand(4, 32, 2) * 20
+    assert torch.equal(model.scores(spikes), model.scores(spikes))  # inference is deterministic
+
+
+def test_event_files_with_a_taxel_grid_default_to_the_conv_snn(tmp_path, capsys):
+    from tactilesnn.recordings import event_grid
+
+    rng = np.random.default_rng(0)
+    X = (rng.random((24, 12, 2, 20)) < 0.1).astype(np.uint8)
+    kw = {"y": np.arange(24) % 2, "bin_ms": 1.0, "class_names": np.array(["a", "b"])}
+    declared, square, line = tmp_path / "g.npz", tmp_path / "s.npz", tmp_path / "l.npz"
+    np.savez(declared, X=X, grid=np.array([3, 4]), **kw)
+    np.savez(square, X=X[:, :9], **kw)
+    np.savez(line, X=X[:, :7], **kw)
+    assert (event_grid(declared), event_grid(square), event_grid(line)) == ("3x4", "3x3", None)
+    np.savez(tmp_path / "bad.npz", X=X, grid=np.array([5, 5]), **kw)
+    with pytest.raises(ValueError, match="rows x cols = 12"):
+        event_grid(tmp_path / "bad.npz")
+    for path, model in ((declared, "csnn"), (line, "readout")):
+        out = tmp_path / f"r_{path.stem}"
+        assert main(["train", "--data", str(path), "--epochs", "1", "--out", str(out),
+                     "--quiet", "--no-export"]) == 0  # fmt: skip
+        pipe = json.loads((out / "config.json").read_text())["pipeline"]
+        assert pipe["model"]["type"] == model
+    assert pipe["encoder"]["type"] == "events"
+    # a model chosen by the user drops the grid default instead of failing on it
+    out = tmp_path / "r_user"
+    assert main(["train", "--data", str(declared), "--model", "readout", "--epochs", "1",
+                 "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
