@@ -101,6 +101,12 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         g.add_argument("--" + name.replace("_", "-"), **kw)
 
 
+def _given_settings(args: argparse.Namespace) -> set[str]:
+    """Pipeline settings the user gave: flags on the command line and the TOML's keys."""
+    flags = {k for k in [*registries(), *flat_settings()] if hasattr(args, k)}
+    return flags | set(getattr(args, "_pipeline_toml", None) or {})
+
+
 def _config(args: argparse.Namespace) -> PipelineConfig:
     """TOML settings (if any) overridden by the flags given on the command line.
 
@@ -120,7 +126,7 @@ def _config(args: argparse.Namespace) -> PipelineConfig:
     if getattr(args, "data", None):
         from .recordings import event_grid, is_event_file
 
-        given = {*flat, *base}
+        given = _given_settings(args)
         events = is_event_file(Path(args.data))
         grid = event_grid(Path(args.data)) if events else None
         owners = flat_settings()
@@ -241,9 +247,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                 raise ValueError("--data-hop-s needs a window length (--data-window-s > 0)")
             window_s = None
 
-        given = {*(k for k in [*registries(), *flat_settings()] if hasattr(args, k)),
-                 *(getattr(args, "_pipeline_toml", None) or {})}  # fmt: skip
-        if not is_event_file(Path(args.data)) and not encoder_settings_given(given):
+        if not is_event_file(Path(args.data)) and not encoder_settings_given(_given_settings(args)):
             select = DATA_ENCODER_CANDIDATES
     path, m = train_run(
         args.task,
