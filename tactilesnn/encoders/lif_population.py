@@ -98,18 +98,34 @@ class _LIFPopulationGraph(nn.Module):
         self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
         self.window_norm = bool(window_norm)
 
-    def drive(self, x: Tensor) -> Tensor:
-        """Window ``[N, C, W]`` -> converter drive ``[N, C * neurons, W]`` (threshold 1)."""
+    def scaled(self, x: Tensor) -> Tensor:
+        """Window ``[N, C, W]`` -> each channel in units of its reference level ``[N, C, W]``;
+        converter ``j`` of a channel sees it times ``inv_thr[j]`` (threshold 1)."""
         if self.window_norm:
-            x = x / x.abs().amax(dim=(1, 2), keepdim=True).clamp_min(1e-30)
-        else:
-            x = x / self.ref.view(1, -1, 1)
-        return (x.unsqueeze(2) * self.inv_thr.view(1, 1, -1, 1)).flatten(1, 2)
+            return x / x.abs().amax(dim=(1, 2), keepdim=True).clamp_min(1e-30)
+        return x / self.ref.view(1, -1, 1)
+
+    def spikes(self, x: Tensor, k: int, every: Tensor) -> tuple[Tensor, Tensor]:
+        """Spike times ``[N, C * neurons, k]`` (ms) and counts ``[N, C * neurons]``."""
+        gain = self.inv_thr.to(x.dtype)
+        return lif_first_spikes(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
 
     def forward(self, x: Tensor) -> Tensor:
-        drive = self.drive(x)
-        every = self.every.to(drive.dtype)
-        return lif_first_spikes(drive, self.dt, self.tau, self.k, every)[0]
+        return self.spikes(x, self.k, self.every)[0]
+
+
+class _Float64Graph(nn.Module):
+    """float32 in and out, float64 inside: with ``keep = "spread"`` a slot holds the converter's
+    ``m``-th, ``2m``-th ... spike, so one crossing counted differently in float32 over a long
+    window moves every later slot by a whole inter-spike interval; in float64, as in
+    :meth:`LIFPopulationEncoder.encode_batch`, the graph and torch count alike."""
+
+    def __init__(self, graph: _LIFPopulationGraph) -> None:
+        super().__init__()
+        self.graph = graph
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.graph(x.double()).float()
 
 
 @register_encoder("lif", LIFPopulationConfig)
@@ -161,10 +177,9 @@ class LIFPopulationEncoder(SpikeEncoder):
         divided by the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
         idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
         ones = torch.ones(self.n_afferents, dtype=torch.float64)
-        g = self.graph().double()
-        drive = g.drive(torch.from_numpy(np.asarray(X[idx], dtype=np.float64)))
+        x = torch.from_numpy(np.asarray(X[idx], dtype=np.float64))
         k = self.config.max_spikes
-        _, count = lif_first_spikes(drive, g.dt, g.tau, 1, ones)
+        _, count = self.graph().double().spikes(x, 1, ones)
         med = count.median(dim=0).values
         return torch.clamp(torch.ceil(med / k), 1, COUNT_LIMIT // k).float()
 
@@ -175,7 +190,10 @@ class LIFPopulationEncoder(SpikeEncoder):
         return super().upgrade_state(state)
 
     def bytes_per_window(self) -> int:
-        return 8 * self.n_afferents * (self.window + 4 * self.max_spikes)
+        # float64: the window and its scaled copy, and per afferent the slots and loop state
+        return 8 * (
+            2 * self.n_channels * self.window + self.n_afferents * (4 * self.max_spikes + 8)
+        )
 
     def graph(self) -> _LIFPopulationGraph:
         return _LIFPopulationGraph(self.ref, self.inv_thr, self.every, 1000.0 / self.fs_hz,
@@ -183,8 +201,8 @@ class LIFPopulationEncoder(SpikeEncoder):
                                    self.config.norm == "window")  # fmt: skip
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        # float64 for the exact crossing times; the graph runs the same loop in float32
+        # float64 for the exact crossing times, as in the exported graph (_Float64Graph)
         return self.graph().double()(x.double()).float()
 
     def onnx_module(self) -> nn.Module:
-        return self.graph()
+        return _Float64Graph(self.graph().double())

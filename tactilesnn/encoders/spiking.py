@@ -102,7 +102,12 @@ def lif_hold_sample(v: Tensor, v_inf: Tensor, dt_ms: float, tau_ms: float):
 
 
 def lif_first_spikes(
-    drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor | None = None
+    drive: Tensor,
+    dt_ms: float,
+    tau_ms: float,
+    k: int,
+    every: Tensor | None = None,
+    gain: Tensor | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Spike times ``[N, A, k]`` (ms; inf = none) and spike counts ``[N, A]`` of LIF
     converters (threshold 1, rest 0, reset by subtraction) driven by ``drive [N, A, samples]``
@@ -112,8 +117,13 @@ def lif_first_spikes(
     ``every`` ``[A]`` (whole numbers >= 1, default 1): converter ``a`` keeps every
     ``every[a]``-th spike (the ``every``-th, ``2 every``-th, ...), a prescaler, so ``k`` slots
     cover a long window instead of its first spikes.
+
+    ``gain`` ``[P]``: ``drive`` is ``[N, C, samples]`` and feeds ``P`` converters per channel,
+    afferent ``c * P + j`` seeing ``drive[:, c] * gain[j]`` (``A = C * P``); the product is formed
+    one sample at a time, so memory stays that of the channels, not of the afferents.
     """
-    n, a, w = drive.shape[0], drive.shape[1], drive.shape[2]
+    g = torch.ones(1, dtype=drive.dtype) if gain is None else gain.to(drive.dtype)
+    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
     v = torch.zeros(n, a, dtype=drive.dtype)
     count = torch.zeros(n, a, dtype=drive.dtype)
     times = torch.full((n, a, k), math.inf, dtype=drive.dtype)
@@ -121,7 +131,8 @@ def lif_first_spikes(
     # global spike number kept in each slot: m, 2m, ..., k m
     wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
     for i in range(w):
-        fired, s1, isi, v = lif_hold_sample(v, drive[:, :, i], dt_ms, tau_ms)
+        d = (drive[:, :, i].unsqueeze(-1) * g).flatten(1)
+        fired, s1, isi, v = lif_hold_sample(v, d, dt_ms, tau_ms)
         j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
         hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
         t_abs = i * dt_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)

@@ -156,6 +156,35 @@ def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
     assert np.abs(got[fin] - spread[:2][fin]).max() < 1e-2
 
 
+def test_exported_lif_graph_counts_spikes_as_torch_does(tmp_path) -> None:
+    """With the prescaler a slot holds the m-th, 2m-th ... spike: a crossing counted differently
+    in float32 moved the material task's exported spikes by a whole interval (85 ms). The graph
+    counts in float64 like the encoder, so onnxruntime agrees to the float32 output's rounding."""
+    import onnxruntime as ort
+    import torch
+
+    from tactilesnn.encoders.base import ENCODERS, build_encoder
+    from tactilesnn.export.graph import torch_to_onnx
+
+    fs, n, c = 500.0, 1500, 8
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / fs
+    X = np.sin(2 * np.pi * 5 * t)[None, None] * (1 + 0.2 * rng.standard_normal((64, c, 1)))
+    X = (X + 0.3 * rng.standard_normal((64, c, n))).astype(np.float32)
+    cfg = ENCODERS.config_class("lif")(neurons=6, lo=0.05, hi=3, tau_ms=20, max_spikes=32)
+    enc = build_encoder(cfg, fs, n, c).fit(X)
+    assert enc.every.max() > 10  # many spikes per slot: the case that drifted
+    ref = enc.encode(X).numpy()
+    path = tmp_path / "lif.onnx"
+    torch_to_onnx(enc.onnx_module(), (torch.from_numpy(X[:2]),), path, ["window"], ["spikes"],
+                  scripted=True)  # fmt: skip
+    got = ort.InferenceSession(str(path)).run(None, {"window": X})[0]
+    assert got.dtype == np.float32
+    fin = np.isfinite(ref)
+    assert np.array_equal(np.isfinite(got), fin)
+    assert np.abs(got[fin] - ref[fin]).max() <= 5e-4  # ms: float32 rounding of times <= 3 s
+
+
 def test_closed_form_sample_matches_the_crossing_by_crossing_converter() -> None:
     """lif_first_spikes counts every crossing of a held sample in closed form; lif_convert
     (subtractive reset) locates them one at a time: same spike times and counts, float64, from
