@@ -46,7 +46,11 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
         "--config", help="TOML file of settings (nested sections or flat keys); flags win"
     )
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
-    p.add_argument("--data", help="real recordings .npz (X [N,C,S], y, fs, class_names)")
+    p.add_argument(
+        "--data",
+        help="recordings .npz (X [N,C,S], y, fs, class_names; see README) or a folder written "
+        "by tactilesnn generate",
+    )
     p.add_argument(
         "--data-window-s",
         type=float,

@@ -34,7 +34,9 @@ def load_data_file(
     window_s: float | None = None,
     hop_s: float | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:
-    """Recordings in the documented format -> ``(train, test)`` window datasets.
+    """Recordings in the documented format, or a folder written by ``tactilesnn generate``
+    (:func:`~tactilesnn.datasets_synth.generate.read_dataset_folder`) -> ``(train, test)``
+    window datasets.
 
     ``.npz`` with ``X`` ``[N, channels, samples]`` real numbers, ``y`` ``[N]`` integer labels,
     ``fs`` (Hz, one number), ``class_names`` ``[C]`` str; optionally ``channel_names``,
@@ -46,13 +48,18 @@ def load_data_file(
     per recording.
     """
     path = Path(path)
-    if not path.is_file():
+    if path.is_dir():
+        from .datasets_synth.generate import read_dataset_folder
+
+        arrays = read_dataset_folder(path)
+    elif not path.is_file():
         raise FileNotFoundError(f"data file {path} does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            arrays = {k: np.asarray(f[k]) for k in f.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    else:
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                arrays = {k: np.asarray(f[k]) for k in f.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+            raise ValueError(f"{path}: not a readable .npz file ({e})") from e
     train, test = datasets_from_arrays(arrays, path, seed, test_fraction)
     if window_s is None:
         if hop_s is not None:

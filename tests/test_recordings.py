@@ -128,3 +128,31 @@ def test_encoder_selection_picks_the_code_that_keeps_what_separates_the_classes(
     assert best.encoder_type == "lif" and set(scores) == {"gwt", "stft", "lif"}
     assert scores["lif"] > 0.9 and scores["lif"] > max(scores["gwt"], scores["stft"]) + 0.2
     assert best.model == cfg.model and best.train == cfg.train  # only the encoder changes
+
+
+def test_a_generated_folder_is_data_whose_scans_never_straddle_the_split(tmp_path: Path) -> None:
+    from tactilesnn.cli import main
+    from tactilesnn.datasets_synth.generate import generate
+
+    out = tmp_path / "gen"
+    m = generate("hook_loop", 12, 0, out, shard_size=5, progress=False)
+    train, test = load_data_file(out, seed=0)
+    assert len(train.y) + len(test.y) == m["n_windows"]
+    assert not set(train.scan.tolist()) & set(test.scan.tolist())  # one scan, one side
+    assert train.fs_hz == m["fs_hz"] and train.class_names == tuple(m["class_names"])
+    assert train.channel_names == tuple(m["channel_names"])
+    # identical to the shards' own content, in order
+    with np.load(out / "shard-00000.npz") as z:
+        X0, s0 = z["X"], z["sample"]
+    keep = np.isin(s0, train.scan)
+    np.testing.assert_array_equal(train.X[: keep.sum()], X0[keep])
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(out), "--epochs", "1", "--quiet", "--out", str(run)]) == 0
+    assert (run / "model.onnx").is_file()
+    # a damaged shard is refused, not read
+    shard = out / "shard-00001.npz"
+    shard.write_bytes(shard.read_bytes()[:-10])
+    with pytest.raises(ValueError, match="SHA-256"):
+        load_data_file(out, seed=0)
+    with pytest.raises(FileNotFoundError, match="not a generated dataset"):
+        load_data_file(tmp_path, seed=0)

@@ -172,6 +172,43 @@ def generate(
     return manifest
 
 
+def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
+    """A generated folder as the arrays of the ``--data`` file format (``X``, ``y``, ``fs``,
+    ``class_names``, ``channel_names``, and ``recording`` = the sample a window came from, so the
+    windows of one scan never straddle the split). Each shard's SHA-256 is checked against the
+    manifest and the total size before anything is loaded; an unfinished folder is refused."""
+    from .._checks import check_allocation
+
+    folder = Path(folder)
+    path = folder / "manifest.json"
+    if not path.is_file():
+        hint = " (generation unfinished: run generate --resume)" if (
+            folder / "manifest.partial.json").exists() else ""  # fmt: skip
+        raise FileNotFoundError(f"{folder} has no manifest.json: not a generated dataset{hint}")
+    m = json.loads(path.read_text())
+    channels, window = len(m["channel_names"]), int(m["window_samples"])
+    check_allocation(4 * int(m["n_windows"]) * channels * window, f"the dataset {folder}")
+    xs, ys, ids = [], [], []
+    for sh in m["shards"]:
+        f = folder / sh["file"]
+        if not f.is_file() or _sha256(f) != sh["sha256"]:
+            raise ValueError(f"{f} is missing or differs from its manifest SHA-256")
+        with np.load(f, allow_pickle=False) as z:
+            xs.append(z["X"])
+            ys.append(z["y"])
+            ids.append(z["sample"])
+    if not xs:
+        raise ValueError(f"{folder}: the manifest lists no shards")
+    return {
+        "X": np.concatenate(xs),
+        "y": np.concatenate(ys),
+        "recording": np.concatenate(ids),
+        "fs": np.asarray(float(m["fs_hz"])),
+        "class_names": np.asarray(m["class_names"]),
+        "channel_names": np.asarray(m["channel_names"]),
+    }
+
+
 class ShardDataset:
     """torch-style Dataset over a generated folder: item ``i`` -> ``(X [C, W] float32, y int)``.
 

@@ -141,6 +141,10 @@ MAX_BOUNDARY_FRACTION = 0.002
 #: wavelets reach e ~ 1e-5)
 TIME_ATOL_MS = 1e-2
 TIME_RTOL = 1e-5
+#: a late latency spike codes a weak band, whose amplitude the same float32 rounding perturbs
+#: relatively more (relative error ~ 1 / amplitude): with the 30 dB log code a spike at the
+#: window's end codes 31.6x less than one at its start, so the tolerance grows to this factor
+LATE_SPIKE_FACTOR = 10 ** (30 / 20)
 
 
 def verify(
@@ -227,7 +231,8 @@ def compare_spike_times(
     got: np.ndarray, want: np.ndarray, duration_ms: float, tol_ms: float
 ) -> tuple[float, int]:
     """Max spike-time difference (ms) where both spike, and the number of slots that spike in
-    one and not the other. Such a flip is only accepted at the code's cutoff (the spike within
+    one and not the other. A spike at time ``t`` may differ by ``tol_ms`` x
+    ``LATE_SPIKE_FACTOR ** (t / duration_ms)`` (late spikes code weak amplitudes). Such a flip is only accepted at the code's cutoff (the spike within
     ``tol_ms`` of the window end, where rounding decides whether it is emitted at all)."""
     fin_g, fin_w = np.isfinite(got), np.isfinite(want)
     flip = fin_g != fin_w
@@ -240,10 +245,17 @@ def compare_spike_times(
                 "missing in one of torch and the graph"
             )
     both = fin_g & fin_w
-    dt = float(np.abs(got[both] - want[both]).max()) if both.any() else 0.0
-    if dt > tol_ms:
-        raise ExportError(f"exported encoder's spike times differ by {dt:.3g} ms (> {tol_ms:.3g})")
-    return dt, int(flip.sum())
+    if not both.any():
+        return 0.0, int(flip.sum())
+    t, d = want[both], np.abs(got[both] - want[both])
+    tol = tol_ms * LATE_SPIKE_FACTOR ** np.clip(t / duration_ms, 0.0, 1.0)
+    worst = int(np.argmax(d / tol))
+    if d[worst] > tol[worst]:
+        raise ExportError(
+            f"exported encoder's spike times differ by {d[worst]:.3g} ms at {t[worst]:.4g} ms "
+            f"(> {tol[worst]:.3g} ms there)"
+        )
+    return float(d.max()), int(flip.sum())
 
 
 def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = False) -> dict:
@@ -272,10 +284,13 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
 
 
 def data_hash(cfg: dict) -> str:
-    """SHA-256 identifying the training data: the data file's bytes or the task and its settings."""
+    """SHA-256 identifying the training data: the data file's bytes (a generated folder's
+    manifest), or the task and its settings."""
     h = hashlib.sha256()
     if cfg.get("data"):
-        with open(cfg["data"], "rb") as f:
+        src = Path(cfg["data"])
+        # a generated folder: its manifest holds every shard's SHA-256
+        with open(src / "manifest.json" if src.is_dir() else src, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):
                 h.update(block)
     else:
