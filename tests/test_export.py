@@ -127,10 +127,10 @@ def test_spike_time_tolerance_grows_for_late_spikes_only():
 
     want = np.array([[10.0, 450.0, np.inf]], np.float32)
     # 0.05 ms off on the late spike (a band ~27 dB down): float32 rounding of a weak amplitude
-    dt, flips = compare_spike_times(want + [[0.0, 0.05, 0.0]], want, 500.0, 1e-2)
+    dt, flips = compare_spike_times(want + np.float32([0.0, 0.05, 0.0]), want, 500.0, 1e-2)
     assert dt == pytest.approx(0.05, abs=1e-4) and flips == 0
-    assert LATE_SPIKE_FACTOR ** 0.9 * 1e-2 > 0.05
+    assert LATE_SPIKE_FACTOR**0.9 * 1e-2 > 0.05
     with pytest.raises(ExportError, match="at 10 ms"):  # the same error on an early spike
-        compare_spike_times(want + [[0.05, 0.0, 0.0]], want, 500.0, 1e-2)
+        compare_spike_times(want + np.float32([0.05, 0.0, 0.0]), want, 500.0, 1e-2)
     with pytest.raises(ExportError, match="missing"):  # a spike lost mid-window
         compare_spike_times(np.array([[10.0, np.inf, np.inf]], np.float32), want, 500.0, 1e-2)

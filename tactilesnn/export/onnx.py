@@ -232,7 +232,8 @@ def compare_spike_times(
 ) -> tuple[float, int]:
     """Max spike-time difference (ms) where both spike, and the number of slots that spike in
     one and not the other. A spike at time ``t`` may differ by ``tol_ms`` x
-    ``LATE_SPIKE_FACTOR ** (t / duration_ms)`` (late spikes code weak amplitudes). Such a flip is only accepted at the code's cutoff (the spike within
+    ``LATE_SPIKE_FACTOR ** (t / duration_ms)`` (late spikes code weak amplitudes).
+    Such a flip is only accepted at the code's cutoff (the spike within
     ``tol_ms`` of the window end, where rounding decides whether it is emitted at all)."""
     fin_g, fin_w = np.isfinite(got), np.isfinite(want)
     flip = fin_g != fin_w
