@@ -39,13 +39,26 @@ FAULTS_HELP = (
 )
 
 
+class _HelpFormatter(argparse.HelpFormatter):
+    """Appends ``(default: X)`` to a flag's help unless the help already states its default."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        unset = d is None or d is False or d is argparse.SUPPRESS  # (0 is a default to show)
+        if "default" in text or unset or not action.option_strings:
+            return text
+        return f"{text} (default: {' '.join(map(str, d)) if isinstance(d, list | tuple) else d})"
+
+
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     """Run options, then one flag per pipeline setting (the flat names of every registered
     component's config, :func:`tactilesnn.config.flat_settings`); each is also a TOML key."""
     p.add_argument(
         "--config", help="TOML file of settings (nested sections or flat keys); flags win"
     )
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
+                   help="synthetic task to generate and train on (ignored with --data)")  # fmt: skip
     p.add_argument(
         "--data",
         help="recordings .npz (X [N,C,S], y, fs, class_names; see README) or a folder written "
@@ -90,7 +103,8 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
             f"--{kind}",
             choices=reg.names(),
             default=argparse.SUPPRESS,
-            help=f"{kind} component (default {DEFAULT_ENCODER if kind == 'encoder' else DEFAULT_MODEL})",
+            help=f"{kind} component (default {DEFAULT_ENCODER if kind == 'encoder' else DEFAULT_MODEL}"
+            "; with --data chosen from the file, see README)",
         )
     for name, (owner, default, text, choices) in flat_settings().items():
         kw: dict = {"default": argparse.SUPPRESS, "help": f"{text} [{owner}; default {default!r}]"}
@@ -550,10 +564,12 @@ def _resume_hint(args: argparse.Namespace, argv: list[str]) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tactilesnn", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="store_true")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("train", help="train a pipeline and write a run folder")
+    p = sub.add_parser(
+        "train", formatter_class=_HelpFormatter, help="train a pipeline and write a run folder"
+    )
     _add_pipeline_args(p)
     p.add_argument("--out", help="run folder (default runs/<task>-<encoder>-<model>-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
@@ -567,16 +583,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("evaluate", help="evaluate a run folder on its test split or --data")
-    p.add_argument("run_dir")
-    p.add_argument("--data", help="recordings .npz to evaluate on (its test split)")
+    p = sub.add_parser(
+        "evaluate",
+        formatter_class=_HelpFormatter,
+        help="evaluate a run folder on its test split or --data",
+    )
+    p.add_argument("run_dir", help="run folder written by train")
+    p.add_argument("--data", help="recordings .npz or generated folder to evaluate on (its test "
+                   "split, cut as the run's data was)")  # fmt: skip
     p.add_argument("--all", action="store_true", help="with --data: evaluate on every recording")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser("export", help="export a run folder to ONNX (window -> scores) or NIR")
-    p.add_argument("run_dir")
+    p = sub.add_parser(
+        "export",
+        formatter_class=_HelpFormatter,
+        help="export a run folder to ONNX (window -> scores) or NIR",
+    )
+    p.add_argument("run_dir", help="run folder written by train")
     p.add_argument("--out", required=True, help="model.onnx (or model.nir) to write")
     p.add_argument(
         "--format",
@@ -584,40 +609,50 @@ def build_parser() -> argparse.ArgumentParser:
         default="onnx",
         help="onnx: the whole pipeline; nir: the SNN only (input: spike raster), needs 'nir'",
     )
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.add_argument(
         "--quantize", action="store_true", help="also write <out>.int8.onnx (dynamic int8)"
     )
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("generate", help="render a synthetic task into sharded files")
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS))
-    p.add_argument("--n", type=int, required=True, help="number of samples (scans)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True)
-    p.add_argument("--shard-size", type=int, default=50)
-    p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--difficulty", type=float, default=1.0)
-    p.add_argument("--amplitude-spread", type=float, default=1.0)
+    p = sub.add_parser(
+        "generate",
+        formatter_class=_HelpFormatter,
+        help="render a synthetic task into sharded files",
+    )
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
+    p.add_argument("--n", type=int, required=True, help="number of samples (scans or trials)")
+    p.add_argument("--seed", type=int, default=0, help="sample i depends only on (task, seed, i)")
+    p.add_argument("--out", required=True, help="dataset folder (train --data reads it)")
+    p.add_argument("--shard-size", type=int, default=50, help="samples per shard file")
+    p.add_argument("--workers", type=int, default=2, help="local rendering processes")
+    p.add_argument("--difficulty", type=float, default=1.0,
+                   help="multiplier of the task's noise and nuisance spread")  # fmt: skip
+    p.add_argument("--amplitude-spread", type=float, default=1.0,
+                   help="multiplier of the task's amplitude nuisances")  # fmt: skip
     p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
     p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace a dataset in --out")
     p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_generate)
 
-    p = sub.add_parser("serve", help="HTTP inference service (onnxruntime + numpy only)")
-    p.add_argument("model")
-    p.add_argument("--host", default="127.0.0.1")
+    p = sub.add_parser(
+        "serve",
+        formatter_class=_HelpFormatter,
+        help="HTTP inference service (onnxruntime + numpy only)",
+    )
+    p.add_argument("model", help="model.onnx written by train or export")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=_port, default=8000, help="TCP port (1-65535)")
     p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
     p.add_argument("--stream-ttl-s", type=float, default=300.0,
                    help="drop a stream after this many seconds without a chunk")  # fmt: skip
     p.set_defaults(func=cmd_serve)
 
-    p = sub.add_parser("bench", help="benchmarks")
-    p.add_argument("name", choices=BENCHMARKS)
+    p = sub.add_parser("bench", formatter_class=_HelpFormatter, help="benchmarks")
+    p.add_argument("name", choices=BENCHMARKS, help="which benchmark (see README)")
     p.add_argument(
         "--seeds",
         type=int,
@@ -631,10 +666,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clients", type=int, default=8, help="serve: concurrent clients")
     p.add_argument("--seconds", type=float, default=10.0, help="serve: duration per case")
     p.add_argument("--workers", type=int, default=2, help="tasks: generation processes")
-    p.add_argument("--overwrite", action="store_true")
-    p.add_argument("--epochs", type=int, default=TrainConfig().epochs)
-    p.add_argument("--difficulty", type=float, default=1.0)
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--epochs", type=int, default=TrainConfig().epochs,
+                   help="gwt-vs-stft / tasks: training epochs")  # fmt: skip
+    p.add_argument("--difficulty", type=float, default=1.0,
+                   help="gwt-vs-stft / tasks: task difficulty multiplier")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument(
         "--data-root",
         default="../shared/data",

@@ -110,3 +110,23 @@ def test_serve_refuses_a_port_out_of_range(capsys):
     with pytest.raises(SystemExit) as e:
         main(["serve", "model.onnx", "--port", "99999"])
     assert e.value.code == 2 and "port must be an integer in 1-65535" in capsys.readouterr().err
+
+
+def test_every_flag_of_every_command_has_help_with_its_default_and_choices():
+    import argparse
+
+    from tactilesnn.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for name, p in sub.choices.items():
+        text = p.format_help()
+        for a in p._actions:
+            if isinstance(a, argparse._HelpAction):
+                continue
+            flag = a.option_strings[0] if a.option_strings else a.dest
+            assert a.help, f"{name} {flag}: no help text"
+            if a.choices and a.option_strings:
+                assert "{" + ",".join(map(str, a.choices)) + "}" in text, f"{name} {flag}"
+            if a.option_strings and a.default is not None and a.default is not False:
+                # SUPPRESS: a pipeline setting, whose help names the component's default
+                assert "default" in p.formatter_class(name)._get_help_string(a), f"{name} {flag}"
