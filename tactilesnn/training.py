@@ -24,6 +24,7 @@ from .config import PipelineConfig, TrainConfig, is_nested
 from .datasets_synth import WindowDataset, get_task
 from .models.base import SpikeModel, to_tensor_labels
 from .pipeline import SpikePipeline, accuracy_ci95, select_channels
+from .plots import plot_confusion, plot_training, plot_windows
 from .recordings import load_data_file
 from .runs import RunWriter, load_arrays, read_json, write_json_atomic
 
@@ -480,6 +481,7 @@ def train_run(
         plot_confusion(res.confusion, test.class_names, writer.file("confusion_matrix.png"))
         plot_training(res.history, res.metrics["val_accuracy_history"],
                       writer.file("training_error.png"))  # fmt: skip
+        plot_windows(res.pipeline, test.X, test.y, writer.file("test_windows.png"))
         writer.write_json("metrics.json", res.metrics)
         path = writer.commit()
         shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
@@ -535,52 +537,3 @@ def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
     )
     pipe.load_weights(load_arrays(run_dir / "weights.npz"), legacy=legacy)
     return pipe, cfg
-
-
-def plot_confusion(cm: np.ndarray, names: tuple[str, ...] | list[str], path: Path) -> None:
-    """Confusion matrix as row-normalised recall (%), counts in each cell, readable at any size."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = len(names)
-    recall = cm / np.maximum(cm.sum(1, keepdims=True), 1)
-    fig, ax = plt.subplots(figsize=(3.5 + 0.55 * n, 3.0 + 0.5 * n))
-    im = ax.imshow(recall, cmap="Blues", vmin=0.0, vmax=1.0)
-    ax.set_xticks(range(n), names, rotation=45 if n > 4 else 0, ha="right" if n > 4 else "center")
-    ax.set_yticks(range(n), names)
-    ax.set_xlabel("predicted")
-    ax.set_ylabel("true")
-    size = 10 if n <= 6 else max(5, 12 - n // 2)
-    for i in range(cm.shape[0]):
-        for j in range(cm.shape[1]):
-            dark = recall[i, j] > 0.55  # white text on dark cells, black on light ones
-            ax.text(j, i, f"{cm[i, j]}", ha="center", va="center", fontsize=size,
-                    color="white" if dark else "black")  # fmt: skip
-    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label="recall")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def plot_training(history: list[float], val_history: list[float], path: Path) -> None:
-    """Training error (and validation error if any) per epoch."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.0, 3.2))
-    epochs = np.arange(1, len(history) + 1)
-    ax.plot(epochs, 100 * np.asarray(history), marker="o", ms=3, label="training error")
-    if val_history:
-        ax.plot(epochs[: len(val_history)], 100 * (1 - np.asarray(val_history)), marker="s",
-                ms=3, label="validation error")  # fmt: skip
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("error (%)")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -22,7 +22,7 @@ def run_dir(tmp_path_factory):
 def test_train_writes_run_folder(run_dir, capsys):
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.json", "weights.npz", "metrics.json", "confusion_matrix.json"} <= names
-    assert "confusion_matrix.png" in names and "training_error.png" in names
+    assert {"confusion_matrix.png", "training_error.png", "test_windows.png"} <= names
     m = json.loads((run_dir / "metrics.json").read_text())
     assert 0.5 <= m["test_accuracy"] <= 1.0 and len(m["train_error_history"]) == 2
     cm = json.loads((run_dir / "confusion_matrix.json").read_text())

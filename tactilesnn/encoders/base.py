@@ -99,6 +99,11 @@ class SpikeEncoder(nn.Module):
             out[i : i + batch] = self.encode_batch(chunk)
         return out
 
+    def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """For pictures: the intermediate map one window ``[channels, samples]`` is coded from,
+        as ``(map [rows, frames], row centre frequencies in Hz)``; None if the code has none."""
+        return None
+
     @abstractmethod
     def onnx_module(self) -> nn.Module:
         """Module ``window [B, channels, samples] -> spike times [B, afferents, max_spikes]``."""

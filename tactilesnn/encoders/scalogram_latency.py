@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -125,6 +126,12 @@ class ScalogramLatencyEncoder(SpikeEncoder):
 
     def onnx_module(self) -> nn.Module:
         return _WithSlot(WindowEncoder(self.scalogram, self.code, self.window))
+
+    @torch.no_grad()
+    def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Scalogram magnitude of the window's channels, summed ``[bands, frames]``."""
+        t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
+        return self.scalogram(unit_peak(t))[0].sum(0).numpy(), np.asarray(self.freqs_hz)
 
 
 @register_encoder("gwt", GWTConfig)

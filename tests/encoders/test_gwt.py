@@ -126,3 +126,21 @@ def test_fir_export_form_matches_fft_path(fs: float, n: int, hop: int) -> None:
     assert got.shape == ref.shape
     assert float((got - ref).abs().max() / ref.abs().max()) < 1e-6
     assert enc.weight.shape[-1] <= 4 * n  # size independent of window^2
+
+
+def test_feature_map_is_the_scalogram_the_code_reads():
+    """The run folder's picture shows the map the latency code is computed from."""
+    import torch
+
+    from tactilesnn.encoders import build_encoder
+    from tactilesnn.encoders.base import ENCODERS
+    from tactilesnn.encoders.scalogram_latency import unit_peak
+
+    x = np.random.default_rng(0).standard_normal((2, 100)).astype(np.float32)
+    enc = build_encoder(ENCODERS.config_class("gwt")(), 200.0, 100, 2)
+    mag, freqs = enc.feature_map(x)
+    assert mag.shape == (len(freqs), 100) and np.all(np.diff(freqs) > 0)
+    scal = enc.scalogram(unit_peak(torch.from_numpy(x)[None]))[0].sum(0).numpy()
+    np.testing.assert_allclose(mag, scal, rtol=1e-6)
+    lif = build_encoder(ENCODERS.config_class("lif")(), 200.0, 100, 2)
+    assert lif.feature_map(x) is None

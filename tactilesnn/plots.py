@@ -1,0 +1,118 @@
+"""Pictures of a run folder: confusion matrix, training curve, and a few test windows as the
+pipeline sees them (raw signal -> the encoder's map, if it has one -> spike raster -> scores)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_confusion(cm: np.ndarray, names: tuple[str, ...] | list[str], path: Path) -> None:
+    """Confusion matrix as row-normalised recall (%), counts in each cell, readable at any size."""
+    plt = _pyplot()
+    n = len(names)
+    recall = cm / np.maximum(cm.sum(1, keepdims=True), 1)
+    fig, ax = plt.subplots(figsize=(3.5 + 0.55 * n, 3.0 + 0.5 * n))
+    im = ax.imshow(recall, cmap="Blues", vmin=0.0, vmax=1.0)
+    ax.set_xticks(range(n), names, rotation=45 if n > 4 else 0, ha="right" if n > 4 else "center")
+    ax.set_yticks(range(n), names)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    size = 10 if n <= 6 else max(5, 12 - n // 2)
+    for i in range(cm.shape[0]):
+        for j in range(cm.shape[1]):
+            dark = recall[i, j] > 0.55  # white text on dark cells, black on light ones
+            ax.text(j, i, f"{cm[i, j]}", ha="center", va="center", fontsize=size,
+                    color="white" if dark else "black")  # fmt: skip
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label="recall")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_training(history: list[float], val_history: list[float], path: Path) -> None:
+    """Training error (and validation error if any) per epoch."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5.0, 3.2))
+    epochs = np.arange(1, len(history) + 1)
+    ax.plot(epochs, 100 * np.asarray(history), marker="o", ms=3, label="training error")
+    if val_history:
+        ax.plot(epochs[: len(val_history)], 100 * (1 - np.asarray(val_history)), marker="s",
+                ms=3, label="validation error")  # fmt: skip
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("error (%)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int = 1) -> None:
+    """One column per picked test window (``per_class`` of each of the first 4 classes): the
+    pipeline's input channels (a.u. over ms), the encoder's map if it has one (log magnitude,
+    band centres in Hz), the spike raster (afferent vs ms) and the class scores."""
+    plt = _pyplot()
+    picks = [int(i) for c in range(min(4, len(pipe.class_names)))
+             for i in np.flatnonzero(y == c)[:per_class]]  # fmt: skip
+    if not picks:
+        return
+    Xs = np.asarray(X)[picks]
+    spikes = pipe.encode(Xs).numpy()
+    scores = pipe.scores(pipe.encode(Xs)).numpy()
+    sel = pipe.channel_idx
+    maps = [pipe.encoder.feature_map(x[sel]) for x in Xs]
+    rows = 4 if maps[0] is not None else 3
+    fig, axes = plt.subplots(rows, len(picks), figsize=(3.2 * len(picks) + 0.6, 2.0 * rows),
+                             squeeze=False)  # fmt: skip
+    t_ms = np.arange(pipe.window) * 1000.0 / pipe.fs_hz
+    for col, (x, s, sc, fm) in enumerate(zip(Xs, spikes, scores, maps, strict=True)):
+        truth = pipe.class_names[int(y[picks[col]])]
+        ax = axes[0, col]
+        for ch in sel[:8]:
+            ax.plot(t_ms, x[ch], lw=0.7, label=pipe.channel_names[ch])
+        ax.set_title(f"true: {truth}", fontsize=9)
+        ax.set_xlabel("ms", fontsize=8)
+        if col == 0:
+            ax.set_ylabel("input")
+            ax.legend(fontsize=6, loc="upper right")
+        r = 1
+        if fm is not None:
+            mag, freqs = fm
+            ax = axes[r, col]
+            ax.imshow(np.log10(mag + 1e-6 * mag.max() + 1e-30), aspect="auto", origin="lower",
+                      extent=(0, t_ms[-1], 0, len(freqs)), cmap="magma")  # fmt: skip
+            ticks = np.linspace(0, len(freqs) - 1, min(4, len(freqs))).astype(int)
+            ax.set_yticks(ticks + 0.5, [f"{freqs[i]:.0f}" for i in ticks], fontsize=7)
+            if col == 0:
+                ax.set_ylabel("band (Hz)")
+            r += 1
+        ax = axes[r, col]
+        a, k = np.nonzero(np.isfinite(s))
+        ax.scatter(s[a, k], a, s=10, c="k", marker="|", linewidths=0.8)
+        ax.set_xlim(0, pipe.duration_ms)
+        ax.set_ylim(-1, s.shape[0])
+        if col == 0:
+            ax.set_ylabel("afferent")
+        ax.set_xlabel("spike time (ms)", fontsize=8)
+        ax = axes[r + 1, col]
+        ax.bar(
+            range(len(sc)), sc, color=["C1" if i == sc.argmax() else "C0" for i in range(len(sc))]
+        )
+        ax.set_xticks(range(len(sc)), pipe.class_names, rotation=45 if len(sc) > 4 else 0,
+                      fontsize=7, ha="right" if len(sc) > 4 else "center")  # fmt: skip
+        if col == 0:
+            ax.set_ylabel("score")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
