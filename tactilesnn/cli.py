@@ -349,7 +349,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         _, test = run_data(cfg, pipe.config.seed)
     else:
         _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
-    scores = pipe.scores(pipe.encode(test.X)).numpy()
+    scores = pipe.scores(pipe.encode(test.X, progress=not args.quiet)).numpy()
     pred = scores.argmax(1)
     per_rec = recording_accuracy(scores, test.y, test.scan)
     acc = float((pred == test.y).mean()) if test.y.size else 0.0
@@ -423,6 +423,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         test.X,
         metadata={"training_data_sha256": data_hash(cfg), "run": str(args.run_dir)},
         overwrite=args.overwrite,
+        progress=not args.quiet,
     )
     print(
         f"exported {args.out}: {report['nodes']} nodes; on {report['n_checked']} test windows "
@@ -497,7 +498,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.name == "tasks":
         from .bench import tasks
 
-        res = tasks.run(workers=args.workers)
+        res = tasks.run(workers=args.workers, progress=not args.quiet)
         if args.out:
             _write_json(Path(args.out) / "tasks.json", res)
         return 0

@@ -89,11 +89,11 @@ class SpikePipeline:
         """Fit the encoder's data-dependent state (e.g. the LIF code's level) on training X."""
         self.encoder.fit(self._selected(X))
 
-    def encode(self, X: np.ndarray) -> torch.Tensor:
+    def encode(self, X: np.ndarray, progress: bool = False) -> torch.Tensor:
         """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent), clock last."""
         n = np.shape(X)[0] if np.ndim(X) == 3 else 0
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
-        spikes = self.encoder.encode(self._selected(X))
+        spikes = self.encoder.encode(self._selected(X), progress=progress)
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
             spikes = torch.cat([spikes, clock.expand(spikes.shape[0], -1, -1)], dim=1)

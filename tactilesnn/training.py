@@ -200,9 +200,9 @@ def fit_and_evaluate(
         raise ValueError(f"this pipeline cannot be exported ({problem}); pass --no-export")
     t0 = time.perf_counter()
     pipe.calibrate(fit_set.X)
-    s_train = pipe.encode(fit_set.X)
-    s_val = pipe.encode(val_set.X) if val_set is not None else None
-    s_test = pipe.encode(test.X)
+    s_train = pipe.encode(fit_set.X, progress=progress)
+    s_val = pipe.encode(val_set.X, progress=progress) if val_set is not None else None
+    s_test = pipe.encode(test.X, progress=progress)
     t_enc = time.perf_counter() - t0
     trainer = Trainer(pipe.model, config.train, progress=progress)
     history = trainer.fit(
@@ -489,7 +489,7 @@ def train_run(
         writer.abort()
         raise
     if export:  # after the run is safely written: an export failure never loses the run
-        res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, run_cfg)
+        res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, run_cfg, progress)
         write_json_atomic(path / "metrics.json", res.metrics)
     return path, res.metrics
 
@@ -501,7 +501,9 @@ def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
     )
 
 
-def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg: dict) -> dict:
+def export_into_run(
+    pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg: dict, progress: bool = False
+) -> dict:
     """Write ``run/model.onnx`` (verified on ``X_check``); a failure is reported, not raised."""
     from .export import data_hash, export_pipeline
 
@@ -511,6 +513,7 @@ def export_into_run(pipe: SpikePipeline, run: Path, X_check: np.ndarray, run_cfg
             run / "model.onnx",
             X_check,
             metadata={"training_data_sha256": data_hash(run_cfg), "run": run.name},
+            progress=progress,
         )
     except Exception as e:  # onnxruntime raises its own types too; the run is kept
         log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)

@@ -67,11 +67,15 @@ def skip_pvdf(repeats: int = 5, seconds: float = 40.0) -> dict:
             "noise_rms_pC": noise_pC, "peak_pC": float(np.abs(res[False][1]).max())}  # fmt: skip
 
 
-def run(n: int = 200, workers: int = 2, repeats: int = 3) -> dict:
+def run(n: int = 200, workers: int = 2, repeats: int = 3, progress: bool = True) -> dict:
+    from tqdm.auto import tqdm
+
     out: dict = {"tasks": {}}
     print(f"{'task':22s} {'classes':>7s} {'samples/s':>10s} {'win/sample':>10s} {'train/test':>11s} "
           f"{'amp. baseline':>13s}")  # fmt: skip
-    for name in sorted(TASKS):
+    bar = tqdm(sorted(TASKS), desc="bench tasks", unit="task", disable=not progress)
+    for name in bar:
+        bar.set_postfix_str(name)
         rate = generation_rate(name, n, workers, repeats)
         task = get_task(name)
         tr, te = task.build()
@@ -80,9 +84,9 @@ def run(n: int = 200, workers: int = 2, repeats: int = 3) -> dict:
                    test=int(te.y.size), baseline=base, shape=list(tr.X.shape[1:]),
                    fs_hz=task.fs_hz)  # fmt: skip
         out["tasks"][name] = rec
-        print(f"{name:22s} {rec['classes']:7d} {rate['samples_per_s']:10.1f} "
-              f"{rate['windows_per_sample']:10.1f} {tr.y.size:5d}/{te.y.size:<5d} "
-              f"{100 * base:12.2f}%", flush=True)  # fmt: skip
+        bar.write(f"{name:22s} {rec['classes']:7d} {rate['samples_per_s']:10.1f} "
+                  f"{rate['windows_per_sample']:10.1f} {tr.y.size:5d}/{te.y.size:<5d} "
+                  f"{100 * base:12.2f}%")  # fmt: skip
     sk = skip_pvdf()
     out["skip_pvdf"] = sk
     print(f"skip-compute, PVDF 40 s / 4 light pokes: full {1000 * sk['full_s']:.1f} ms, skip "

@@ -28,6 +28,7 @@ from typing import ClassVar
 import numpy as np
 import torch
 from torch import Tensor, nn
+from tqdm.auto import tqdm
 
 from ..registry import Registry
 
@@ -84,8 +85,9 @@ class SpikeEncoder(nn.Module):
         return 64 * self.n_channels * self.window
 
     @torch.no_grad()
-    def encode(self, X: np.ndarray, budget_bytes: int = 1 << 27) -> Tensor:
-        """``X [N, channels, samples]`` -> spike times ``[N, afferents, max_spikes]`` (ms)."""
+    def encode(self, X: np.ndarray, budget_bytes: int = 1 << 27, progress: bool = False) -> Tensor:
+        """``X [N, channels, samples]`` -> spike times ``[N, afferents, max_spikes]`` (ms), in
+        batches of at most ``budget_bytes`` working memory (a progress bar if ``progress``)."""
         self.check_fitted()
         arr = np.asarray(X)
         if arr.ndim != 3 or arr.shape[1:] != (self.n_channels, self.window):
@@ -94,7 +96,10 @@ class SpikeEncoder(nn.Module):
             )
         batch = max(1, min(4096, budget_bytes // max(1, self.bytes_per_window())))
         out = torch.full((arr.shape[0], self.n_afferents, self.max_spikes), math.inf)
-        for i in range(0, arr.shape[0], batch):
+        starts = range(0, arr.shape[0], batch)
+        bar = tqdm(starts, desc=f"encode ({self.registry_name})", unit="batch",
+                   disable=not progress or len(starts) < 2)  # fmt: skip
+        for i in bar:
             chunk = torch.from_numpy(np.ascontiguousarray(arr[i : i + batch], dtype=np.float32))
             out[i : i + batch] = self.encode_batch(chunk)
         return out

@@ -91,8 +91,10 @@ def export_pipeline(
     X_check: np.ndarray,
     metadata: dict[str, str] | None = None,
     overwrite: bool = False,
+    progress: bool = False,
 ) -> dict:
-    """Write ``pipe`` as ONNX to ``out`` after verifying it against torch on ``X_check``.
+    """Write ``pipe`` as ONNX to ``out`` after verifying it against torch on ``X_check``
+    (progress bars over the verification's batches if ``progress``).
 
     Returns a report: node count, max score difference, prediction agreement.
     """
@@ -122,7 +124,7 @@ def export_pipeline(
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
     onnx.checker.check_model(model)
-    report = verify(model, pipe, X_check, parts=(enc, mod))
+    report = verify(model, pipe, X_check, parts=(enc, mod), progress=progress)
     tmp_out = out.with_name(f".{out.name}.tmp")
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(tmp_out))
@@ -152,6 +154,7 @@ def verify(
     pipe: SpikePipeline,
     X: np.ndarray,
     parts: tuple[onnx.ModelProto, onnx.ModelProto] | None = None,
+    progress: bool = False,
 ) -> dict:
     """Run the graph in onnxruntime on ``X`` and compare with the torch pipeline.
 
@@ -164,18 +167,19 @@ def verify(
 
     x = np.ascontiguousarray(X, dtype=np.float32)
     states = list(pipe.model.state_names)
-    spikes = pipe.encode(x)
+    spikes = pipe.encode(x, progress=progress)
     ref = pipe.scores(spikes).numpy()
     batch = check_batch(pipe)
+    bar = (lambda name: f"verify {name}") if progress else (lambda name: None)
     report: dict = {"n_checked": len(x), "check_batch": batch}
     if parts is not None and len(x):
         enc = _session(parts[0])
-        got_t = run_batched(enc, ["spikes"], {"window": x}, batch)[0]
+        got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"))[0]
         tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, tol)
         mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
-        got_m = run_batched(mod, ["scores"], feeds, batch)[0]
+        got_m = run_batched(mod, ["scores"], feeds, batch, bar("model"))[0]
         dm = float(np.abs(got_m - ref).max())
         if dm > SCORE_ATOL:
             raise ExportError(f"exported model differs from torch by {dm:.3g} (> {SCORE_ATOL})")
@@ -184,7 +188,7 @@ def verify(
         )
     sess = _session(model)
     feeds = {"window": x, **_zero_states(states, len(x))}
-    got = run_batched(sess, ["scores"], feeds, batch)[0]
+    got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"))[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
     off = int((per_window > SCORE_ATOL).sum())
     if off > MAX_BOUNDARY_FRACTION * len(x):

@@ -10,8 +10,11 @@ paths give identical spikes (tested).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import sys
+import threading
 
 log = logging.getLogger("tactilesnn")
 
@@ -107,15 +110,39 @@ def kernel():
     try:
         from torch.utils.cpp_extension import load_inline
 
-        _kernel = load_inline(
-            name="tactilesnn_lif_v3",
-            cpp_sources=_SOURCE,
-            functions=["lif_forward", "lif_backward"],
-            extra_cflags=["-O3", "-fopenmp"],
-            extra_ldflags=["-fopenmp"],
-            verbose=False,
-        )
+        with _elapsed_bar("fused LIF kernel (compiled once, then cached)"):
+            _kernel = load_inline(
+                name="tactilesnn_lif_v3",
+                cpp_sources=_SOURCE,
+                functions=["lif_forward", "lif_backward"],
+                extra_cflags=["-O3", "-fopenmp"],
+                extra_ldflags=["-fopenmp"],
+                verbose=False,
+            )
     except Exception as e:  # no compiler / ninja / headers: pure torch still works
         log.warning("fused LIF kernel unavailable (%s); using the pure-torch recurrence", e)
         _kernel = None
     return _kernel
+
+
+@contextlib.contextmanager
+def _elapsed_bar(desc: str):
+    """A ticking ``desc: elapsed`` line on stderr while a step of unknown length runs (the
+    compile takes about a minute the first time); silent when stderr is not a terminal."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(desc=desc, bar_format="{desc}: {elapsed}", disable=not sys.stderr.isatty())
+    stop = threading.Event()
+
+    def tick() -> None:
+        while not stop.wait(1.0):
+            bar.refresh()
+
+    t = threading.Thread(target=tick, daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join()
+        bar.close()

@@ -44,13 +44,18 @@ def _check_float32(arr: np.ndarray, name: str) -> None:
         raise InputError(str(e)) from e
 
 
-def run_batched(sess, outputs: list[str], feeds: dict[str, np.ndarray], batch: int) -> list:
-    """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated."""
+def run_batched(
+    sess, outputs: list[str], feeds: dict[str, np.ndarray], batch: int, desc: str | None = None
+) -> list:
+    """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated;
+    with ``desc`` a progress bar of that name (over two slices or more)."""
     n = len(next(iter(feeds.values())))
-    parts = [
-        sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()})
-        for i in range(0, max(n, 1), batch)  # an empty batch still runs once (empty answer)
-    ]
+    starts = range(0, max(n, 1), batch)  # an empty batch still runs once (empty answer)
+    if desc is not None and len(starts) > 1:
+        from tqdm.auto import tqdm  # not needed by the service itself
+
+        starts = tqdm(starts, desc=desc, unit="batch")
+    parts = [sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()}) for i in starts]
     return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
 
 
