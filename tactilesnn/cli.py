@@ -32,6 +32,10 @@ from .datasets_synth import TASKS
 log = logging.getLogger("tactilesnn")
 
 
+SCHEDULER_HELP = (
+    "Dask scheduler address (tcp://HOST:PORT) to run on a cluster instead of local processes; "
+    "needs the 'distributed' extra, and --out on a file system the workers share"
+)
 TASK_KW_HELP = "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)"
 FAULTS_FLAG = "--faults"
 FAULTS_HELP = (
@@ -49,6 +53,10 @@ class _HelpFormatter(argparse.HelpFormatter):
         if "default" in text or unset or not action.option_strings:
             return text
         return f"{text} (default: {' '.join(map(str, d)) if isinstance(d, list | tuple) else d})"
+
+
+def _command(sub: argparse._SubParsersAction, name: str, text: str) -> argparse.ArgumentParser:
+    return sub.add_parser(name, formatter_class=_HelpFormatter, help=text)
 
 
 def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
@@ -455,11 +463,30 @@ def cmd_generate(args: argparse.Namespace) -> int:
         resume=args.resume,
         progress=not args.quiet,
         task_kwargs=_task_kwargs(args),
+        scheduler=args.scheduler,
     )
     print(
         f"{args.out}: {m['n_samples']} samples, {m['n_windows']} windows in "
         f"{len(m['shards'])} shards ({m['fs_hz']:g} Hz, classes {', '.join(m['class_names'])})"
     )
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import run_sweep
+
+    rows = run_sweep(Path(args.config), Path(args.out), workers=args.workers,
+                     scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip
+    failed = [r["trial"] for r in rows if "test_accuracy" not in r]
+    best = rows[0] if rows and "test_accuracy" in rows[0] else None
+    print(f"{args.out}: {len(rows) - len(failed)} of {len(rows)} trials finished; table "
+          f"{Path(args.out) / 'results.md'}")  # fmt: skip
+    if best:
+        print(f"best: {best['trial']} {best['settings']} test accuracy "
+              f"{100 * best['test_accuracy']:.2f} %")  # fmt: skip
+    if failed:
+        print(f"failed trials (see their logs above): {failed}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -568,9 +595,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser(
-        "train", formatter_class=_HelpFormatter, help="train a pipeline and write a run folder"
-    )
+    p = _command(sub, "train", "train a pipeline and write a run folder")
     _add_pipeline_args(p)
     p.add_argument("--out", help="run folder (default runs/<task>-<encoder>-<model>-<time>)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
@@ -584,11 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser(
-        "evaluate",
-        formatter_class=_HelpFormatter,
-        help="evaluate a run folder on its test split or --data",
-    )
+    p = _command(sub, "evaluate", "evaluate a run folder on its test split or --data")
     p.add_argument("run_dir", help="run folder written by train")
     p.add_argument("--data", help="recordings .npz or generated folder to evaluate on (its test "
                    "split, cut as the run's data was)")  # fmt: skip
@@ -597,11 +618,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)
 
-    p = sub.add_parser(
-        "export",
-        formatter_class=_HelpFormatter,
-        help="export a run folder to ONNX (window -> scores) or NIR",
-    )
+    p = _command(sub, "export", "export a run folder to ONNX (window -> scores) or NIR")
     p.add_argument("run_dir", help="run folder written by train")
     p.add_argument("--out", required=True, help="model.onnx (or model.nir) to write")
     p.add_argument(
@@ -617,11 +634,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser(
-        "generate",
-        formatter_class=_HelpFormatter,
-        help="render a synthetic task into sharded files",
-    )
+    p = _command(sub, "generate", "render a synthetic task into sharded files")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
     p.add_argument("--n", type=int, required=True, help="number of samples (scans or trials)")
     p.add_argument("--seed", type=int, default=0, help="sample i depends only on (task, seed, i)")
@@ -636,14 +649,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
     p.add_argument("--overwrite", action="store_true", help="replace a dataset in --out")
     p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
+    p.add_argument("--scheduler", help=SCHEDULER_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_generate)
 
-    p = sub.add_parser(
-        "serve",
-        formatter_class=_HelpFormatter,
-        help="HTTP inference service (onnxruntime + numpy only)",
-    )
+    p = _command(sub, "sweep", "grid / random search over train settings, each a run folder")
+    p.add_argument("--config", required=True, help="sweep TOML ([base] + [grid] or [random])")
+    p.add_argument("--out", required=True,
+                   help="sweep folder: trials/<id>/ run folders, results.json, results.md; "
+                   "finished trials are skipped when run again")  # fmt: skip
+    p.add_argument("--workers", type=int, default=2, help="local trial processes")
+    p.add_argument("--scheduler", help=SCHEDULER_HELP)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_sweep)
+
+    p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only)")
     p.add_argument("model", help="model.onnx written by train or export")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
     p.add_argument("--port", type=_port, default=8000, help="TCP port (1-65535)")
@@ -652,7 +672,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop a stream after this many seconds without a chunk")  # fmt: skip
     p.set_defaults(func=cmd_serve)
 
-    p = sub.add_parser("bench", formatter_class=_HelpFormatter, help="benchmarks")
+    p = _command(sub, "bench", "benchmarks")
     p.add_argument("name", choices=BENCHMARKS, help="which benchmark (see README)")
     p.add_argument(
         "--seeds",

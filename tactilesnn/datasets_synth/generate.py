@@ -61,6 +61,21 @@ def _render_shard(args: tuple) -> dict:
             "sha256": _sha256(Path(path))}  # fmt: skip
 
 
+def _on_dask(jobs: list[tuple], scheduler: str):
+    """Render shards on a Dask cluster, yielding each record as it finishes (a shard whose
+    worker died is rendered again: it depends only on (task, seed, samples))."""
+    try:
+        from distributed import Client, as_completed
+    except ImportError as e:
+        raise ValueError(
+            "--scheduler needs Dask distributed: pip install -c constraints.txt -e '.[distributed]'"
+        ) from e
+    with Client(scheduler, timeout="20s") as client:
+        futs = [client.submit(_render_shard, j, pure=False, retries=2) for j in jobs]
+        for f in as_completed(futs):
+            yield f.result()
+
+
 def generate(
     task_name: str,
     n: int,
@@ -72,8 +87,10 @@ def generate(
     resume: bool = False,
     progress: bool = True,
     task_kwargs: dict | None = None,
+    scheduler: str | None = None,
 ) -> dict:
-    """Render ``n`` samples of ``task_name`` into ``out``; returns the manifest."""
+    """Render ``n`` samples of ``task_name`` into ``out`` (on local processes, or on the Dask
+    cluster at ``scheduler``); returns the manifest."""
     from tqdm.auto import tqdm
 
     out = Path(out)
@@ -150,7 +167,12 @@ def generate(
 
     checkpoint()
     bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=not progress)
-    if workers > 1 and len(jobs) > 1:
+    if scheduler:
+        for rec in _on_dask(jobs, scheduler):
+            shards[rec["file"]] = rec
+            checkpoint()
+            bar.update()
+    elif workers > 1 and len(jobs) > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
             for rec in pool.map(_render_shard, jobs):
                 shards[rec["file"]] = rec

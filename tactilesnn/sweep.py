@@ -1,0 +1,270 @@
+"""Grid or random search over any ``tactilesnn train`` settings; each trial a normal run folder.
+
+A sweep file (TOML) names the settings by their ``train`` flag (``n_bands`` = ``--n-bands``)::
+
+    [base]              # given to every trial
+    task = "hook_loop"
+    epochs = 5
+    [grid]              # every combination of these lists
+    encoder = ["gwt", "stft"]
+    n_bands = [10, 20]
+    [random]            # or: `trials` draws (seeded) from these
+    trials = 6
+    seed = 0
+    [random.space]
+    n_bands = [8, 12, 16, 20]               # a list: one of its values
+    readout_lr = {log_uniform = [1e-3, 3e-2]}
+    readout_tau_ms = {uniform = [50, 200]}
+
+Trials are enumerated deterministically; a trial's folder is named from its settings
+(``trials/t003-<sha1>``), so a sweep started again skips the trials whose run folder is complete
+(resume) and a changed sweep file only runs what is new. Trials run in local worker processes
+(``workers``) or on a Dask cluster (``scheduler="tcp://host:port"``, needs the ``distributed``
+extra; a worker that dies has its trial run again elsewhere). Every trial writes its run atomically,
+so a killed worker leaves no half-written results. ``results.json`` / ``results.md`` gather them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import itertools
+import json
+import logging
+import os
+import time
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+import tomllib
+
+from .runs import write_json_atomic
+
+log = logging.getLogger("tactilesnn")
+
+#: train flags a sweep sets itself
+RESERVED = ("out", "overwrite", "resume", "quiet", "config")
+
+
+def load_sweep(path: Path) -> dict:
+    """Read and check a sweep file (unknown settings and malformed sections are refused)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"sweep file {path} does not exist")
+    try:
+        spec = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"{path}: not valid TOML ({e})") from e
+    extra = set(spec) - {"base", "grid", "random"}
+    if extra:
+        raise ValueError(f"{path}: unknown section(s) {sorted(extra)}; use base, grid, random")
+    if ("grid" in spec) == ("random" in spec):
+        raise ValueError(f"{path}: give exactly one of [grid] or [random]")
+    known = _train_settings()
+    space = spec.get("grid") or spec["random"].get("space", {})
+    for key in [*spec.get("base", {}), *space]:
+        if key not in known or key in RESERVED:
+            raise ValueError(f"{path}: '{key}' is not a setting a sweep can vary (train --help)")
+    if "grid" in spec:
+        for key, values in spec["grid"].items():
+            if not isinstance(values, list) or not values:
+                raise ValueError(f"{path}: grid.{key} must be a non-empty list")
+    else:
+        r = spec["random"]
+        if not isinstance(r.get("trials"), int) or r["trials"] < 1:
+            raise ValueError(f"{path}: random.trials must be a positive integer")
+        for key, dist in space.items():
+            _check_distribution(key, dist, path)
+    return spec
+
+
+def _check_distribution(key: str, dist: object, path: Path) -> None:
+    if isinstance(dist, list) and dist:
+        return
+    if isinstance(dist, dict) and len(dist) == 1:
+        (kind, bounds), = dist.items()  # fmt: skip
+        ok = isinstance(bounds, list) and len(bounds) == 2 and bounds[0] < bounds[1]
+        if kind in ("uniform", "log_uniform") and ok and (kind == "uniform" or bounds[0] > 0):
+            return
+    raise ValueError(
+        f"{path}: random.space.{key} must be a list of values or {{uniform = [lo, hi]}} / "
+        "{log_uniform = [lo, hi]} with 0 < lo < hi"
+    )
+
+
+def _train_parser() -> argparse.ArgumentParser:
+    from .cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices["train"]
+
+
+def _train_settings() -> set[str]:
+    return {a.dest for a in _train_parser()._actions if a.option_strings}
+
+
+def trials(spec: dict) -> list[dict]:
+    """The sweep's trials in a fixed order, each the full settings dict (base + its values)."""
+    base = dict(spec.get("base", {}))
+    if "grid" in spec:
+        keys = list(spec["grid"])
+        combos = itertools.product(*(spec["grid"][k] for k in keys))
+        return [{**base, **dict(zip(keys, c, strict=True))} for c in combos]
+    r = spec["random"]
+    rng = np.random.default_rng(int(r.get("seed", 0)))
+    out = []
+    for _ in range(r["trials"]):
+        t = dict(base)
+        for key, dist in r.get("space", {}).items():
+            if isinstance(dist, list):
+                t[key] = dist[int(rng.integers(len(dist)))]
+            else:
+                (kind, (lo, hi)), = dist.items()  # fmt: skip
+                u = (
+                    rng.uniform(np.log(lo), np.log(hi))
+                    if kind == "log_uniform"
+                    else rng.uniform(lo, hi)
+                )
+                t[key] = float(np.exp(u) if kind == "log_uniform" else u)
+        out.append(t)
+    return out
+
+
+def trial_id(index: int, settings: dict) -> str:
+    digest = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:8]
+    return f"t{index:03d}-{digest}"
+
+
+def train_argv(settings: dict, out: Path) -> list[str]:
+    """``tactilesnn train`` arguments for one trial (``n_bands=10`` -> ``--n-bands 10``; a list
+    gives a flag's several values, or repeats a repeatable flag such as ``task_kw``)."""
+    repeated = {a.dest for a in _train_parser()._actions if isinstance(a, argparse._AppendAction)}
+    argv = ["train"]
+    for key, value in settings.items():
+        flag = "--" + key.replace("_", "-")
+        if isinstance(value, bool):
+            argv.append(flag if value else "--no-" + key.replace("_", "-"))
+        elif isinstance(value, list) and key in repeated:  # task_kw = ["a=1", "b=2"]
+            argv += [x for v in value for x in (flag, str(v))]
+        elif isinstance(value, list):
+            argv += [flag, *map(str, value)]
+        else:
+            argv += [flag, str(value)]
+    return [*argv, "--out", str(out), "--quiet"]
+
+
+def check_trial(settings: dict) -> None:
+    """Parse a trial's arguments as ``train`` would (bad values fail before any work)."""
+    parser = _train_parser()
+    try:
+        parser.parse_args(train_argv(settings, Path("x"))[1:])
+    except SystemExit as e:
+        raise ValueError(f"trial settings {settings} are not valid train arguments") from e
+
+
+def run_trial(settings: dict, out: str, threads: int = 1) -> dict:
+    """Train one trial into ``out`` (skipped when its run folder is complete); its metrics."""
+    import torch
+
+    from .cli import main
+
+    out_path = Path(out)
+    if not (out_path / "metrics.json").is_file():
+        torch.set_num_threads(max(1, threads))
+        t0 = time.perf_counter()
+        rc = main(train_argv(settings, out_path))
+        if rc != 0:
+            return {"error": f"train exited with {rc}", "seconds": time.perf_counter() - t0}
+    m = json.loads((out_path / "metrics.json").read_text())
+    keys = ("test_accuracy", "test_accuracy_ci95", "fit_seconds", "encode_seconds",
+            "test_accuracy_per_recording")  # fmt: skip
+    return {k: m[k] for k in keys if k in m}
+
+
+def _local(jobs: list[tuple[str, dict, str]], workers: int) -> Iterator[tuple[str, dict]]:
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
+    if workers <= 1:
+        for tid, s, out in jobs:
+            yield tid, run_trial(s, out, threads)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futs = {pool.submit(run_trial, s, out, threads): tid for tid, s, out in jobs}
+        for f in as_completed(futs):
+            yield futs[f], f.result()
+
+
+def _dask(jobs: list[tuple[str, dict, str]], scheduler: str) -> Iterator[tuple[str, dict]]:
+    try:
+        from distributed import Client
+        from distributed import as_completed as dask_completed
+    except ImportError as e:
+        raise ValueError(
+            "--scheduler needs Dask distributed: pip install -c constraints.txt -e '.[distributed]'"
+        ) from e
+    with Client(scheduler, timeout="20s") as client:
+        futs = {
+            client.submit(run_trial, s, out, 1, key=f"tactilesnn-{tid}", pure=False, retries=2): tid
+            for tid, s, out in jobs
+        }
+        for f in dask_completed(futs):
+            yield futs[f], f.result()
+
+
+def run_sweep(
+    sweep_file: Path,
+    out: Path,
+    workers: int = 2,
+    scheduler: str | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Run every trial of ``sweep_file`` not yet finished in ``out``; returns the result rows
+    (best first) and writes ``results.json`` and ``results.md``."""
+    from tqdm.auto import tqdm
+
+    spec = load_sweep(sweep_file)
+    todo = trials(spec)
+    for s in todo:
+        check_trial(s)
+    out = Path(out)
+    (out / "trials").mkdir(parents=True, exist_ok=True)
+    spec_path = out / "sweep.json"
+    if spec_path.exists() and json.loads(spec_path.read_text()) != spec:
+        log.info("%s: the sweep file changed; finished trials with unchanged settings are kept",
+                 out)  # fmt: skip
+    write_json_atomic(spec_path, spec)
+    ids = [trial_id(i, s) for i, s in enumerate(todo)]
+    rows = {tid: {"trial": tid, "settings": s} for tid, s in zip(ids, todo, strict=True)}
+    jobs = [(tid, s, str(out / "trials" / tid)) for tid, s in zip(ids, todo, strict=True)]
+    done = sum((Path(o) / "metrics.json").is_file() for _, _, o in jobs)
+    log.info("sweep: %d trials (%d already finished) on %s", len(jobs), done,
+             scheduler or f"{workers} local worker(s)")  # fmt: skip
+    bar = tqdm(total=len(jobs), desc="sweep", unit="trial", disable=not progress)
+    results = _dask(jobs, scheduler) if scheduler else _local(jobs, workers)
+    for tid, res in results:
+        rows[tid].update(res)
+        bar.update()
+        write_json_atomic(out / "results.json", list(rows.values()))  # survives an interruption
+    bar.close()
+    ordered = sorted(rows.values(), key=lambda r: -r.get("test_accuracy", -1.0))
+    write_json_atomic(out / "results.json", ordered)
+    tmp = out / ".results.md.tmp"
+    tmp.write_text(results_table(ordered))
+    os.replace(tmp, out / "results.md")
+    return ordered
+
+
+def results_table(rows: list[dict]) -> str:
+    """Markdown table: varied settings, test accuracy +- 95 % CI, fit and encode seconds."""
+    varied = sorted({k for r in rows for k, v in r["settings"].items()
+                     if any(o["settings"].get(k) != v for o in rows)})  # fmt: skip
+    head = ["trial", *varied, "test accuracy", "fit s", "encode s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        acc = (f"{100 * r['test_accuracy']:.2f} +- {100 * r['test_accuracy_ci95']:.2f} %"
+               if "test_accuracy" in r else r.get("error", "not run"))  # fmt: skip
+        cells = [r["trial"], *(str(r["settings"].get(k, "")) for k in varied), acc,
+                 f"{r.get('fit_seconds') or 0:.1f}", f"{r.get('encode_seconds') or 0:.1f}"]  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
