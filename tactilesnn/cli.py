@@ -490,6 +490,22 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo_stream(args: argparse.Namespace) -> int:
+    import urllib.error
+
+    from .service.client import ServiceError
+    from .service.demo import demo_stream
+
+    try:
+        n = demo_stream(args.url, args.task, stream=args.stream, seconds=args.seconds,
+                        speed=args.speed, chunk_ms=args.chunk_ms, seed=args.seed)  # fmt: skip
+    except (ServiceError, urllib.error.URLError) as e:
+        raise ValueError(f"the service at {args.url} answered: {e} (is tactilesnn serve "
+                         "running with a model?)") from e  # fmt: skip
+    print(f"streamed {args.task} to {args.url} (stream {args.stream!r}): {n} windows classified")
+    return 0
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     from .service.app import serve
 
@@ -671,6 +687,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stream-ttl-s", type=float, default=300.0,
                    help="drop a stream after this many seconds without a chunk")  # fmt: skip
     p.set_defaults(func=cmd_serve)
+
+    p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")
+    p.add_argument("--url", default="http://127.0.0.1:8000", help="the service's base URL")
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
+    p.add_argument("--stream", default="demo", help="stream id on the service")
+    p.add_argument("--seconds", type=float, default=0.0,
+                   help="seconds of signal to send (default: 0 = until interrupted)")  # fmt: skip
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="pace as a multiple of real time (0 = as fast as the service answers)")  # fmt: skip
+    p.add_argument("--chunk-ms", type=float, default=100.0, help="signal per request (ms)")
+    p.add_argument("--seed", type=int, default=0, help="task seed (which scans are rendered)")
+    p.set_defaults(func=cmd_demo_stream)
 
     p = _command(sub, "bench", "benchmarks")
     p.add_argument("name", choices=BENCHMARKS, help="which benchmark (see README)")

@@ -9,6 +9,9 @@ Endpoints:
                          the stream's buffer; every completed window (hop = window / 2) is
                          classified, SNN state carried -> ``{"results": [...]}``.
   ``DELETE /v1/stream/{id}``, ``GET /v1/model`` (metadata), ``GET /healthz``.
+  ``GET /`` a live page of the streams (input, spectrogram, spike raster, scores), fed by
+                         ``GET /v1/live`` (server-sent events, one per classified window;
+                         see :mod:`tactilesnn.service.live`).
 
 Bad input gets a 4xx with a specific message (400 malformed, 413 too large, 415 content type,
 422 wrong shape / dtype / rate / NaN, 429 too many streams). Concurrent single requests are
@@ -29,9 +32,10 @@ from contextlib import asynccontextmanager
 import numpy as np
 from starlette.applications import Starlette
 from starlette.requests import Request
-from starlette.responses import JSONResponse
+from starlette.responses import HTMLResponse, JSONResponse, StreamingResponse
 from starlette.routing import Route
 
+from .live import LiveHub, page_html, window_event
 from .runtime import InputError, PipelineSession, StreamState
 
 MAX_BODY_BYTES = 8 << 20
@@ -154,8 +158,9 @@ def create_app(
     """The HTTP app. Streams idle for ``stream_ttl_s`` are dropped (so abandoned ids never lock
     new streams out); each stream is fed under its own lock, off the event loop, so a large
     chunk on one stream does not hold up the others."""
-    session = PipelineSession(model_path, threads=threads)
+    session = PipelineSession(model_path, threads=threads, expose_spikes=True)
     batcher = MicroBatcher(session, batch_window_ms)
+    hub = LiveHub()
     streams: OrderedDict[str, StreamState] = OrderedDict()  # least recently used first
     stream_lock = asyncio.Lock()  # guards the table only, never held during inference
 
@@ -214,16 +219,46 @@ def create_app(
             streams.move_to_end(sid)
         async with state.meta["lock"]:  # one chunk at a time per stream, in arrival order
             loop = asyncio.get_running_loop()
-            results = await loop.run_in_executor(None, session.feed_stream, state, data)
+            live = hub.active
+            results = await loop.run_in_executor(
+                None, lambda: session.feed_stream(state, data, detail=live)
+            )
             state.meta["last_used"] = time.monotonic()
+        for r in results if live else ():
+            window, spikes = r.pop("window"), r.pop("spikes")
+            hub.publish(window_event(sid, r, window, spikes, session.fs_hz, session.class_names,
+                                     session.window // 2))  # fmt: skip
         return JSONResponse({"stream": sid, "results": results})
+
+    async def page(request: Request):
+        return HTMLResponse(page_html())
+
+    async def live(request: Request):
+        queue = hub.subscribe()
+
+        async def events():
+            try:
+                yield ": connected\n\n"
+                while True:
+                    try:
+                        text = await asyncio.wait_for(queue.get(), timeout=15.0)
+                    except asyncio.TimeoutError:
+                        yield ": keep-alive\n\n"  # proxies close silent connections
+                        continue
+                    yield f"data: {text}\n\n"
+            finally:
+                hub.unsubscribe(queue)
+
+        headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
+        return StreamingResponse(events(), media_type="text/event-stream", headers=headers)
 
     async def model(request: Request):
         return JSONResponse(session.info())
 
     async def health(request: Request):
         return JSONResponse({"status": "ok", "batches": batcher.calls, "windows": batcher.windows,
-                             "open_streams": len(streams)})  # fmt: skip
+                             "open_streams": len(streams), "live_pages": len(hub.queues),
+                             "live_events": hub.published})  # fmt: skip
 
     @asynccontextmanager
     async def lifespan(app):
@@ -244,12 +279,15 @@ def create_app(
             Route("/v1/stream/{sid}", stream, methods=["POST", "DELETE"]),
             Route("/v1/model", model, methods=["GET"]),
             Route("/healthz", health, methods=["GET"]),
+            Route("/", page, methods=["GET"]),
+            Route("/v1/live", live, methods=["GET"]),
         ],
         exception_handlers={HTTPError: on_error, InputError: on_error, Exception: on_error},
         lifespan=lifespan,
     )
     app.state.session = session
     app.state.batcher = batcher
+    app.state.hub = hub
     return app
 
 

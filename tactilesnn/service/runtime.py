@@ -59,22 +59,38 @@ def run_batched(
     return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
 
 
+def _with_spikes_output(path: str) -> bytes:
+    """The model with its encoder's spike times (the value ``spikes`` that feeds the model part)
+    also a graph output, so a live view can show the raster the model saw."""
+    import onnx  # only for the live view: plain inference needs onnxruntime alone
+
+    model = onnx.load(str(path))
+    produced = {o for n in model.graph.node for o in n.output}
+    if "spikes" in produced and all(o.name != "spikes" for o in model.graph.output):
+        model.graph.output.append(
+            onnx.helper.make_tensor_value_info("spikes", onnx.TensorProto.FLOAT, None)
+        )
+    return model.SerializeToString()
+
+
 class PipelineSession:
     """onnxruntime session over an exported ``model.onnx`` with validation and metadata."""
 
     #: working memory of one onnxruntime call; larger batches are run in slices
     RUN_BUDGET_BYTES = 256 << 20
 
-    def __init__(self, path: str, threads: int = 0) -> None:
+    def __init__(self, path: str, threads: int = 0, expose_spikes: bool = False) -> None:
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = threads
         if not Path(path).is_file():
             raise FileNotFoundError(f"model file {path} does not exist")
+        source = _with_spikes_output(path) if expose_spikes else str(path)
         try:
-            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(source, opts, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
+        self.has_spikes = any(o.name == "spikes" for o in self.session.get_outputs())
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.fs_hz = float(meta["fs_hz"])
@@ -136,16 +152,25 @@ class PipelineSession:
 
         Batches larger than the memory budget run in slices (same results, bounded memory).
         """
+        return self.run_detail(x, state)[0]
+
+    def run_detail(
+        self, x: np.ndarray, state: StreamState | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`run`, plus the encoder's spike times ``[batch, afferents, k]`` (ms, inf =
+        silent) when the session exposes them (``expose_spikes``), else None."""
         feeds = {"window": x}
         names = list(self.state_units)
         for name, units in self.state_units.items():
             held = state.values.get(name) if state is not None else None
             feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
-        outputs = ["scores", *(f"{k}_out" for k in names)]
-        scores, *new = run_batched(self.session, outputs, feeds, self.batch)
+        outputs = ["scores", *(f"{k}_out" for k in names)] + (["spikes"] if self.has_spikes else [])
+        got = run_batched(self.session, outputs, feeds, self.batch)
+        spikes = got.pop() if self.has_spikes else None
+        scores, *new = got
         if state is not None and names:
             state.values = dict(zip(names, new, strict=True))
-        return scores
+        return scores, spikes
 
     def classify(self, x: object, fs_hz: float | None = None) -> dict:
         arr = self.validate(x, fs_hz)
@@ -157,10 +182,13 @@ class PipelineSession:
             "scores": scores.tolist(),
         }
 
-    def feed_stream(self, state: StreamState, chunk: object, hop: int | None = None) -> list[dict]:
+    def feed_stream(
+        self, state: StreamState, chunk: object, hop: int | None = None, detail: bool = False
+    ) -> list[dict]:
         """Append ``[channels, n]`` samples; classify every complete window (hop = window / 2).
 
-        SNN state is carried from window to window; returns one result per completed window.
+        SNN state is carried from window to window; returns one result per completed window
+        (with ``detail``, also its ``"window"`` array and ``"spikes"``, for the live view).
         """
         hop = hop or self.window // 2
         try:
@@ -181,15 +209,17 @@ class PipelineSession:
         buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
         results = []
         while buf.shape[1] >= self.window:
-            scores = self.run(buf[None, :, : self.window], state if self.stateful else None)[0]
-            k = int(scores.argmax())
-            results.append(
-                {
-                    "window_index": state.windows_done,
-                    "class": self.class_names[k],
-                    "scores": scores.tolist(),
-                }
-            )
+            win = buf[None, :, : self.window]
+            scores, spikes = self.run_detail(win, state if self.stateful else None)
+            k = int(scores[0].argmax())
+            res = {
+                "window_index": state.windows_done,
+                "class": self.class_names[k],
+                "scores": scores[0].tolist(),
+            }
+            if detail:
+                res.update(window=win[0], spikes=None if spikes is None else spikes[0])
+            results.append(res)
             state.windows_done += 1
             buf = buf[:, hop:]
         state.buffer = buf
