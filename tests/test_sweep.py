@@ -107,3 +107,13 @@ def test_dask_sweep_completes_when_a_worker_is_killed(tmp_path):
     rows = result["rows"]
     assert len(rows) == 4 and all("test_accuracy" in r for r in rows)
     assert len(list(out.glob("trials/*/metrics.json"))) == 4
+
+
+def test_the_shipped_sweep_files_are_valid():
+    from tactilesnn.sweep import check_trial
+
+    files = sorted((Path(__file__).resolve().parents[1] / "configs").glob("sweep*.toml"))
+    assert files
+    for f in files:
+        for s in trials(load_sweep(f)):
+            check_trial(s)

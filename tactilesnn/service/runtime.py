@@ -85,10 +85,10 @@ class PipelineSession:
             opts.intra_op_num_threads = threads
         if not Path(path).is_file():
             raise FileNotFoundError(f"model file {path} does not exist")
-        source = _with_spikes_output(path) if expose_spikes else str(path)
         try:
+            source = _with_spikes_output(path) if expose_spikes else str(path)
             self.session = ort.InferenceSession(source, opts, providers=["CPUExecutionProvider"])
-        except Exception as e:  # onnxruntime raises its own types for unreadable graphs
+        except Exception as e:  # onnxruntime / protobuf raise their own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
         self.has_spikes = any(o.name == "spikes" for o in self.session.get_outputs())
         meta = self.session.get_modelmeta().custom_metadata_map
