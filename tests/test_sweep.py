@@ -117,3 +117,21 @@ def test_the_shipped_sweep_files_are_valid():
     for f in files:
         for s in trials(load_sweep(f)):
             check_trial(s)
+
+
+def test_generate_on_a_dask_cluster_writes_the_same_shards(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from tactilesnn.datasets_synth.generate import generate
+
+    local = generate("touch", 6, 1, tmp_path / "local", shard_size=2, workers=1, progress=False)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:  # fmt: skip
+        dask = generate("touch", 6, 1, tmp_path / "dask", shard_size=2, progress=False,
+                        scheduler=cluster.scheduler_address)  # fmt: skip
+    assert [s["sha256"] for s in dask["shards"]] == [s["sha256"] for s in local["shards"]]
+
+
+def test_demo_stream_without_a_service_is_a_clear_error(capsys):
+    port = 1  # nothing listens there
+    rc = main(["demo-stream", "--url", f"http://127.0.0.1:{port}", "--seconds", "1"])
+    assert rc == 2 and "is tactilesnn serve running" in capsys.readouterr().err
