@@ -516,10 +516,18 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks", "real")
+BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks", "real", "pareto", "stability")
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    if args.name in ("pareto", "stability") and args.out is None:
+        raise ValueError(f"bench {args.name} needs --out DIR")
+    if args.name == "pareto":
+        from .bench import pareto
+
+        pareto.run(Path(args.out), task=args.task, quick=args.quick, epochs=args.bench_epochs or 10,
+                   overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+        return 0
     if args.name == "serve":
         from .bench import serve as bench_serve
 
@@ -732,8 +740,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--bench-epochs",
         type=int,
         default=None,
-        help="real: epochs (default: each model's own default, as train --data)",
+        help="real: epochs (default: each model's own default, as train --data); pareto: "
+        "epochs per configuration (default 10)",
     )
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
+                   help="pareto: the task whose pipelines are compared")  # fmt: skip
+    p.add_argument("--quick", action="store_true",
+                   help="pareto / stability: a few small cases (what the test suite runs)")  # fmt: skip
     p.set_defaults(func=cmd_bench)
     return parser
 

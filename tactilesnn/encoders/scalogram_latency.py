@@ -71,7 +71,21 @@ class ScalogramLatencySettings:
 
 @dataclass(frozen=True)
 class GWTConfig(ScalogramLatencySettings):
-    """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code."""
+    """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code; the statistics are taken
+    over the scalogram's frames, one every ``hop`` samples (exact decimation, ``hop`` times less
+    work; 1 = every sample)."""
+
+    hop: int = 1
+
+    FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "gwt_hop": "hop"}
+    HELP: ClassVar[dict[str, str]] = {
+        **ScalogramLatencySettings.HELP,
+        "hop": "scalogram frame every hop samples (1 = every sample; h costs ~h times less)",
+    }
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int(self.hop, "hop", 1)
 
 
 @dataclass(frozen=True)
@@ -142,12 +156,15 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
     MATRIX_BUDGET_BYTES: ClassVar[int] = 64 << 20
 
     def make_scalogram(self) -> nn.Module:
-        return GaborScalogram(self.fs_hz, self.freqs_hz)
+        if self.config.hop > self.window:
+            raise ValueError(f"gwt hop ({self.config.hop}) exceeds the window ({self.window})")
+        return GaborScalogram(self.fs_hz, self.freqs_hz, hop=self.config.hop)
 
     def onnx_module(self) -> nn.Module:
         # the matrix form is exact at the edges; its size grows with window^2 (a 13,000-sample
         # window needs ~54 GB), the FIR form with the longest wavelet only
-        matrix_bytes = 8 * self.window * self.config.n_bands * self.window
+        frames = -(-self.window // self.config.hop)
+        matrix_bytes = 8 * self.window * self.config.n_bands * frames
         if matrix_bytes <= self.MATRIX_BUDGET_BYTES:
             return super().onnx_module()
         return _WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window))

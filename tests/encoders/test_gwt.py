@@ -144,3 +144,31 @@ def test_feature_map_is_the_scalogram_the_code_reads():
     np.testing.assert_allclose(mag, scal, rtol=1e-6)
     lif = build_encoder(ENCODERS.config_class("lif")(), 200.0, 100, 2)
     assert lif.feature_map(x) is None
+
+
+def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
+    """hop h: the frames are every h-th frame of the full-rate scalogram (exact), and the
+    exported graph matches the torch encoder."""
+    import onnxruntime as ort
+    import torch
+
+    from tactilesnn.encoders import build_encoder
+    from tactilesnn.encoders.base import ENCODERS
+    from tactilesnn.encoders.scalogram_latency import unit_peak
+    from tactilesnn.export.graph import torch_to_onnx
+
+    cfg = ENCODERS.config_class("gwt")
+    x = np.random.default_rng(1).standard_normal((8, 2, 200)).astype(np.float32)
+    full = build_encoder(cfg(), 200.0, 200, 2)
+    dec = build_encoder(cfg(hop=5), 200.0, 200, 2)
+    t = unit_peak(torch.from_numpy(x))
+    np.testing.assert_allclose(dec.scalogram(t).numpy(), full.scalogram(t).numpy()[..., ::5],
+                               rtol=1e-4, atol=1e-6)  # fmt: skip
+    ref = dec.encode(x).numpy()
+    torch_to_onnx(dec.onnx_module(), (torch.from_numpy(x[:2]),), tmp_path / "g.onnx", ["window"],
+                  ["spikes"])  # fmt: skip
+    got = ort.InferenceSession(str(tmp_path / "g.onnx")).run(None, {"window": x})[0]
+    fin = np.isfinite(ref)
+    assert np.array_equal(np.isfinite(got), fin) and np.abs(got[fin] - ref[fin]).max() < 0.05
+    with pytest.raises(ValueError, match="hop"):
+        cfg(hop=0)

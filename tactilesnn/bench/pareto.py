@@ -1,0 +1,297 @@
+"""Run time against error, end to end (raw window -> class): ``tactilesnn bench pareto``.
+
+Each point is a pipeline configuration (encoder, bands, model, model size, time step) trained on
+the task's training split, then run at several precisions: torch float32 (the training path),
+torch with a float64 encoder, onnxruntime float32 (the exported graph, verified against torch)
+and onnxruntime dynamic int8. For each (configuration, precision):
+
+* test error with its 95 % interval (Wilson-free normal interval on the test windows);
+* compute per second of signal: one window every ``window / 2`` samples (the service's stream
+  hop), measured with 1 thread at batch 1 (latency) and batch 64 (throughput), median of
+  ``repeats``; the real-time factor is 1 s divided by that;
+* the encoder's error against its float64 run (max spike-time difference in ms where both spike,
+  and the number of slots that spike in one only);
+* model size (ONNX bytes; torch parameter bytes for the torch rows).
+
+Points on the Pareto front (no other point has both lower error and lower batch-1 cost) are
+marked. Writes ``pareto.json``, ``pareto.md`` and ``pareto.png`` (error vs cost, log axes).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import logging
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..config import PipelineConfig
+from ..datasets_synth import get_task
+from ..pipeline import SpikePipeline, accuracy_ci95
+from ..runs import RunWriter
+from ..spikes import clock_times
+from ..training import fit_and_evaluate
+
+log = logging.getLogger("tactilesnn")
+
+
+@dataclass(frozen=True)
+class Point:
+    """One configuration: a label and the flat pipeline settings it changes."""
+
+    label: str
+    settings: dict = field(default_factory=dict)
+
+
+#: the default task's sweep (10 epochs each: the ranking, not the last tenth of a point)
+FULL = (
+    Point("gwt20+tempotron (default)", {}),
+    Point("gwt10+tempotron", {"n_bands": 10}),
+    Point("gwt40+tempotron", {"n_bands": 40}),
+    Point("gwt20 mean+tempotron", {"stats": ("mean",)}),
+    Point("gwt20 hop4+tempotron", {"gwt_hop": 4}),
+    Point("gwt20 hop10+tempotron", {"gwt_hop": 10}),
+    Point("stft20+tempotron", {"encoder": "stft"}),
+    Point("gwt20+readout", {"model": "readout"}),
+    Point("gwt20+snn16 dt10", {"model": "snn", "snn_hidden": 16, "snn_dt_ms": 10.0}),
+    Point("gwt20+snn64 dt5", {"model": "snn", "snn_hidden": 64}),
+    Point("lif+readout", {"encoder": "lif", "model": "readout"}),
+)
+QUICK = (Point("gwt10 hop5+tempotron", {"n_bands": 10, "gwt_hop": 5}), Point("stft10+readout",
+         {"encoder": "stft", "n_bands": 10, "model": "readout"}))  # fmt: skip
+QUICK_TASK = {"n_planar": 12, "n_concave": 6, "n_convex": 6, "n_test": 6}
+
+
+def _median_s(fn, repeats: int) -> float:
+    fn()  # warm-up (allocations, onnxruntime's first run)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def encode_float64(pipe: SpikePipeline, X: np.ndarray, batch: int = 128) -> torch.Tensor:
+    """``pipe.encode`` with a float64 copy of its encoder (clock afferents appended alike)."""
+    enc64 = copy.deepcopy(pipe.encoder).double()
+    x = pipe._selected(X)
+    with torch.no_grad():
+        parts = [enc64.encode_batch(torch.from_numpy(np.asarray(x[i : i + batch], np.float64)))
+                 for i in range(0, len(x), batch)]  # fmt: skip
+    s = torch.cat(parts).double()
+    if pipe.n_clock:
+        clock = clock_times(pipe.n_clock, pipe.max_spikes, pipe.duration_ms).double()
+        s = torch.cat([s, clock.expand(s.shape[0], -1, -1)], dim=1)
+    return s
+
+
+def encoder_error(s32: torch.Tensor, s64: torch.Tensor) -> tuple[float, int]:
+    """(max |t32 - t64| ms where both spike, slots spiking in only one)."""
+    t32, t64 = s32.double().numpy(), s64.numpy()
+    both = np.isfinite(t32) & np.isfinite(t64)
+    dt = float(np.abs(t32[both] - t64[both]).max()) if both.any() else 0.0
+    return dt, int((np.isfinite(t32) != np.isfinite(t64)).sum())
+
+
+def _cost_ms_per_s(seconds_per_window: float, pipe: SpikePipeline) -> float:
+    """Compute (ms) per second of signal when a window is classified every half window."""
+    windows_per_s = pipe.fs_hz / max(1, pipe.window // 2)
+    return 1000.0 * seconds_per_window * windows_per_s
+
+
+def measure_point(pipe: SpikePipeline, test, repeats: int, tmp: Path) -> list[dict]:
+    """The precision rows of one trained pipeline (see the module docstring); its graphs are
+    written into the empty folder ``tmp``."""
+    from ..export import export_pipeline, quantize_int8
+    from ..service.runtime import PipelineSession
+
+    X, y = test.X, test.y
+    x1, x64 = X[:1], X[: min(64, len(X))]
+    rows = []
+    torch.set_num_threads(1)
+    spikes = pipe.encode(X)
+    pred = pipe.scores(spikes).argmax(1).numpy()
+    t1 = _median_s(lambda: pipe.scores(pipe.encode(x1)), repeats)
+    t64 = _median_s(lambda: pipe.scores(pipe.encode(x64)), repeats) / len(x64)
+    params = sum(v.size * v.itemsize for v in pipe.weights().values())
+    s64 = encode_float64(pipe, X)
+    enc_dt, enc_flips = encoder_error(spikes, s64)
+    rows.append(_row("torch float32", pred, y, t1, t64, pipe, params, enc_dt, enc_flips))
+    # the float64 encoder the float32 code is judged against, same model: is the rounding costly?
+    pred64 = pipe.scores(s64.float()).argmax(1).numpy()
+    rows.append(_row("torch, float64 encoder", pred64, y, None, None, pipe, params, 0.0, 0))
+    # onnxruntime float32 and int8 (1 intra-op thread)
+    path = tmp / "m.onnx"
+    export_pipeline(pipe, path, X[: min(256, len(X))])
+    for name, file in (("onnxruntime float32", path), ("onnxruntime int8", None)):
+        if file is None:
+            file = Path(quantize_int8(path, X[:64], y[:64])["path"])
+        sess = PipelineSession(str(file), threads=1)
+        got = sess.run(sess.validate(X)).argmax(1)
+        o1 = _median_s(lambda s=sess: s.run(x1), repeats)
+        o64 = _median_s(lambda s=sess: s.run(x64), repeats) / len(x64)
+        rows.append(_row(name, got, y, o1, o64, pipe, file.stat().st_size, enc_dt, enc_flips))
+    return rows
+
+
+def _row(precision, pred, y, t1, t64, pipe, size, enc_dt, enc_flips) -> dict:
+    acc = float((np.asarray(pred) == np.asarray(y)).mean())
+    cost1 = _cost_ms_per_s(t1, pipe) if t1 is not None else None
+    return {
+        "precision": precision,
+        "test_error": 1.0 - acc,
+        "test_error_ci95": accuracy_ci95(acc, len(y)),
+        "ms_per_window_batch1": None if t1 is None else 1000 * t1,
+        "ms_per_window_batch64": None if t64 is None else 1000 * t64,
+        "ms_per_signal_s_batch1": cost1,
+        "ms_per_signal_s_batch64": _cost_ms_per_s(t64, pipe) if t64 is not None else None,
+        "realtime_factor_batch1": None if cost1 is None else 1000.0 / cost1,
+        "encoder_max_time_err_ms": enc_dt,
+        "encoder_flipped_slots": enc_flips,
+        "size_bytes": int(size),
+    }
+
+
+def pareto_front(rows: list[dict], cost_key: str = "ms_per_signal_s_batch1") -> None:
+    """Mark ``row["front"]``: no other row has lower-or-equal error and cost, one strictly."""
+    timed = [r for r in rows if r.get(cost_key) is not None]
+    for r in rows:
+        r["front"] = False
+    for r in timed:
+        e, c = r["test_error"], r[cost_key]
+        r["front"] = not any(
+            (o["test_error"] <= e and o[cost_key] <= c) and (o["test_error"] < e or o[cost_key] < c)
+            for o in timed
+        )
+
+
+def realtime_factor_12_taxels(repeats: int, tmp: Path, window: int = 1000, hop: int = 1) -> dict:
+    """GWT + SNN on 12 taxels at 2 kHz, onnxruntime, 1 thread, batch 1: real-time factor of
+    classifying a window every half window (random weights: cost does not depend on them);
+    ``hop``: the GWT's frame hop."""
+    from ..export import export_pipeline
+    from ..service.runtime import PipelineSession
+
+    fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
+    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), f_hi_hz=800.0, f_lo_hz=5.0,
+                                   gwt_hop=hop)  # fmt: skip
+    pipe = SpikePipeline(cfg, fs, window, channels, ("a", "b"))
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((8, 12, window)).astype(np.float32)
+    pipe.calibrate(X)
+    path = tmp / f"rt{hop}.onnx"
+    export_pipeline(pipe, path, X)
+    sess = PipelineSession(str(path), threads=1)
+    t = _median_s(lambda: sess.run(X[:1]), repeats)
+    cost = _cost_ms_per_s(t, pipe)
+    return {"window_samples": window, "gwt_hop": hop, "ms_per_window": 1000 * t,
+            "ms_per_signal_s": cost, "realtime_factor": 1000.0 / cost}  # fmt: skip
+
+
+def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
+        epochs: int = 10, overwrite: bool = False, progress: bool = True) -> dict:  # fmt: skip
+    from tqdm.auto import tqdm
+
+    writer = RunWriter(Path(out), overwrite=overwrite)
+    try:
+        points = QUICK if quick else FULL
+        kw = QUICK_TASK if quick and task == "hook_loop" else {}
+        train, test = get_task(task, **kw).build()
+        rows: list[dict] = []
+        threads = torch.get_num_threads()
+        with tempfile.TemporaryDirectory() as tmp:
+            for p in tqdm(points, desc="bench pareto", unit="config", disable=not progress):
+                torch.set_num_threads(threads)  # training at full speed, timing on 1 thread
+                flat = {"epochs": 1 if quick else epochs, **p.settings}
+                if task != "hook_loop":
+                    flat.setdefault("channels", ("all",))
+                res = fit_and_evaluate(PipelineConfig.from_flat(**flat), train, test)
+                folder = Path(tmp) / f"p{len(rows)}"
+                folder.mkdir()
+                for r in measure_point(res.pipeline, test, 3 if quick else repeats, folder):
+                    rows.append({"config": p.label, **r})
+            rt = [realtime_factor_12_taxels(3 if quick else repeats, Path(tmp),
+                                            window=400 if quick else 1000, hop=h)
+                  for h in (1, 10)]  # fmt: skip
+        torch.set_num_threads(threads)
+        pareto_front(rows)
+        result = {"task": task, "epochs": 1 if quick else epochs, "rows": rows,
+                  "realtime_12_taxels_2khz_gwt_snn": rt}  # fmt: skip
+        writer.write_json("pareto.json", result)
+        table = format_table(rows)
+        writer.file("pareto.md").write_text(table + "\n\n" + "\n".join(map(format_rt, rt)) + "\n")
+        plot(rows, writer.file("pareto.png"), task)
+        path = writer.commit()
+    except BaseException:
+        writer.abort()
+        raise
+    print(table)
+    print("\n".join(map(format_rt, rt)))
+    print(f"written: {path}/pareto.json, pareto.md, pareto.png")
+    return result
+
+
+def format_rt(rt: dict) -> str:
+    return (f"GWT (hop {rt['gwt_hop']}) + SNN, 12 taxels @ 2 kHz, {rt['window_samples']}-sample "
+            "windows every half "
+            f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
+            f"{rt['ms_per_signal_s']:.2f} ms per second of signal = "
+            f"{rt['realtime_factor']:.0f}x real time")  # fmt: skip
+
+
+def format_table(rows: list[dict]) -> str:
+    def f(v, fmt):
+        return "-" if v is None else format(v, fmt)
+
+    head = ("| config | precision | test error % | ms / s signal, batch 1 | batch 64 | "
+            "real-time x | encoder err ms (flips) | size kB | front |")  # fmt: skip
+    lines = [head, "|" + "---|" * 9]
+    for r in sorted(rows, key=lambda r: r["ms_per_signal_s_batch1"] or np.inf):
+        lines.append(
+            f"| {r['config']} | {r['precision']} | {100 * r['test_error']:.2f} +- "
+            f"{100 * r['test_error_ci95']:.2f} | {f(r['ms_per_signal_s_batch1'], '.2f')} | "
+            f"{f(r['ms_per_signal_s_batch64'], '.3f')} | {f(r['realtime_factor_batch1'], '.0f')} | "
+            f"{r['encoder_max_time_err_ms']:.1e} ({r['encoder_flipped_slots']}) | "
+            f"{r['size_bytes'] / 1024:.1f} | {'**yes**' if r['front'] else ''} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(rows: list[dict], path: Path, task: str) -> None:
+    from ..plots import _pyplot
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    marks = {"torch float32": "o", "onnxruntime float32": "s", "onnxruntime int8": "^"}
+    for r in rows:
+        if r["ms_per_signal_s_batch1"] is None:
+            continue
+        err = max(r["test_error"], 1e-4)
+        ax.errorbar(r["ms_per_signal_s_batch1"], 100 * err, yerr=100 * r["test_error_ci95"],
+                    fmt=marks.get(r["precision"], "o"), ms=7 if r["front"] else 4,
+                    color="C3" if r["front"] else "C0", alpha=0.9 if r["front"] else 0.45,
+                    elinewidth=0.6)  # fmt: skip
+        if r["front"]:
+            ax.annotate(f"{r['config']}\n{r['precision']}", (r["ms_per_signal_s_batch1"], 100 * err),
+                        fontsize=6, xytext=(4, 4), textcoords="offset points")  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("compute per second of signal (ms, 1 thread, batch 1)")
+    ax.set_ylabel("test error (%)")
+    ax.set_title(f"{task}: error vs run time (red: Pareto front; o torch, s ORT f32, ^ ORT int8)",
+                 fontsize=9)  # fmt: skip
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def load(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
