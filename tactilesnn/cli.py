@@ -522,6 +522,11 @@ BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks", "real", "paret
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.name in ("pareto", "stability") and args.out is None:
         raise ValueError(f"bench {args.name} needs --out DIR")
+    if args.name == "stability":
+        from .bench import stability
+
+        _, ok = stability.run(Path(args.out), quick=args.quick, progress=not args.quiet)
+        return 0 if ok else 1
     if args.name == "pareto":
         from .bench import pareto
 

@@ -1,0 +1,62 @@
+"""bench pareto --quick and bench stability --quick: real runs on small cases, with verdicts."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tactilesnn.bench import pareto, stability
+from tactilesnn.cli import main
+
+
+def test_pareto_front_definition():
+    rows = [
+        {"test_error": 0.1, "ms_per_signal_s_batch1": 1.0},
+        {"test_error": 0.05, "ms_per_signal_s_batch1": 2.0},
+        {"test_error": 0.2, "ms_per_signal_s_batch1": 3.0},  # dominated by both
+        {"test_error": 0.05, "ms_per_signal_s_batch1": 2.5},  # dominated (same error, slower)
+        {"test_error": 0.0, "ms_per_signal_s_batch1": None},  # untimed: never on the front
+    ]
+    pareto.pareto_front(rows)
+    assert [r["front"] for r in rows] == [True, True, False, False, False]
+
+
+def test_quick_pareto_writes_table_plot_and_a_front(tmp_path, capsys):
+    out = tmp_path / "p"
+    assert main(["bench", "pareto", "--quick", "--out", str(out), "--quiet"]) == 0
+    res = json.loads((out / "pareto.json").read_text())
+    rows = res["rows"]
+    assert {r["precision"] for r in rows} == {"torch float32", "torch, float64 encoder",
+                                              "onnxruntime float32", "onnxruntime int8"}  # fmt: skip
+    assert len(rows) == 4 * len(pareto.QUICK) and any(r["front"] for r in rows)
+    for r in rows:
+        assert 0 <= r["test_error"] <= 1 and r["size_bytes"] > 0
+        if r["ms_per_signal_s_batch1"] is not None:
+            assert r["realtime_factor_batch1"] == pytest.approx(1000 / r["ms_per_signal_s_batch1"])
+        assert r["encoder_max_time_err_ms"] < 0.05  # float32 code vs its float64 run
+    f32 = {r["config"]: r for r in rows if r["precision"] == "torch float32"}
+    ort = {r["config"]: r for r in rows if r["precision"] == "onnxruntime float32"}
+    for k in f32:  # the exported graph classifies the test split as torch does
+        assert ort[k]["test_error"] == pytest.approx(f32[k]["test_error"], abs=0.01)
+    assert [rt["gwt_hop"] for rt in res["realtime_12_taxels_2khz_gwt_snn"]] == [1, 10]
+    assert (out / "pareto.png").stat().st_size > 10_000 and "**yes**" in (
+        out / "pareto.md"
+    ).read_text()
+
+
+def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, monkeypatch):
+    rows, ok = stability.run(tmp_path / "s", quick=True, progress=False)
+    assert ok, [r for r in rows if not r["passed"]]
+    assert {r["stage"] for r in rows} >= {"amplitude_span", "long_stream", "float32_drift",
+                                          "snn_long", "onnx_vs_torch", "int8_vs_float32"}  # fmt: skip
+    saved = json.loads((tmp_path / "s" / "stability.json").read_text())
+    assert saved["ok"] and len(saved["stages"]) == len(rows)
+
+    def broken(quick):
+        raise FloatingPointError("NaN in stage")
+
+    monkeypatch.setattr(stability, "STAGES", (("broken", 0.0, broken),))
+    monkeypatch.setattr(stability, "onnx_and_int8", lambda quick: [])
+    assert main(["bench", "stability", "--quick", "--out", str(tmp_path / "f"), "--quiet"]) == 1
+    assert not json.loads((tmp_path / "f" / "stability.json").read_text())["ok"]
