@@ -237,6 +237,13 @@ def fit_and_evaluate(
     }
     if early is not None:
         metrics["early_decision"] = early
+    skipped = pipe.encoder.skip_stats()
+    if skipped is not None:  # what the skipping changed: the test split encoded without it
+        with pipe.encoder.skipping(False):
+            full = pipe.scores(pipe.encode(test.X)).numpy().argmax(1)
+        metrics["activity_gate"] = {**skipped, "test_accuracy_without_skipping":
+                                    float((full == test.y).mean()),
+                                    "predictions_changed": float((full != pred).mean())}  # fmt: skip
     per_rec = recording_accuracy(test_scores, test.y, test.scan)
     if per_rec is not None:
         metrics.update(per_rec)

@@ -20,6 +20,7 @@ class; nothing else in the package names it.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from abc import abstractmethod
 from collections.abc import Callable
@@ -103,6 +104,21 @@ class SpikeEncoder(nn.Module):
             chunk = torch.from_numpy(np.ascontiguousarray(arr[i : i + batch], dtype=np.float32))
             out[i : i + batch] = self.encode_batch(chunk)
         return out
+
+    def skip_stats(self) -> dict | None:
+        """What the encoder skipped since it was built (e.g. an activity gate: the fraction of
+        (window, channel) pairs not transformed), or None if it skips nothing."""
+        return None
+
+    @contextlib.contextmanager
+    def skipping(self, enabled: bool):
+        """Within the block, skip (default) or compute everything, to measure what skipping
+        changes."""
+        yield
+
+    def export_metadata(self) -> dict[str, str]:
+        """Extra ONNX metadata a runtime needs to reproduce this encoder's skipping."""
+        return {}
 
     def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """For pictures: the intermediate map one window ``[channels, samples]`` is coded from,

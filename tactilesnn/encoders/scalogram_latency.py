@@ -8,6 +8,9 @@ The exported graph is the scalogram as two MatMuls + modulus (+ band pooling) + 
 
 from __future__ import annotations
 
+import contextlib
+import json
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -33,6 +36,7 @@ class ScalogramLatencySettings:
     stats: tuple[str, ...] = ("mean", "std")
     mapping: str = "log"
     dynamic_range_db: float = 30.0
+    gate: float = 0.0
 
     FLAGS: ClassVar[dict[str, str]] = {
         "f_lo_hz": "f_lo_hz",
@@ -41,6 +45,7 @@ class ScalogramLatencySettings:
         "stats": "stats",
         "mapping": "mapping",
         "dynamic_range_db": "dynamic_range_db",
+        "gate": "gate",
     }
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"stats": STATS, "mapping": MAPPINGS}
     HELP: ClassVar[dict[str, str]] = {
@@ -50,6 +55,8 @@ class ScalogramLatencySettings:
         "stats": f"per-band statistics, each one afferent ({', '.join(STATS)})",
         "mapping": f"amplitude -> latency mapping ({', '.join(MAPPINGS)})",
         "dynamic_range_db": "log mapping: dB below the strongest band that still spike",
+        "gate": "activity gate: a window's channel whose RMS about its mean is below gate x the "
+        "channel's median training RMS is not transformed and stays silent (0 = off)",
     }
 
     def __post_init__(self) -> None:
@@ -67,6 +74,8 @@ class ScalogramLatencySettings:
             check_choice(st, "statistic", STATS)
         check_choice(self.mapping, "mapping", MAPPINGS)
         check_positive(self.dynamic_range_db, "dynamic_range_db")
+        if not (np.isfinite(self.gate) and self.gate >= 0):
+            raise ValueError(f"gate must be a finite number >= 0, got {self.gate}")
 
 
 @dataclass(frozen=True)
@@ -111,6 +120,9 @@ class STFTConfig(ScalogramLatencySettings):
 class ScalogramLatencyEncoder(SpikeEncoder):
     """Scalogram of the window -> one latency spike per (channel, statistic, band)."""
 
+    #: runs saved before the activity gate load with it off
+    optional_state: ClassVar[tuple[str, ...]] = ("gate_rms",)
+
     def __init__(self, config, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__(config, fs_hz, window, n_channels)
         f_hi = min(config.f_hi_hz, 0.45 * self.fs_hz)
@@ -122,6 +134,40 @@ class ScalogramLatencyEncoder(SpikeEncoder):
             stats=config.stats,
             dynamic_range_db=config.dynamic_range_db,
         )
+        # activity gate: per-channel RMS (input units) at or below which a window's channel is
+        # skipped; learnt by fit() (gate x the median training RMS)
+        self.register_buffer("gate_rms", torch.zeros(n_channels))
+        if config.gate > 0:
+            self.fitted.fill_(False)
+        self.gate_enabled = True
+        self.gate_counts = [0, 0]  # (window, channel) pairs seen, skipped
+
+    def fit(self, X: np.ndarray) -> ScalogramLatencyEncoder:
+        if self.config.gate > 0:
+            rms = np.asarray(X, np.float64).std(axis=-1)  # [N, C] about each window's mean
+            self.gate_rms.copy_(torch.from_numpy(self.config.gate * np.median(rms, axis=0)))
+        self.fitted.fill_(True)
+        return self
+
+    def skip_stats(self) -> dict | None:
+        if self.config.gate <= 0:
+            return None
+        seen, skipped = self.gate_counts
+        return {"gate": self.config.gate, "channel_windows": seen,
+                "skipped_fraction": skipped / max(seen, 1)}  # fmt: skip
+
+    @contextlib.contextmanager
+    def skipping(self, enabled: bool):
+        old, self.gate_enabled = self.gate_enabled, enabled
+        try:
+            yield
+        finally:
+            self.gate_enabled = old
+
+    def export_metadata(self) -> dict[str, str]:
+        if self.config.gate <= 0:
+            return {}
+        return {"gate_rms": json.dumps([float(v) for v in self.gate_rms])}
 
     def make_scalogram(self) -> nn.Module:
         """The scalogram module of this encoder (each subclass provides its own)."""
@@ -136,10 +182,30 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         return 48 * self.n_channels * (self.config.n_bands + 1) * 3 * self.window
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        return self.code(self.scalogram(unit_peak(x))).unsqueeze(-1)
+        if self.config.gate <= 0 or not self.gate_enabled:
+            return self.code(self.scalogram(unit_peak(x))).unsqueeze(-1)
+        n, c = x.shape[0], x.shape[1]
+        active = x.std(-1, unbiased=False) > self.gate_rms.to(x.dtype)  # [n, C]
+        per = len(self.config.stats) * self.config.n_bands
+        out = torch.full((n, c, per), math.inf, dtype=torch.float32)
+        b, ch = active.nonzero(as_tuple=True)
+        if b.numel():  # only the active (window, channel) pairs are transformed
+            sub = x[b, ch].unsqueeze(1)
+            out[b, ch] = self.code(self.scalogram(unit_peak(sub))).to(torch.float32)
+        self.gate_counts[0] += n * c
+        self.gate_counts[1] += n * c - int(b.numel())
+        return out.reshape(n, c * per, 1)
 
     def onnx_module(self) -> nn.Module:
-        return _WithSlot(WindowEncoder(self.scalogram, self.code, self.window))
+        return self._gated(_WithSlot(WindowEncoder(self.scalogram, self.code, self.window)))
+
+    def _gated(self, graph: nn.Module) -> nn.Module:
+        """The exported encoder with the activity gate applied as a mask (same spikes as
+        :meth:`encode_batch`; the graph computes every channel, the service skips silent
+        windows itself, see :mod:`tactilesnn.service.runtime`)."""
+        if self.config.gate <= 0:
+            return graph
+        return _GateMask(graph, self.gate_rms, len(self.config.stats) * self.config.n_bands)
 
     @torch.no_grad()
     def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -167,7 +233,7 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
         matrix_bytes = 8 * self.window * self.config.n_bands * frames
         if matrix_bytes <= self.MATRIX_BUDGET_BYTES:
             return super().onnx_module()
-        return _WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window))
+        return self._gated(_WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window)))
 
 
 def unit_peak(x: Tensor) -> Tensor:
@@ -190,6 +256,21 @@ class STFTLatencyEncoder(ScalogramLatencyEncoder):
         if frame > self.window:
             raise ValueError(f"frame_samples ({frame}) exceeds the window ({self.window})")
         return STFTScalogram(self.fs_hz, self.freqs_hz, nperseg=frame)
+
+
+class _GateMask(nn.Module):
+    """Spike times ``[B, C * per, 1]`` silenced where the window's channel RMS <= ``gate_rms``."""
+
+    def __init__(self, inner: nn.Module, gate_rms: Tensor, per: int) -> None:
+        super().__init__()
+        self.inner, self.per = inner, int(per)
+        self.register_buffer("gate_rms", gate_rms.clone().float())
+
+    def forward(self, x: Tensor) -> Tensor:
+        t = self.inner(x)
+        active = x.std(-1, unbiased=False) > self.gate_rms  # [B, C]
+        mask = active.unsqueeze(-1).expand(-1, -1, self.per).reshape(t.shape[0], -1, 1)
+        return torch.where(mask, t, torch.full_like(t, math.inf))
 
 
 class _WithSlot(nn.Module):

@@ -118,6 +118,8 @@ def export_pipeline(
         "state_inputs": json.dumps([n for n, _ in pipe.model.state_names]),
         "pipeline_config": json.dumps(pipe.config.to_dict()),
         "bytes_per_window": str(pipe.bytes_per_window()),
+        "encoder_channels": json.dumps([int(i) for i in pipe.channel_idx]),
+        **pipe.encoder.export_metadata(),
         **(metadata or {}),
     }
     for k, v in meta.items():

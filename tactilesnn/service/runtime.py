@@ -107,6 +107,14 @@ class PipelineSession:
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
         self.stateful = bool(self.state_units)
+        # activity gate of the encoder: a window in which no encoder channel exceeds its RMS
+        # threshold is all silent, and a stateless model's scores for it are always the same,
+        # so the stream path answers it from a cache instead of running the graph
+        gate = json.loads(meta.get("gate_rms", "null") or "null")
+        self.gate_rms = None if gate is None or self.stateful else np.asarray(gate, np.float64)
+        self.gate_channels = json.loads(meta.get("encoder_channels", "null") or "null")
+        self._silent: tuple[np.ndarray, np.ndarray | None] | None = None
+        self.stats = {"stream_windows": 0, "stream_windows_skipped": 0}
 
     def info(self) -> dict:
         return {
@@ -115,6 +123,7 @@ class PipelineSession:
             "channels": self.channels,
             "class_names": self.class_names,
             "stateful": self.stateful,
+            "stats": dict(self.stats),
             "metadata": self.metadata,
         }
 
@@ -182,6 +191,23 @@ class PipelineSession:
             "scores": scores.tolist(),
         }
 
+    def _silent_window(self, win: np.ndarray) -> bool:
+        if self.gate_rms is None or self.gate_channels is None:
+            return False
+        rms = win[0, self.gate_channels].astype(np.float64).std(axis=-1)
+        return bool((rms <= self.gate_rms).all())
+
+    def _run_gated(self, win: np.ndarray, state: StreamState):
+        """One stream window: from the silent-window cache when the gate skips it (stateless
+        models only; the result is identical), else through the graph."""
+        self.stats["stream_windows"] += 1
+        if self._silent_window(win):
+            if self._silent is None:
+                self._silent = self.run_detail(np.zeros_like(win))
+            self.stats["stream_windows_skipped"] += 1
+            return self._silent
+        return self.run_detail(win, state if self.stateful else None)
+
     def feed_stream(
         self, state: StreamState, chunk: object, hop: int | None = None, detail: bool = False
     ) -> list[dict]:
@@ -210,7 +236,7 @@ class PipelineSession:
         results = []
         while buf.shape[1] >= self.window:
             win = buf[None, :, : self.window]
-            scores, spikes = self.run_detail(win, state if self.stateful else None)
+            scores, spikes = self._run_gated(win, state)
             k = int(scores[0].argmax())
             res = {
                 "window_index": state.windows_done,

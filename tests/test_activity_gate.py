@@ -1,0 +1,79 @@
+"""Activity gate on the main paths: encoder, training metrics, export and the service stream."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from tactilesnn.config import PipelineConfig
+from tactilesnn.datasets_synth import WindowDataset
+from tactilesnn.encoders import build_encoder
+from tactilesnn.encoders.base import ENCODERS
+from tactilesnn.export import export_pipeline
+from tactilesnn.service.runtime import PipelineSession, StreamState
+from tactilesnn.training import fit_and_evaluate
+
+FS, W = 200.0, 100
+
+
+def _touches(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Windows of 3 taxels: noise everywhere, one taxel touched by a class-specific vibration
+    in half of the windows (the other half: nothing touched)."""
+    rng = np.random.default_rng(seed)
+    X = 1e-3 * rng.standard_normal((n, 3, W))
+    y = rng.integers(0, 2, n)
+    t = np.arange(W) / FS
+    touched = rng.random(n) < 0.5
+    for i in np.flatnonzero(touched):
+        f = 20.0 if y[i] else 60.0
+        X[i, rng.integers(3)] += np.sin(2 * np.pi * f * t + rng.uniform(0, 6))
+    return X.astype(np.float32), y
+
+
+def test_gate_skips_quiet_channels_and_keeps_active_ones_exact():
+    X, _ = _touches(64, 0)
+    for name in ("gwt", "stft"):
+        cfg = ENCODERS.config_class(name)
+        ref = build_encoder(cfg(), FS, W, 3).fit(X)
+        gated = build_encoder(cfg(gate=3.0), FS, W, 3).fit(X)
+        a, b = ref.encode(X).numpy(), gated.encode(X).numpy()
+        per = a.shape[1] // 3
+        active = X.std(-1) > gated.gate_rms.numpy()
+        assert 0 < active.mean() < 0.5  # the touched channels only
+        for c in range(3):
+            blk = slice(c * per, (c + 1) * per)
+            # same code up to float32 rounding (a smaller FFT batch), same silent slots
+            np.testing.assert_allclose(b[active[:, c], blk], a[active[:, c], blk], atol=0.05)
+            assert np.isinf(b[~active[:, c], blk]).all()
+        st = gated.skip_stats()
+        assert st["channel_windows"] == X.shape[0] * 3
+        assert st["skipped_fraction"] == 1 - active.mean()
+        with gated.skipping(False):
+            np.testing.assert_array_equal(gated.encode(X).numpy(), a)
+        assert ref.skip_stats() is None
+
+
+def test_training_reports_the_gate_and_the_service_skips_silent_windows_exactly(tmp_path):
+    Xtr, ytr = _touches(400, 1)
+    Xte, yte = _touches(200, 2)
+    names, classes = ("t0", "t1", "t2"), ("slow", "fast")
+    tr = WindowDataset(Xtr, ytr, np.arange(400), FS, classes, names)
+    te = WindowDataset(Xte, yte, np.arange(200), FS, classes, names)
+    cfg = PipelineConfig.from_flat(model="readout", channels=("all",), gate=3.0, epochs=5)
+    res = fit_and_evaluate(cfg, tr, te)
+    gate = res.metrics["activity_gate"]
+    assert 0.5 < gate["skipped_fraction"] < 0.95
+    assert 0 <= gate["predictions_changed"] <= 1 and "test_accuracy_without_skipping" in gate
+    path = tmp_path / "m.onnx"
+    export_pipeline(res.pipeline, path, Xte)  # the graph masks as the encoder skips
+    sess = PipelineSession(str(path))
+    assert json.loads(sess.metadata["encoder_channels"]) == [0, 1, 2]
+    # a stream of quiet and touched windows: identical to running the graph on every window
+    stream = np.concatenate(list(Xte[:20]), axis=1)
+    got = sess.feed_stream(StreamState(), stream, hop=W)
+    want = sess.run(Xte[:20])
+    np.testing.assert_allclose([r["scores"] for r in got], want, atol=1e-6)
+    assert sess.info()["stats"]["stream_windows"] == 20
+    quiet = (Xte[:20].std(-1) <= res.pipeline.encoder.gate_rms.numpy()).all(1).sum()
+    assert sess.info()["stats"]["stream_windows_skipped"] == quiet > 0
