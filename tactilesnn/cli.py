@@ -516,12 +516,27 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = ("gwt-vs-stft", "encoders", "snn", "serve", "tasks", "real", "pareto", "stability")
+BENCHMARKS = (
+    "gwt-vs-stft",
+    "encoders",
+    "snn",
+    "serve",
+    "tasks",
+    "real",
+    "pareto",
+    "stability",
+    "skip",
+)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.name in ("pareto", "stability") and args.out is None:
         raise ValueError(f"bench {args.name} needs --out DIR")
+    if args.name == "skip":
+        from .bench import skip
+
+        skip.run(Path(args.out) if args.out else None, quick=args.quick)
+        return 0
     if args.name == "stability":
         from .bench import stability
 
@@ -751,7 +766,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
                    help="pareto: the task whose pipelines are compared")  # fmt: skip
     p.add_argument("--quick", action="store_true",
-                   help="pareto / stability: a few small cases (what the test suite runs)")  # fmt: skip
+                   help="pareto / stability / skip: a few small cases (as the test suite runs)")  # fmt: skip
     p.set_defaults(func=cmd_bench)
     return parser
 

@@ -60,3 +60,18 @@ def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, 
     monkeypatch.setattr(stability, "onnx_and_int8", lambda quick: [])
     assert main(["bench", "stability", "--quick", "--out", str(tmp_path / "f"), "--quiet"]) == 1
     assert not json.loads((tmp_path / "f" / "stability.json").read_text())["ok"]
+
+
+def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
+    from tactilesnn.bench import skip
+
+    res = skip.run(tmp_path / "k", quick=True)
+    g = res["encoder_gate"]
+    assert [r["touched_taxels"] for r in g] == [1, 3]
+    # fewer touched taxels: more skipped; the transformed pairs keep their code
+    assert g[0]["skipped_fraction"] > g[1]["skipped_fraction"] > 0.3
+    assert all(r["max_time_change_ms_transformed"] < 0.05 for r in g)
+    assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
+    e = res["early_decision"]
+    assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
+    assert (tmp_path / "k" / "skip.json").is_file()

@@ -1,0 +1,132 @@
+"""Skip what a scene does not need, measured: ``tactilesnn bench skip``.
+
+Three mechanisms, each as compute saved against output change:
+
+* **encoder activity gate** (``--gate``, the pipeline's GWT encoder as trained and exported): a
+  12-taxel capacitive-piezo array (200 S/s) with 1, 3, 6 or 12 taxels touched by a hook-and-loop
+  scan, cut into the default task's 100-sample windows (hop 50); gate = 0.1 x the median training
+  RMS, fitted on the all-touched scene. Encode time with and without the gate (1 thread, median),
+  (window, taxel) pairs skipped, the largest spike-time change on the transformed pairs, and the
+  fraction of spike slots that changed (a skipped quiet pair loses the spikes its noise made);
+* **PVDF sensor skipping** (readout simulates only what a contact can reach): from
+  :func:`tactilesnn.bench.tasks.skip_pvdf`;
+* **tempotron early decision** on the default task (10 epochs): the decision time, the window
+  and input spikes it skips and the accuracy change.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..runs import write_json_atomic
+from .sparse import taxel_streams
+
+GATE = 0.1
+WINDOW, HOP = 100, 50
+
+
+def _windows(x: np.ndarray) -> np.ndarray:
+    """``[1, taxels, samples]`` -> ``[windows, taxels, 100]`` (hop 50)."""
+    v = np.lib.stride_tricks.sliding_window_view(x[0], WINDOW, axis=-1)[:, ::HOP]
+    return np.ascontiguousarray(v.transpose(1, 0, 2))
+
+
+def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
+    from ..encoders import build_encoder
+    from ..encoders.base import ENCODERS
+
+    torch.set_num_threads(1)
+    cfg = ENCODERS.config_class("gwt")
+    train, _ = taxel_streams(12, 12, seed=1)
+    Xtr = _windows(train)
+    gated = build_encoder(cfg(gate=GATE), 200.0, WINDOW, 12).fit(Xtr)
+    plain = build_encoder(cfg(), 200.0, WINDOW, 12)
+    rows = []
+    for touched in (1, 3) if quick else (1, 3, 6, 12):
+        x, _ = taxel_streams(12, touched)
+        X = _windows(x)
+        if quick:
+            X = X[:64]
+        ref = plain.encode(X).numpy()
+        gated.gate_counts = [0, 0]
+        out = gated.encode(X).numpy()
+        skipped = gated.skip_stats()["skipped_fraction"]
+        t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
+        t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
+        both = np.isfinite(ref) & np.isfinite(out)
+        rows.append({
+            "touched_taxels": touched, "windows": int(X.shape[0]),
+            "ms_ungated": 1000 * t_plain, "ms_gated": 1000 * t_gated,
+            "speedup": t_plain / t_gated, "skipped_fraction": skipped,
+            "max_time_change_ms_transformed": float(np.abs(ref[both] - out[both]).max())
+            if both.any() else 0.0,
+            "slots_changed_fraction": float((np.isfinite(ref) != np.isfinite(out)).mean()),
+        })  # fmt: skip
+    return rows
+
+
+def early_decision(quick: bool = False) -> dict:
+    from ..config import PipelineConfig
+    from ..datasets_synth import get_task
+    from ..training import fit_and_evaluate
+
+    kw = {"n_planar": 12, "n_concave": 6, "n_convex": 6, "n_test": 6} if quick else {}
+    train, test = get_task("hook_loop", **kw).build()
+    res = fit_and_evaluate(PipelineConfig.from_flat(epochs=2 if quick else 10), train, test)
+    e = res.metrics["early_decision"]
+    return {**e, "full_window_accuracy": res.metrics["test_accuracy"]}
+
+
+def _time(fn, x) -> float:
+    t0 = time.perf_counter()
+    fn(x)
+    return time.perf_counter() - t0
+
+
+def run(out: Path | None, quick: bool = False) -> dict:
+    from .tasks import skip_pvdf
+
+    gate = encoder_gate(repeats=3 if quick else 7, quick=quick)
+    pvdf = skip_pvdf(repeats=2 if quick else 5, seconds=10.0 if quick else 40.0)
+    early = early_decision(quick)
+    res = {"encoder_gate": gate, "pvdf": pvdf, "early_decision": early}
+    print(format_report(res))
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        write_json_atomic(Path(out) / "skip.json", res)
+    return res
+
+
+def format_report(res: dict) -> str:
+    lines = [
+        f"Encoder activity gate (GWT, gate {GATE} x median training RMS), 12 taxels:",
+        "| touched | windows | ungated ms | gated ms | speed-up | (window, taxel) skipped | "
+        "max change on transformed (ms) | spike slots changed |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in res["encoder_gate"]:
+        lines.append(
+            f"| {r['touched_taxels']} / 12 | {r['windows']} | {r['ms_ungated']:.1f} | "
+            f"{r['ms_gated']:.1f} | {r['speedup']:.1f}x | {100 * r['skipped_fraction']:.0f} % | "
+            f"{r['max_time_change_ms_transformed']:.1e} | {100 * r['slots_changed_fraction']:.1f} % |"
+        )
+    p = res["pvdf"]
+    lines.append(
+        f"PVDF sensor skipping: full {1000 * p['full_s']:.1f} ms, skip {1000 * p['skip_s']:.1f} ms "
+        f"({p['speedup']:.1f}x); max output difference {p['max_diff_pC']:.1e} pC (noise rms "
+        f"{p['noise_rms_pC']:.1e} pC)"
+    )
+    e = res["early_decision"]
+    lines.append(
+        f"Tempotron early decision: decides at {e['mean_decision_ms']:.0f} ms on average "
+        f"({100 * e['window_skipped_fraction']:.0f} % of the window and "
+        f"{100 * e['input_spikes_skipped_fraction']:.0f} % of the input spikes skipped); accuracy "
+        f"{100 * e['accuracy']:.2f} % vs {100 * e['full_window_accuracy']:.2f} % on the full "
+        f"window ({100 * e['agrees_with_full_window']:.1f} % same decision)"
+    )
+    return "\n".join(lines)
