@@ -23,8 +23,19 @@ test: $(STAMP)
 	$(BIN)/ruff format --check tactilesnn tests train.py
 	$(BIN)/pytest
 
-bench: $(STAMP)
-	$(BIN)/tactilesnn bench gwt-vs-stft --seeds 5 --out bench_out/gwt_vs_stft
+# the benchmark peers (snnTorch, Norse, SpikingJelly, ssqueezepy, fCWT); fCWT loads Debian's
+# libfftw3-single3 (apt-get install libfftw3-single3)
+$(VENV)/.bench: $(STAMP)
+	$(BIN)/pip install -q -c constraints.txt -e '.[dev,bench]'
+	touch $(VENV)/.bench
+
+bench: $(VENV)/.bench
+	$(BIN)/tactilesnn bench snn --out bench_out/snn
+	$(BIN)/tactilesnn bench encoders --out bench_out/encoders
+	$(BIN)/tactilesnn bench pareto --out bench_out/pareto --overwrite
+	$(BIN)/tactilesnn bench stability --out bench_out/stability
+	$(BIN)/tactilesnn bench skip --out bench_out/skip
+	$(BIN)/tactilesnn bench gwt-vs-stft --seeds 5 --out bench_out/gwt_vs_stft --overwrite
 
 clean:
 	rm -rf $(VENV) runs bench_out

@@ -17,7 +17,8 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from ..models.snn import LIFLayer, lif_scan_reference
+from ..models.functional import lif_scan
+from ..models.snn import LIFLayer
 
 T, B, N_IN, N_H, N_OUT = 500, 64, 96, 128, 10
 BETA = 0.95
@@ -47,8 +48,8 @@ class Ours(nn.Module):
 def reference_forward(model: Ours, x: torch.Tensor) -> torch.Tensor:
     """Plain per-step loop with the same weights (no custom autograd, no hoisting)."""
     with torch.no_grad():
-        h, _ = lif_scan_reference(model.l1.fc(x), torch.zeros(B, N_H), BETA, 1.0)
-        o, _ = lif_scan_reference(model.l2.fc(h), torch.zeros(B, N_OUT), BETA, 1.0)
+        h, _ = lif_scan(model.l1.fc(x), torch.zeros(B, N_H), BETA, 1.0, True)
+        o, _ = lif_scan(model.l2.fc(h), torch.zeros(B, N_OUT), BETA, 1.0, True)
     return o
 
 

@@ -75,3 +75,20 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     e = res["early_decision"]
     assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
     assert (tmp_path / "k" / "skip.json").is_file()
+
+
+def test_bench_snn_runs_and_ours_equals_the_functional_reference(monkeypatch):
+    """`bench snn` imports and runs (it once broke silently when the reference moved); peers
+    are measured only where the bench extra is installed."""
+    import importlib.util
+
+    from tactilesnn.bench import snn
+
+    real_find = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda n, *a: None if n in ("snntorch", "norse", "spikingjelly")
+                        else real_find(n, *a))  # fmt: skip
+    monkeypatch.setattr(snn, "T", 40)
+    res = snn.run(repeats=1)
+    assert res["ours_equals_reference"]
+    assert {r["threads"] for r in res["rows"]} == {1, 2}
