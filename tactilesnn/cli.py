@@ -754,7 +754,8 @@ def build_parser() -> argparse.ArgumentParser:
         default="../shared/data",
         help="real: folder holding the real datasets (never copied into the repo)",
     )
-    p.add_argument("--datasets", nargs="+", help="real: subset of datasets (default: all found)")
+    p.add_argument("--datasets", nargs="+", help="real: subset of datasets (default: the real ones "
+                   "found); synth:<task> runs the same check on a synthetic task")  # fmt: skip
     p.add_argument("--pipelines", nargs="+", help="real: subset of spike pipelines")
     p.add_argument(
         "--bench-epochs",

@@ -6,6 +6,8 @@ references fitted on the identical split:
 
 * ``logreg_logspec``: logistic regression on each channel's log power spectrum (16 log-spaced
   bands of the window's periodogram, plus the channel mean), standardised;
+* ``logreg_peaknorm_wave``: logistic regression on the raw waveforms divided by each window's
+  peak (decimated to at most 4,096 values), the reference that beat the material task;
 * ``rf_counts``: random forest (300 trees) on per-channel totals (event counts, or the mean
   and mean absolute value of an analog channel);
 * ``mlp_spikes``: a small non-spiking MLP (one hidden layer of 128) on the very spike times
@@ -65,6 +67,25 @@ REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
     "braille_icub_abc": ("braille_icub_abc/braille_abc_icub.npz", _braille, False),
     "st_mnist": ("st_mnist/st_mnist_events.npz", _st_mnist, True),
 }
+
+
+def _synthetic(task: str) -> Loader:
+    def load(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
+        from ..datasets_synth import get_task
+
+        return get_task(task, seed=seed).build()
+
+    return load
+
+
+def synthetic_datasets() -> dict[str, tuple[str | None, Loader, bool]]:
+    """Every registered synthetic task as ``synth:<task>`` (its default size and split), for the
+    same spike-vs-reference check as the real files (``--datasets synth:material ...``)."""
+    from ..datasets_synth import TASKS
+
+    return {f"synth:{t}": (None, _synthetic(t), False) for t in sorted(TASKS)}
+
+
 #: spike pipelines: (label, encoder or None for the --data default, model, data it applies to)
 PIPELINES = (
     ("default+tempotron", None, "tempotron", "any"),
@@ -99,6 +120,16 @@ def log_spectrum(X: np.ndarray, fs: float, n_bands: int = 16) -> np.ndarray:
             power[..., b] = spec[..., sel].mean(-1)
     feats = np.log10(power + 1e-12 * (power.max() + 1e-300))
     return np.concatenate([feats.reshape(len(X), -1), mean], axis=1)
+
+
+def peak_normalised(X: np.ndarray, max_features: int = 4096) -> np.ndarray:
+    """The raw waveforms, each window divided by its peak ``|x|``, flattened (decimated so at
+    most ``max_features`` values remain)."""
+    X = np.asarray(X, dtype=np.float64)
+    step = max(1, int(np.ceil(X.shape[1] * X.shape[2] / max_features)))
+    X = X[..., ::step]
+    peak = np.abs(X).max(axis=(1, 2), keepdims=True)
+    return (X / np.where(peak > 0, peak, 1.0)).reshape(len(X), -1)
 
 
 def counts(X: np.ndarray) -> np.ndarray:
@@ -139,9 +170,11 @@ def references(
         StandardScaler(),
         MLPClassifier((128,), max_iter=300, early_stopping=len(train.y) >= 50, random_state=seed),
     )
+    lr_wave = make_pipeline(StandardScaler(), LogisticRegression(max_iter=3000, C=0.1))
     return {
         "logreg_logspec": scored(lr, log_spectrum(train.X, train.fs_hz),
                                  log_spectrum(test.X, test.fs_hz)),
+        "logreg_peaknorm_wave": scored(lr_wave, peak_normalised(train.X), peak_normalised(test.X)),
         "rf_counts": scored(rf, counts(train.X), counts(test.X)),
         "mlp_spikes": scored(mlp, spike_features(pipe.encode(train.X), pipe.duration_ms),
                              spike_features(pipe.encode(test.X), pipe.duration_ms)),
@@ -162,16 +195,17 @@ def run(
 
     data_root = Path(data_root)
     rows: list[dict] = []
+    known = {**REAL_DATASETS, **synthetic_datasets()}
     names = datasets or list(REAL_DATASETS)
-    unknown = sorted(set(names) - set(REAL_DATASETS))
+    unknown = sorted(set(names) - set(known))
     if unknown:
-        raise ValueError(f"unknown dataset(s) {unknown}; choose from {sorted(REAL_DATASETS)}")
+        raise ValueError(f"unknown dataset(s) {unknown}; choose from {sorted(known)}")
     chosen = [p for p in PIPELINES if pipelines is None or p[0] in pipelines]
     if pipelines and len(chosen) != len(pipelines):
         raise ValueError(f"unknown pipeline(s); choose from {[p[0] for p in PIPELINES]}")
     for name in names:
-        rel, loader, events = REAL_DATASETS[name]
-        if not (data_root / rel).is_file():
+        rel, loader, events = known[name]
+        if rel is not None and not (data_root / rel).is_file():
             log.warning("bench real: %s not found under %s, skipped", rel, data_root)
             continue
         for seed in range(seeds):

@@ -25,10 +25,16 @@ def test_bench_real_table_json_png_and_references(tmp_path):
     res = real.run(tmp_path / "out", data_root=tmp_path / "data", seeds=2,
                    pipelines=["default+readout"], epochs=3, progress=False)  # fmt: skip
     methods = {r["method"] for r in res["rows"]}
-    assert methods == {"default+readout", "logreg_logspec", "rf_counts", "mlp_spikes"}
+    assert methods == {
+        "default+readout",
+        "logreg_logspec",
+        "logreg_peaknorm_wave",
+        "rf_counts",
+        "mlp_spikes",
+    }
     assert {r["seed"] for r in res["rows"]} == {0, 1}
     saved = json.loads((tmp_path / "out" / "real.json").read_text())
-    assert len(saved["summary"]) == 4
+    assert len(saved["summary"]) == 5
     assert (tmp_path / "out" / "real.png").stat().st_size > 0
     md = (tmp_path / "out" / "real.md").read_text()
     assert "braille_icub_abc" in md and "vs best reference" in md
@@ -59,3 +65,17 @@ def test_bench_real_reports_per_recording_scores(tmp_path, monkeypatch):
                    pipelines=["default+readout"], epochs=5, progress=False)  # fmt: skip
     for row in res["rows"]:  # the spike pipeline and every reference
         assert 0.0 <= row["accuracy_per_recording"] <= 1.0, row["method"]
+
+
+def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
+    from tactilesnn.datasets_synth import HookLoopTask
+
+    small = {"n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+    monkeypatch.setattr(real, "_synthetic", lambda task: lambda root, seed:
+                        HookLoopTask(seed=seed, **small).build())  # fmt: skip
+    res = real.run(tmp_path / "out", data_root=tmp_path / "none", seeds=1,
+                   datasets=["synth:hook_loop"], pipelines=["default+readout"], epochs=2,
+                   progress=False)  # fmt: skip
+    assert {r["dataset"] for r in res["rows"]} == {"synth:hook_loop"}
+    wave = next(s for s in res["summary"] if s["method"] == "logreg_peaknorm_wave")
+    assert 0.5 < wave["mean"] <= 1.0
