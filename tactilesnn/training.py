@@ -257,10 +257,11 @@ def select_encoder(
     fraction: float = 0.25,
     progress: bool = False,
 ) -> tuple[PipelineConfig, dict[str, float]]:
-    """The candidate encoder (each with its default settings, the rest of ``config`` unchanged)
-    that scores best on ``fraction`` of the training recordings held out (whole recordings;
-    per-recording accuracy first where recordings hold several windows, then per window; ties
-    go to the earlier candidate). Returns the chosen config and each candidate's score."""
+    """The candidate encoder (each with its default settings for the data's rate: see
+    ``rate_defaults`` of its config; the rest of ``config`` unchanged) that scores best on
+    ``fraction`` of the training recordings held out (whole recordings; per-recording accuracy
+    first where recordings hold several windows, then per window; ties go to the earlier
+    candidate). Returns the chosen config and each candidate's score."""
     from .encoders import ENCODERS
 
     fit_set, val_set = split_validation(train, fraction, config.seed + 1)
@@ -268,7 +269,9 @@ def select_encoder(
     scores: dict[str, float] = {}
     best, best_key = config, (-1.0, -1.0)
     for name in candidates:
-        cfg = config.replace(encoder=ENCODERS.config_class(name)())
+        cls = ENCODERS.config_class(name)
+        rate = getattr(cls, "rate_defaults", lambda fs: {})(train.fs_hz)
+        cfg = config.replace(encoder=cls(**rate))
         m = fit_and_evaluate(cfg, fit_set, val_set, progress=False).metrics
         key = (m.get("test_accuracy_per_recording", m["test_accuracy"]), m["test_accuracy"])
         scores[name] = float(key[1])

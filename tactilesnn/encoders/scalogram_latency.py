@@ -59,6 +59,19 @@ class ScalogramLatencySettings:
         "channel's median training RMS is not transformed and stays silent (0 = off)",
     }
 
+    @classmethod
+    def rate_defaults(cls, fs_hz: float) -> dict:
+        """Band settings for data sampled at ``fs_hz`` (used by ``train --data`` when it picks
+        the encoder): up to 0.45 fs instead of the 90 Hz of the 200 S/s default task, with the
+        default's density (20 bands per 30x in frequency; never fewer than 20, at most 128). A 2
+        kHz file gets 3-900 Hz in 34 bands; at <= 200 S/s nothing changes."""
+        f_hi = 0.45 * float(fs_hz)
+        if f_hi <= cls.f_hi_hz:
+            return {}
+        density = cls.n_bands / math.log(cls.f_hi_hz / cls.f_lo_hz)  # bands per e-fold
+        n = max(cls.n_bands, round(density * math.log(f_hi / cls.f_lo_hz)))
+        return {"f_hi_hz": f_hi, "n_bands": int(min(n, 128))}
+
     def __post_init__(self) -> None:
         check_positive(self.f_lo_hz, "f_lo_hz")
         check_positive(self.f_hi_hz, "f_hi_hz")

@@ -172,3 +172,17 @@ def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
     assert np.array_equal(np.isfinite(got), fin) and np.abs(got[fin] - ref[fin]).max() < 0.05
     with pytest.raises(ValueError, match="hop"):
         cfg(hop=0)
+
+
+def test_rate_defaults_extend_the_bands_to_the_data_rate():
+    from tactilesnn.encoders.base import ENCODERS
+
+    for name in ("gwt", "stft"):
+        cls = ENCODERS.config_class(name)
+        assert cls.rate_defaults(200.0) == {} and cls.rate_defaults(94.0) == {}  # unchanged
+        hi = cls.rate_defaults(2000.0)
+        assert hi == {"f_hi_hz": 900.0, "n_bands": 34}
+        bands = cls(**hi)
+        # the default's density: 20 bands per 30x
+        assert bands.n_bands / np.log(900 / 3) == pytest.approx(20 / np.log(30), rel=0.02)
+        assert cls.rate_defaults(1e6)["n_bands"] == 128
