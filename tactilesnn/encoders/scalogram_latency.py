@@ -60,17 +60,23 @@ class ScalogramLatencySettings:
     }
 
     @classmethod
-    def rate_defaults(cls, fs_hz: float) -> dict:
-        """Band settings for data sampled at ``fs_hz`` (used by ``train --data`` when it picks
-        the encoder): up to 0.45 fs instead of the 90 Hz of the 200 S/s default task, with the
-        default's density (20 bands per 30x in frequency; never fewer than 20, at most 128). A 2
-        kHz file gets 3-900 Hz in 34 bands; at <= 200 S/s nothing changes."""
+    def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
+        """Settings for windows of ``window`` samples at ``fs_hz`` whose training power has its
+        median at ``median_hz`` (used by ``train --data`` when it picks the encoder): bands up
+        to 0.45 fs (not the default task's 90 Hz), down to the median power frequency when that
+        lies below the default 3 Hz (never below one cycle per window), at the default density
+        (20 bands per 30x in frequency; 20 to 128 bands), and a 90 dB dynamic range instead of
+        30 dB, so slow and weak parts of the spectrum still spike. The synthetic TENG material
+        presses (3 s at 500 S/s, median power at 0.67 Hz) get 0.67-225 Hz in 34 bands; a window
+        whose power lies above 3 Hz keeps 3 Hz."""
+        f_lo = cls.f_lo_hz
+        if median_hz is not None and median_hz < f_lo:
+            f_lo = max(float(median_hz), float(fs_hz) / int(window))
         f_hi = 0.45 * float(fs_hz)
-        if f_hi <= cls.f_hi_hz:
-            return {}
         density = cls.n_bands / math.log(cls.f_hi_hz / cls.f_lo_hz)  # bands per e-fold
-        n = max(cls.n_bands, round(density * math.log(f_hi / cls.f_lo_hz)))
-        return {"f_hi_hz": f_hi, "n_bands": int(min(n, 128))}
+        n = max(cls.n_bands, round(density * math.log(f_hi / f_lo)))
+        return {"f_lo_hz": f_lo, "f_hi_hz": f_hi, "n_bands": int(min(n, 128)),
+                "dynamic_range_db": 90.0}  # fmt: skip
 
     def __post_init__(self) -> None:
         check_positive(self.f_lo_hz, "f_lo_hz")

@@ -174,15 +174,22 @@ def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
         cfg(hop=0)
 
 
-def test_rate_defaults_extend_the_bands_to_the_data_rate():
+def test_data_defaults_follow_the_rate_and_the_training_spectrum():
     from tactilesnn.encoders.base import ENCODERS
+    from tactilesnn.training import median_power_frequency
 
     for name in ("gwt", "stft"):
         cls = ENCODERS.config_class(name)
-        assert cls.rate_defaults(200.0) == {} and cls.rate_defaults(94.0) == {}  # unchanged
-        hi = cls.rate_defaults(2000.0)
-        assert hi == {"f_hi_hz": 900.0, "n_bands": 34}
-        bands = cls(**hi)
-        # the default's density: 20 bands per 30x
-        assert bands.n_bands / np.log(900 / 3) == pytest.approx(20 / np.log(30), rel=0.02)
-        assert cls.rate_defaults(1e12)["n_bands"] == 128  # capped
+        hi = cls.data_defaults(2000.0, 3250, 150.0)  # power above 3 Hz: keeps 3 Hz
+        assert hi == {"f_lo_hz": 3.0, "f_hi_hz": 900.0, "n_bands": 34, "dynamic_range_db": 90.0}
+        # the default density: 20 bands per 30x
+        assert hi["n_bands"] / np.log(300) == pytest.approx(20 / np.log(30), rel=0.02)
+        slow = cls.data_defaults(500.0, 1500, 0.67)  # slow presses: bands reach down to them
+        assert slow["f_lo_hz"] == 0.67 and slow["n_bands"] == 34
+        assert cls.data_defaults(500.0, 1500, 0.01)["f_lo_hz"] == pytest.approx(1 / 3)  # 1 cycle
+        assert cls.data_defaults(200.0, 100, 8.0)["f_hi_hz"] == 90.0
+        assert cls.data_defaults(1e12, 100, 1e9)["n_bands"] == 128  # capped
+    fs = 500.0
+    t = np.arange(1500) / fs
+    x = (np.sin(2 * np.pi * 0.8 * t) + 0.1 * np.sin(2 * np.pi * 40 * t))[None, None]
+    assert median_power_frequency(np.repeat(x, 4, 0), fs) == pytest.approx(0.8, abs=1 / 3)
