@@ -65,7 +65,7 @@ class ScalogramLatencySettings:
         median at ``median_hz`` (used by ``train --data`` when it picks the encoder): bands up
         to 0.45 fs (not the default task's 90 Hz), down to the median power frequency when that
         lies below the default 3 Hz (never below one cycle per window), at the default density
-        (20 bands per 30x in frequency; 20 to 128 bands), and a 90 dB dynamic range instead of
+        (20 bands per 30x in frequency; 20 to 128 bands), and a 60 dB dynamic range instead of
         30 dB, so slow and weak parts of the spectrum still spike. The synthetic TENG material
         presses (3 s at 500 S/s, median power at 0.67 Hz) get 0.67-225 Hz in 34 bands; a window
         whose power lies above 3 Hz keeps 3 Hz."""
@@ -76,7 +76,7 @@ class ScalogramLatencySettings:
         density = cls.n_bands / math.log(cls.f_hi_hz / cls.f_lo_hz)  # bands per e-fold
         n = max(cls.n_bands, round(density * math.log(f_hi / f_lo)))
         return {"f_lo_hz": f_lo, "f_hi_hz": f_hi, "n_bands": int(min(n, 128)),
-                "dynamic_range_db": 90.0}  # fmt: skip
+                "dynamic_range_db": 60.0}  # fmt: skip
 
     def __post_init__(self) -> None:
         check_positive(self.f_lo_hz, "f_lo_hz")
