@@ -78,7 +78,7 @@ class SpikePipeline:
         model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
         return max(self.encoder.bytes_per_window(), model)
 
-    def _selected(self, X: np.ndarray) -> np.ndarray:
+    def encoder_input(self, X: np.ndarray) -> np.ndarray:
         """Validated ``X`` restricted to the pipeline's channels (a view when that is all)."""
         arr = self.validate(X)
         if list(self.channel_idx) == list(range(arr.shape[1])):
@@ -87,13 +87,13 @@ class SpikePipeline:
 
     def calibrate(self, X: np.ndarray) -> None:
         """Fit the encoder's data-dependent state (e.g. the LIF code's level) on training X."""
-        self.encoder.fit(self._selected(X))
+        self.encoder.fit(self.encoder_input(X))
 
     def encode(self, X: np.ndarray, progress: bool = False) -> torch.Tensor:
         """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent), clock last."""
         n = np.shape(X)[0] if np.ndim(X) == 3 else 0
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
-        spikes = self.encoder.encode(self._selected(X), progress=progress)
+        spikes = self.encoder.encode(self.encoder_input(X), progress=progress)
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
             spikes = torch.cat([spikes, clock.expand(spikes.shape[0], -1, -1)], dim=1)

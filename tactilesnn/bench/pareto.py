@@ -81,7 +81,7 @@ def _median_s(fn, repeats: int) -> float:
 def encode_float64(pipe: SpikePipeline, X: np.ndarray, batch: int = 128) -> torch.Tensor:
     """``pipe.encode`` with a float64 copy of its encoder (clock afferents appended alike)."""
     enc64 = copy.deepcopy(pipe.encoder).double()
-    x = pipe._selected(X)
+    x = pipe.encoder_input(X)
     with torch.no_grad():
         parts = [enc64.encode_batch(torch.from_numpy(np.asarray(x[i : i + batch], np.float64)))
                  for i in range(0, len(x), batch)]  # fmt: skip
