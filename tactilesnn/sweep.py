@@ -248,6 +248,7 @@ def run_sweep(
         write_json_atomic(out / "results.json", list(rows.values()))  # survives an interruption
     bar.close()
     ordered = sorted(rows.values(), key=lambda r: -r.get("test_accuracy", -1.0))
+    plot_front(ordered, out / "results.png")
     write_json_atomic(out / "results.json", ordered)
     tmp = out / ".results.md.tmp"
     tmp.write_text(results_table(ordered))
@@ -255,16 +256,41 @@ def run_sweep(
     return ordered
 
 
+def plot_front(rows: list[dict], path: Path) -> None:
+    """Test error vs training time (fit + encode seconds) of the finished trials, the Pareto
+    front marked (``row["pareto_front"]``), drawn as ``bench pareto`` draws its points."""
+    from .bench.pareto import pareto_front, plot
+
+    done = [r for r in rows if "test_accuracy" in r]
+    if not done:
+        return
+    pts = [{"test_error": 1 - r["test_accuracy"], "test_error_ci95": r["test_accuracy_ci95"],
+            "train_s": (r.get("fit_seconds") or 0) + (r.get("encode_seconds") or 0),
+            "label": r["trial"]} for r in done]  # fmt: skip
+    pareto_front(pts, cost_key="train_s")
+    for r, p in zip(done, pts, strict=True):
+        r["pareto_front"] = p["front"]
+    tmp = path.with_name("." + path.name)
+    plot(pts, tmp, "sweep: test error vs training time (red: Pareto front)", cost_key="train_s",
+         xlabel="training time: encode + fit (s)")  # fmt: skip
+    os.replace(tmp, path)
+
+
+def _cell(value: object) -> str:
+    return ", ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
+
+
 def results_table(rows: list[dict]) -> str:
     """Markdown table: varied settings, test accuracy +- 95 % CI, fit and encode seconds."""
     varied = sorted({k for r in rows for k, v in r["settings"].items()
                      if any(o["settings"].get(k) != v for o in rows)})  # fmt: skip
-    head = ["trial", *varied, "test accuracy", "fit s", "encode s"]
+    head = ["trial", *varied, "test accuracy", "fit s", "encode s", "front"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         acc = (f"{100 * r['test_accuracy']:.2f} +- {100 * r['test_accuracy_ci95']:.2f} %"
                if "test_accuracy" in r else r.get("error", "not run"))  # fmt: skip
-        cells = [r["trial"], *(str(r["settings"].get(k, "")) for k in varied), acc,
-                 f"{r.get('fit_seconds') or 0:.1f}", f"{r.get('encode_seconds') or 0:.1f}"]  # fmt: skip
+        cells = [r["trial"], *(_cell(r["settings"].get(k, "")) for k in varied), acc,
+                 f"{r.get('fit_seconds') or 0:.1f}", f"{r.get('encode_seconds') or 0:.1f}",
+                 "**yes**" if r.get("pareto_front") else ""]  # fmt: skip
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

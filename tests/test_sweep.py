@@ -67,6 +67,8 @@ def test_local_sweep_gathers_a_table_and_resumes_without_rerunning(tmp_path, cap
     assert rows[0]["test_accuracy"] >= rows[1]["test_accuracy"]
     for r in rows:  # each trial is a normal run folder
         assert (out / "trials" / r["trial"] / "model.onnx").is_file()
+    assert any(r["pareto_front"] for r in rows)  # error vs training time
+    assert (out / "results.png").stat().st_size > 10_000
     table = (out / "results.md").read_text()
     assert "| trial | encoder | test accuracy" in table and table.count("\n") == 4
     stamp = {p: p.stat().st_mtime_ns for p in out.glob("trials/*/metrics.json")}

@@ -227,7 +227,8 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
         writer.write_json("pareto.json", result)
         table = format_table(rows)
         writer.file("pareto.md").write_text(table + "\n\n" + "\n".join(map(format_rt, rt)) + "\n")
-        plot(rows, writer.file("pareto.png"), task)
+        plot(rows, writer.file("pareto.png"), f"{task}: error vs run time (red: Pareto front; "
+             "o torch, s ORT f32, ^ ORT int8)")  # fmt: skip
         path = writer.commit()
     except BaseException:
         writer.abort()
@@ -264,29 +265,37 @@ def format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def plot(rows: list[dict], path: Path, task: str) -> None:
+def plot(
+    rows: list[dict],
+    path: Path,
+    title: str,
+    cost_key: str = "ms_per_signal_s_batch1",
+    xlabel: str = "compute per second of signal (ms, 1 thread, batch 1)",
+) -> None:
+    """Test error vs ``cost_key`` (log axes) with 95 % intervals; the rows marked ``front`` in
+    red and labelled (``label``, else config and precision)."""
     from ..plots import _pyplot
 
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     marks = {"torch float32": "o", "onnxruntime float32": "s", "onnxruntime int8": "^"}
     for r in rows:
-        if r["ms_per_signal_s_batch1"] is None:
+        if r.get(cost_key) is None:
             continue
         err = max(r["test_error"], 1e-4)
-        ax.errorbar(r["ms_per_signal_s_batch1"], 100 * err, yerr=100 * r["test_error_ci95"],
-                    fmt=marks.get(r["precision"], "o"), ms=7 if r["front"] else 4,
+        ax.errorbar(r[cost_key], 100 * err, yerr=100 * r["test_error_ci95"],
+                    fmt=marks.get(r.get("precision"), "o"), ms=7 if r["front"] else 4,
                     color="C3" if r["front"] else "C0", alpha=0.9 if r["front"] else 0.45,
                     elinewidth=0.6)  # fmt: skip
         if r["front"]:
-            ax.annotate(f"{r['config']}\n{r['precision']}", (r["ms_per_signal_s_batch1"], 100 * err),
-                        fontsize=6, xytext=(4, 4), textcoords="offset points")  # fmt: skip
+            label = r.get("label") or f"{r['config']}\n{r['precision']}"
+            ax.annotate(label, (r[cost_key], 100 * err), fontsize=6, xytext=(4, 4),
+                        textcoords="offset points")  # fmt: skip
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("compute per second of signal (ms, 1 thread, batch 1)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("test error (%)")
-    ax.set_title(f"{task}: error vs run time (red: Pareto front; o torch, s ORT f32, ^ ORT int8)",
-                 fontsize=9)  # fmt: skip
+    ax.set_title(title, fontsize=9)
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
