@@ -335,7 +335,8 @@ class GaborScalogram(nn.Module):
             rows = np.pad(rows, ((0, 0), (p, p)), mode=mode)
         spec = scipy.fft.rfft(rows, n=plan["length"], axis=-1, workers=workers)
         m_len = plan["m"]
-        z = np.ascontiguousarray((plan["fold_t"] @ spec.T).T)  # [rows, bands * M]
-        z = z.reshape(rows.shape[0], self.n_bands, m_len)
-        w = scipy.fft.ifft(z, axis=-1, workers=workers, overwrite_x=True)
-        return np.abs(w[..., : plan["frames"]])
+        # the sparse product gives [bands * M, rows]; the inverse FFTs run along M in that layout
+        # (no transpose copy of the complex spectra) and only the magnitudes are transposed
+        zt = (plan["fold_t"] @ spec.T).reshape(self.n_bands, m_len, rows.shape[0])
+        w = scipy.fft.ifft(zt, axis=1, workers=workers, overwrite_x=True)
+        return np.abs(w[:, : plan["frames"]]).transpose(2, 0, 1)
