@@ -100,15 +100,17 @@ class ScalogramLatencySettings:
 @dataclass(frozen=True)
 class GWTConfig(ScalogramLatencySettings):
     """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code; the statistics are taken
-    over the scalogram's frames, one every ``hop`` samples (exact decimation, ``hop`` times less
-    work; 1 = every sample)."""
+    over the scalogram's frames, one every ``hop`` samples (exact decimation; 1 = every sample).
+    The exported graph's scalogram matrices shrink by ``hop`` (``bench pareto``: 1,000-sample
+    windows of 12 taxels 42.5 -> 2.1 ms per window at hop 10); the torch training path still
+    transforms at full rate and decimates."""
 
     hop: int = 1
 
     FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "gwt_hop": "hop"}
     HELP: ClassVar[dict[str, str]] = {
         **ScalogramLatencySettings.HELP,
-        "hop": "scalogram frame every hop samples (1 = every sample; h costs ~h times less)",
+        "hop": "scalogram frame every hop samples (1 = every sample); the exported graph shrinks h times",
     }
 
     def __post_init__(self) -> None:
