@@ -1,6 +1,6 @@
 """Skip what a scene does not need, measured: ``tactilesnn bench skip``.
 
-Three mechanisms, each as compute saved against output change:
+Four mechanisms, each as compute saved against output change:
 
 * **encoder activity gate** (``--gate``, the pipeline's GWT encoder as trained and exported): a
   12-taxel capacitive-piezo array (200 S/s) with 1, 3, 6 or 12 taxels touched by a hook-and-loop
@@ -10,6 +10,8 @@ Three mechanisms, each as compute saved against output change:
   fraction of spike slots that changed (a skipped quiet pair loses the spikes its noise made);
 * **PVDF sensor skipping** (readout simulates only what a contact can reach): from
   :func:`tactilesnn.bench.tasks.skip_pvdf`;
+* **capacitive time skipping**: the foam's play-operator hysteresis stepped only where a pad's
+  strain changes (no contact, steady holds), against stepping every sample (exact: tolerance 0);
 * **tempotron early decision** on the default task (10 epochs): the decision time, the window
   and input spikes it skips and the accuracy change.
 """
@@ -70,6 +72,23 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
     return rows
 
 
+def capacitive_time_skip(repeats: int = 5, quick: bool = False) -> dict:
+    """Capacitive triangle, 10 s at 10 kS/s with a 1 s press and a 0.2 s hold: the foam's
+    hysteresis stepped only where a pad's strain changes vs at every sample."""
+    from ..datasets_synth.capacitive_triangle import CapacitiveTriangle
+
+    sensor = CapacitiveTriangle()
+    fs = 10_000.0
+    f = np.zeros(int((2 if quick else 10) * fs))
+    f[2000:12000] = 5 * np.sin(np.linspace(0, np.pi, 10_000))
+    f[14000:16000] = 2.0
+    p = sensor.taxel_pressure_Pa(f, np.zeros(2), 12.0)
+    full = statistics.median(_time(sensor.strain_every_sample, p) for _ in range(repeats))
+    runs = statistics.median(_time(sensor.strain, p) for _ in range(repeats))
+    same = bool(np.array_equal(sensor.strain(p), sensor.strain_every_sample(p)))
+    return {"every_sample_s": full, "skipping_s": runs, "speedup": full / runs, "identical": same}
+
+
 def early_decision(quick: bool = False) -> dict:
     from ..config import PipelineConfig
     from ..datasets_synth import get_task
@@ -93,8 +112,9 @@ def run(out: Path | None, quick: bool = False) -> dict:
 
     gate = encoder_gate(repeats=3 if quick else 7, quick=quick)
     pvdf = skip_pvdf(repeats=2 if quick else 5, seconds=10.0 if quick else 40.0)
+    cap = capacitive_time_skip(repeats=2 if quick else 5, quick=quick)
     early = early_decision(quick)
-    res = {"encoder_gate": gate, "pvdf": pvdf, "early_decision": early}
+    res = {"encoder_gate": gate, "pvdf": pvdf, "capacitive": cap, "early_decision": early}
     print(format_report(res))
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
@@ -120,6 +140,12 @@ def format_report(res: dict) -> str:
         f"PVDF sensor skipping: full {1000 * p['full_s']:.1f} ms, skip {1000 * p['skip_s']:.1f} ms "
         f"({p['speedup']:.1f}x); max output difference {p['max_diff_pC']:.1e} pC (noise rms "
         f"{p['noise_rms_pC']:.1e} pC)"
+    )
+    c = res["capacitive"]
+    lines.append(
+        f"Capacitive foam hysteresis stepped only where strain changes: {1000 * c['skipping_s']:.1f}"
+        f" ms vs {1000 * c['every_sample_s']:.1f} ms every sample ({c['speedup']:.1f}x), "
+        f"identical: {c['identical']}"
     )
     e = res["early_decision"]
     lines.append(

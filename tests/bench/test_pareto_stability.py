@@ -72,6 +72,7 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     assert g[0]["skipped_fraction"] > g[1]["skipped_fraction"] > 0.3
     assert all(r["max_time_change_ms_transformed"] < 0.05 for r in g)
     assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
+    assert res["capacitive"]["identical"] and res["capacitive"]["speedup"] > 1
     e = res["early_decision"]
     assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
     assert (tmp_path / "k" / "skip.json").is_file()

@@ -97,3 +97,16 @@ def test_noise_grows_with_modules_and_falls_with_conversion_time():
     base = noise()
     assert noise(modules=16) == pytest.approx(4 * base, rel=0.15)
     assert noise(stage=2) == pytest.approx(base / 2, rel=0.15)
+
+
+def test_hysteresis_steps_only_where_strain_changes_and_equals_every_sample():
+    """Time before contact, after release and steady holds are skipped (the play operator is
+    idempotent over constant input): bit-identical to stepping every sample, with hysteresis
+    memory kept across the skipped spans."""
+    sensor = CapacitiveTriangle()
+    f = np.zeros(30_000)
+    f[2000:12000] = 5 * np.sin(np.linspace(0, np.pi, 10_000))
+    f[14000:16000] = 2.0  # a hold
+    f[20000:22000] = np.linspace(0, 1, 2000)  # a ramp that stops mid-way, then release
+    p = sensor.taxel_pressure_Pa(f, np.array([1.0, -2.0]), 12.0)
+    np.testing.assert_array_equal(sensor.strain(p), sensor.strain_every_sample(p))
