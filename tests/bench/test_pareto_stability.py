@@ -73,6 +73,7 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     assert all(r["max_time_change_ms_transformed"] < 0.05 for r in g)
     assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
     assert res["capacitive"]["identical"] and res["capacitive"]["speedup"] > 1
+    assert res["teng"]["max_diff_V"] <= 1e-12 and res["teng"]["speedup"] > 1
     e = res["early_decision"]
     assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
     assert (tmp_path / "k" / "skip.json").is_file()

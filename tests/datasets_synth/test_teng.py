@@ -132,3 +132,18 @@ def test_contact_electrification_grows_and_saturates():
     # a conductive surface barely charges up
     al = [s.read(gap[None], "aluminium", n)[0].max() for n in (0, 2000)]
     assert al[1] / al[0] < 1.1
+
+
+def test_induced_potential_skips_far_samples_exactly_enough():
+    """Beyond twice the proximity range the induced potential is exactly 0 (the softplus terms
+    cancel), so only nearer samples are evaluated: same output to float64 rounding."""
+    s = TENGArray(layout("finger8"))
+    reach = s.params.proximity_mm
+    assert s.induced_V(np.array([2 * reach, 2 * reach + 1e-9, 50.0])).max() == 0.0
+    assert s.induced_V(np.array([2 * reach - 0.01]))[0] > 0
+    rng = np.random.default_rng(3)
+    gap = np.full((8, 9, 5000), 9.0) + rng.uniform(0, 1, (8, 9, 1))
+    gap[:, :, 1000:1600] = np.linspace(5, -1.5, 600) + rng.uniform(-0.5, 0.5, (8, 9, 1))
+    fast, full = s.induced_pad_V(gap), s.induced_pad_V(gap, skip=False)
+    assert np.abs(fast - full).max() <= 1e-12 and np.abs(full).max() > 0.5
+    np.testing.assert_array_equal(fast[:, :900], 0.0)
