@@ -33,8 +33,8 @@ bench: $(VENV)/.bench
 	$(BIN)/tactilesnn bench snn --out bench_out/snn
 	$(BIN)/tactilesnn bench encoders --out bench_out/encoders
 	$(BIN)/tactilesnn bench pareto --out bench_out/pareto --overwrite
-	$(BIN)/tactilesnn bench stability --out bench_out/stability
-	$(BIN)/tactilesnn bench skip --out bench_out/skip
+	$(BIN)/tactilesnn bench stability --out bench_out/stability --overwrite
+	$(BIN)/tactilesnn bench skip --out bench_out/skip --overwrite
 	$(BIN)/tactilesnn bench gwt-vs-stft --seeds 5 --out bench_out/gwt_vs_stft --overwrite
 
 clean:

@@ -535,12 +535,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.name == "skip":
         from .bench import skip
 
-        skip.run(Path(args.out) if args.out else None, quick=args.quick)
+        skip.run(Path(args.out) if args.out else None, quick=args.quick, overwrite=args.overwrite)
         return 0
     if args.name == "stability":
         from .bench import stability
 
-        _, ok = stability.run(Path(args.out), quick=args.quick, progress=not args.quiet)
+        _, ok = stability.run(Path(args.out), quick=args.quick, progress=not args.quiet,
+                              overwrite=args.overwrite)  # fmt: skip
         return 0 if ok else 1
     if args.name == "pareto":
         from .bench import pareto

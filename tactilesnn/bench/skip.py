@@ -126,8 +126,11 @@ def _time(fn, x) -> float:
     return time.perf_counter() - t0
 
 
-def run(out: Path | None, quick: bool = False) -> dict:
+def run(out: Path | None, quick: bool = False, overwrite: bool = False) -> dict:
     from .tasks import skip_pvdf
+
+    if out is not None and (Path(out) / "skip.json").exists() and not overwrite:
+        raise FileExistsError(f"{out}/skip.json exists; pass --overwrite to replace it")
 
     gate = encoder_gate(repeats=3 if quick else 7, quick=quick)
     pvdf = skip_pvdf(repeats=2 if quick else 5, seconds=10.0 if quick else 40.0)

@@ -245,8 +245,13 @@ STAGES: tuple[tuple[str, float, Callable[[bool], tuple[float, str]]], ...] = (
 )
 
 
-def run(out: Path | None, quick: bool = False, progress: bool = True) -> tuple[list[dict], bool]:
+def run(
+    out: Path | None, quick: bool = False, progress: bool = True, overwrite: bool = False
+) -> tuple[list[dict], bool]:
     from tqdm.auto import tqdm
+
+    if out is not None and (Path(out) / "stability.json").exists() and not overwrite:
+        raise FileExistsError(f"{out}/stability.json exists; pass --overwrite to replace it")
 
     rows = []
     for name, tol, fn in tqdm(STAGES, desc="bench stability", disable=not progress):

@@ -52,6 +52,8 @@ def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, 
                                           "snn_long", "onnx_vs_torch", "int8_vs_float32"}  # fmt: skip
     saved = json.loads((tmp_path / "s" / "stability.json").read_text())
     assert saved["ok"] and len(saved["stages"]) == len(rows)
+    with pytest.raises(FileExistsError, match="--overwrite"):  # results are never replaced silently
+        stability.run(tmp_path / "s", quick=True, progress=False)
 
     def broken(quick):
         raise FloatingPointError("NaN in stage")
