@@ -573,6 +573,15 @@ def cmd_bench(args: argparse.Namespace) -> int:
         res = tasks.run(workers=args.workers, progress=not args.quiet)
         if args.out:
             _write_json(Path(args.out) / "tasks.json", res)
+        if args.references:  # each task as a user's file: spike pipeline vs strong references
+            from .bench import real
+
+            if args.out is None:
+                raise ValueError("bench tasks --references needs --out DIR")
+            names = list(real.synthetic_datasets())
+            real.run(Path(args.out) / "references", datasets=names, seeds=args.seeds or 1,
+                     pipelines=args.pipelines or ["default+readout"], epochs=args.bench_epochs,
+                     progress=not args.quiet)  # fmt: skip
         return 0
     if args.name == "snn":
         from .bench import snn
@@ -767,6 +776,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
                    help="pareto: the task whose pipelines are compared")  # fmt: skip
+    p.add_argument("--references", action="store_true",
+                   help="tasks: also each task's spike pipeline (--data defaults) against the "
+                   "non-spiking references of bench real")  # fmt: skip
     p.add_argument("--quick", action="store_true",
                    help="pareto / stability / skip: a few small cases (as the test suite runs)")  # fmt: skip
     p.set_defaults(func=cmd_bench)

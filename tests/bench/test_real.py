@@ -79,3 +79,16 @@ def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
     assert {r["dataset"] for r in res["rows"]} == {"synth:hook_loop"}
     wave = next(s for s in res["summary"] if s["method"] == "logreg_peaknorm_wave")
     assert 0.5 < wave["mean"] <= 1.0
+
+
+def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monkeypatch):
+    from tactilesnn.bench import tasks
+    from tactilesnn.cli import main
+    from tactilesnn.datasets_synth import TASKS
+
+    calls = {}
+    monkeypatch.setattr(tasks, "run", lambda **kw: {"tasks": {}})
+    monkeypatch.setattr(real, "run", lambda out, **kw: calls.update(out=out, **kw))
+    assert main(["bench", "tasks", "--references", "--out", str(tmp_path), "--quiet"]) == 0
+    assert sorted(calls["datasets"]) == sorted(f"synth:{t}" for t in TASKS)
+    assert calls["pipelines"] == ["default+readout"] and calls["out"] == tmp_path / "references"
