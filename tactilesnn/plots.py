@@ -68,8 +68,8 @@ def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int 
     if not picks:
         return
     Xs = np.asarray(X)[picks]
-    spikes = pipe.encode(Xs).numpy()
-    scores = pipe.scores(pipe.encode(Xs)).numpy()
+    encoded = pipe.encode(Xs)
+    spikes, scores = encoded.numpy(), pipe.scores(encoded).numpy()
     sel = pipe.channel_idx
     maps = [pipe.encoder.feature_map(x[sel]) for x in Xs]
     rows = 4 if maps[0] is not None else 3

@@ -27,6 +27,7 @@ so a killed worker leaves no half-written results. ``results.json`` / ``results.
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import itertools
 import json
@@ -94,6 +95,7 @@ def _check_distribution(key: str, dist: object, path: Path) -> None:
     )
 
 
+@functools.cache
 def _train_parser() -> argparse.ArgumentParser:
     from .cli import build_parser
 
@@ -196,20 +198,10 @@ def _local(jobs: list[tuple[str, dict, str]], workers: int) -> Iterator[tuple[st
 
 
 def _dask(jobs: list[tuple[str, dict, str]], scheduler: str) -> Iterator[tuple[str, dict]]:
-    try:
-        from distributed import Client
-        from distributed import as_completed as dask_completed
-    except ImportError as e:
-        raise ValueError(
-            "--scheduler needs Dask distributed: pip install -c constraints.txt -e '.[distributed]'"
-        ) from e
-    with Client(scheduler, timeout="20s") as client:
-        futs = {
-            client.submit(run_trial, s, out, 1, key=f"tactilesnn-{tid}", pure=False, retries=2): tid
-            for tid, s, out in jobs
-        }
-        for f in dask_completed(futs):
-            yield futs[f], f.result()
+    from .dask_run import on_dask
+
+    for i, res in on_dask(run_trial, [(s, out, 1) for _, s, out in jobs], scheduler):
+        yield jobs[i][0], res
 
 
 def run_sweep(

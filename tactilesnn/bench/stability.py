@@ -54,8 +54,7 @@ def _encoder(name: str, window: int = 200, channels: int = 1, fs: float = FS, **
     from ..encoders import build_encoder
     from ..encoders.base import ENCODERS
 
-    enc = build_encoder(ENCODERS.config_class(name)(**kw), fs, window, channels)
-    return enc
+    return build_encoder(ENCODERS.config_class(name)(**kw), fs, window, channels)
 
 
 def _time_diff(a: np.ndarray, b: np.ndarray) -> float:

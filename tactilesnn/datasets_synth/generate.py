@@ -61,21 +61,6 @@ def _render_shard(args: tuple) -> dict:
             "sha256": _sha256(Path(path))}  # fmt: skip
 
 
-def _on_dask(jobs: list[tuple], scheduler: str):
-    """Render shards on a Dask cluster, yielding each record as it finishes (a shard whose
-    worker died is rendered again: it depends only on (task, seed, samples))."""
-    try:
-        from distributed import Client, as_completed
-    except ImportError as e:
-        raise ValueError(
-            "--scheduler needs Dask distributed: pip install -c constraints.txt -e '.[distributed]'"
-        ) from e
-    with Client(scheduler, timeout="20s") as client:
-        futs = [client.submit(_render_shard, j, pure=False, retries=2) for j in jobs]
-        for f in as_completed(futs):
-            yield f.result()
-
-
 def generate(
     task_name: str,
     n: int,
@@ -167,8 +152,10 @@ def generate(
 
     checkpoint()
     bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=not progress)
-    if scheduler:
-        for rec in _on_dask(jobs, scheduler):
+    if scheduler:  # a shard whose worker died is rendered again: it depends only on its inputs
+        from ..dask_run import on_dask
+
+        for _, rec in on_dask(_render_shard, [(j,) for j in jobs], scheduler):
             shards[rec["file"]] = rec
             checkpoint()
             bar.update()
