@@ -92,6 +92,8 @@ class Trainer:
         by_rule = model.learns_by_rule
         opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
         st = {"epoch": 0, "history": [], "val_history": [], "best_score": -math.inf, "stale": 0}
+        if resume is None:
+            model.prepare(spikes)  # resumed runs restore what it fitted with their weights
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if resume is not None:
             _load_state(model, resume["model"])

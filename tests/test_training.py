@@ -231,3 +231,33 @@ def test_bad_recording_files_get_specific_errors(tmp_path, arrays, message):
     (tmp_path / "trunc.npz").write_bytes(path.read_bytes()[:100])
     with pytest.raises(ValueError, match=r"not a readable \.npz"):
         load_data_file(tmp_path / "trunc.npz", seed=0)
+
+
+def test_evaluate_data_with_channels_in_another_order_scores_the_same(tmp_path, capsys, caplog):
+    """A user's file whose channels come in another order is reordered by name (with a warning),
+    not silently scored against the wrong afferents; other channel names are refused."""
+    rng = np.random.default_rng(1)
+    y = np.arange(30) % 3
+    t = np.arange(200) / 200.0
+    # channel a carries the class frequency, b is noise: swapping them must not change the score
+    X = np.stack([[np.sin(2 * np.pi * (5 + 12 * c) * t), 0.2 * rng.standard_normal(t.size)]
+                  for c in y]).astype(np.float32)  # fmt: skip
+    names = np.array(["a", "b"])
+    data, flipped, other = tmp_path / "d.npz", tmp_path / "flip.npz", tmp_path / "other.npz"
+    common = {"y": y, "fs": 200.0, "class_names": np.array(["x", "y", "z"])}
+    np.savez(data, X=X, channel_names=names, **common)
+    np.savez(flipped, X=X[:, ::-1], channel_names=names[::-1], **common)
+    np.savez(other, X=X, channel_names=np.array(["a", "c"]), **common)
+    out = tmp_path / "r"
+    assert main(["train", "--data", str(data), "--encoder", "gwt", "--epochs", "5",
+                 "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["evaluate", str(out), "--data", str(data), "--json"]) == 0
+    same = json.loads(capsys.readouterr().out)
+    with caplog.at_level("WARNING", logger="tactilesnn"):
+        assert main(["evaluate", str(out), "--data", str(flipped), "--json"]) == 0
+    rev = json.loads(capsys.readouterr().out)
+    assert "another order" in caplog.text
+    assert same["test_accuracy"] > 0.6 and rev["test_accuracy"] == same["test_accuracy"]
+    assert main(["evaluate", str(out), "--data", str(other), "--json"]) != 0
+    assert "not the run's" in capsys.readouterr().err

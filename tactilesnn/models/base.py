@@ -89,6 +89,10 @@ class SpikeModel(nn.Module):
         return None
 
     # ------------------------------------------------------------------ training
+    def prepare(self, spikes: Tensor) -> None:
+        """Fit input statistics on the training spikes ``[N, A, k]`` before the first epoch
+        (e.g. feature scaling, kept as buffers so they are saved and exported); default: none."""
+
     def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
         """Differentiable training loss (models that learn by gradient)."""
         raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")
