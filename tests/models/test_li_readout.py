@@ -46,3 +46,43 @@ def test_readout_exports_through_the_registry_only(tmp_path):
     assert m["onnx"]["max_score_diff"] <= 1e-4 and m["test_accuracy"] > 0.8
     pipe, _ = load_run(run)
     assert pipe.config.model_type == "readout"
+
+
+def test_prepare_standardises_the_traces_against_a_float64_reference():
+    rng = np.random.default_rng(2)
+    spikes = rng.uniform(0, 400, (50, 6, 2))
+    spikes[rng.random(spikes.shape) < 0.4] = np.inf
+    spikes[:, 5] = np.inf  # a silent afferent: constant features keep scale 1
+    model = build_model(ReadoutConfig(n_times=4), 6, 2, 3, 400.0)
+    assert model.tau_ms == 400.0  # tau_ms = 0: the window's duration
+    t = torch.from_numpy(spikes).float()
+    model.prepare(t)
+    times = (np.arange(4) + 1) * 100.0
+    raw = np.zeros((50, 6, 4))
+    for b, a, k, j in np.ndindex(50, 6, 2, 4):
+        if spikes[b, a, k] <= times[j]:
+            raw[b, a, j] += np.exp(-(times[j] - spikes[b, a, k]) / 400.0)
+    feats = np.log1p(raw).reshape(50, -1)
+    sd = feats.std(0)
+    np.testing.assert_allclose(model.feat_mean.numpy(), feats.mean(0), atol=1e-6)
+    np.testing.assert_allclose(model.feat_scale.numpy(), np.where(sd > 1e-6, sd, 1.0), rtol=1e-4)
+    z = model.features(t).detach().numpy()
+    live = sd > 1e-6
+    np.testing.assert_allclose(z[:, live].mean(0), 0.0, atol=1e-5)
+    np.testing.assert_allclose(z[:, live].std(0), 1.0, rtol=1e-4)
+    assert np.all(z[:, ~live] == 0.0)
+
+
+def test_weights_without_the_scaler_load_as_identity():
+    """Runs written before the scaler existed keep their scores (their buffers are optional)."""
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(model="readout", readout_tau_ms=100.0, readout_times=8)
+    pipe = SpikePipeline(cfg, 200.0, 100, ("static", "dynamic"), ("hook", "loop"))
+    old = {k: v for k, v in pipe.weights().items() if "feat_" not in k}
+    fresh = SpikePipeline(cfg, 200.0, 100, ("static", "dynamic"), ("hook", "loop"))
+    fresh.load_weights(old)
+    assert torch.all(fresh.model.feat_mean == 0) and torch.all(fresh.model.feat_scale == 1)
+    spikes = torch.rand(4, fresh.model.n_afferents, 1) * 500
+    np.testing.assert_array_equal(fresh.model.features(spikes).numpy(),
+                                  fresh.model.traces(spikes).numpy())  # fmt: skip
