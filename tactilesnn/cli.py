@@ -102,9 +102,8 @@ def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--val-fraction",
         type=float,
-        default=None,
-        help="fraction of training scans held out for early stopping / best weights (default: "
-        "none for tasks; 0.1 of a --data file's training recordings when it has >= 100)",
+        default=0.0,
+        help="fraction of training scans held out for early stopping / best weights",
     )
     g = p.add_argument_group("pipeline settings (unset flags keep the component's default)")
     for kind, reg in registries().items():

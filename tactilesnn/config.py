@@ -173,10 +173,8 @@ def data_file_defaults(events: bool, grid: str | None = None) -> dict[str, Any]:
     every channel, the linear-cost ``readout`` model (on real recordings it beats the tempotron,
     whose gradient training fails with hundreds of inputs: Braille 81.5 vs 70.4 %), and for
     event files (``X [N, taxels, polarity, bins]``) the ``events`` encoder; event taxels that form
-    a ``grid`` (``"ROWSxCOLS"``, declared or square) get the convolutional ``csnn`` model.
-    Early stopping after 10 epochs without validation gain (``patience``) acts where the run holds
-    out validation recordings (``training.data_val_fraction``)."""
-    out: dict[str, Any] = {"channels": ("all",), "model": "readout", "patience": 10}
+    a ``grid`` (``"ROWSxCOLS"``, declared or square) get the convolutional ``csnn`` model."""
+    out: dict[str, Any] = {"channels": ("all",), "model": "readout"}
     if events:
         out["encoder"] = "events"
     if events and grid is not None:

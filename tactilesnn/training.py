@@ -39,18 +39,6 @@ class TrainResult:
     confusion: np.ndarray
 
 
-#: ``--data`` runs hold out this fraction of the training recordings (early stopping, best
-#: weights) when there are at least ``DATA_VAL_MIN_RECORDINGS`` of them; with fewer every
-#: recording trains (a few held-out recordings would pick weights by noise)
-DATA_VAL_FRACTION, DATA_VAL_MIN_RECORDINGS = 0.1, 100
-
-
-def data_val_fraction(train: WindowDataset) -> float:
-    """The validation fraction a ``--data`` run uses by default (see ``DATA_VAL_FRACTION``)."""
-    enough = np.unique(train.scan).size >= DATA_VAL_MIN_RECORDINGS
-    return DATA_VAL_FRACTION if enough else 0.0
-
-
 def split_validation(
     data: WindowDataset, fraction: float, seed: int
 ) -> tuple[WindowDataset, WindowDataset | None]:
@@ -412,7 +400,7 @@ def train_run(
     progress: bool = True,
     data: Path | None = None,
     resume: bool = False,
-    val_fraction: float | None = None,
+    val_fraction: float = 0.0,
     config_text: str | None = None,
     export: bool = False,
     data_window_s: float | None = None,
@@ -421,7 +409,6 @@ def train_run(
 ) -> tuple[Path, dict]:
     """Build the data, train, evaluate and write ``out`` atomically; returns its metrics.
 
-    ``val_fraction`` None: :func:`data_val_fraction` for ``data`` runs, none for tasks.
     Each epoch's state is checkpointed in ``<out>.partial/``; ``resume`` continues from there
     after an interruption (same configuration required). Nothing existing is replaced unless
     ``overwrite``.
@@ -479,8 +466,6 @@ def train_run(
             train.fs_hz,
             time.perf_counter() - t0,
         )
-        if val_fraction is None:
-            val_fraction = data_val_fraction(train) if data is not None else 0.0
         selection = None
         if select_encoders:
             config, selection = select_encoder(config, train, select_encoders, progress=progress)
@@ -498,7 +483,6 @@ def train_run(
             train.X, train.y, test.X, test.y
         )
         res.metrics["train_error_history"] = res.history
-        res.metrics["val_fraction"] = val_fraction
         if selection is not None:
             res.metrics["encoder_selection_val_accuracy"] = selection
         writer.write_json(

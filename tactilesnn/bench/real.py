@@ -191,7 +191,7 @@ def run(
     epochs: int | None = None,
     progress: bool = True,
 ) -> dict:
-    from ..training import data_val_fraction, fit_and_evaluate, select_encoder
+    from ..training import fit_and_evaluate, select_encoder
 
     data_root = Path(data_root)
     rows: list[dict] = []
@@ -222,9 +222,7 @@ def run(
                 t0 = time.perf_counter()
                 if enc is None and not events:  # as train --data: the encoder chosen on held-out
                     cfg, _ = select_encoder(cfg, train, DATA_ENCODER_CANDIDATES)  # recordings
-                res = fit_and_evaluate(
-                    cfg, train, test, progress=progress, val_fraction=data_val_fraction(train)
-                )  # as train --data
+                res = fit_and_evaluate(cfg, train, test, progress=progress)
                 m = res.metrics
                 rows.append({
                     "dataset": name, "seed": seed, "method": label, "kind": "spike",
