@@ -105,5 +105,4 @@ def test_a_1000_x_13000_sample_20_class_file_trains_under_2gib(tmp_path: Path) -
     m = json.loads((out / "metrics.json").read_text())
     assert m["n_train_windows"] + m["n_test_windows"] == 7 * n
     assert m["test_accuracy_per_recording"] >= 0.9, m["test_accuracy_per_recording"]
-    assert m["val_fraction"] == 0.1  # 800 training recordings: early stopping on 80 of them
     assert (out / "model.onnx").is_file()

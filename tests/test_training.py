@@ -261,18 +261,3 @@ def test_evaluate_data_with_channels_in_another_order_scores_the_same(tmp_path, 
     assert same["test_accuracy"] > 0.6 and rev["test_accuracy"] == same["test_accuracy"]
     assert main(["evaluate", str(out), "--data", str(other), "--json"]) != 0
     assert "not the run's" in capsys.readouterr().err
-
-
-def test_data_runs_hold_out_validation_recordings_only_when_there_are_enough():
-    from tactilesnn.datasets_synth import WindowDataset
-
-    def data(n_rec: int, per: int) -> WindowDataset:
-        scan = np.repeat(np.arange(n_rec), per)
-        return WindowDataset(np.zeros((scan.size, 1, 8), np.float32), scan % 2, scan, 100.0,
-                             ("a", "b"), ("ch0",))  # fmt: skip
-
-    assert training.data_val_fraction(data(99, 7)) == 0.0  # 693 windows, 99 recordings
-    assert training.data_val_fraction(data(100, 1)) == training.DATA_VAL_FRACTION
-    fit, val = training.split_validation(data(200, 3), training.DATA_VAL_FRACTION, seed=0)
-    assert val is not None and np.unique(val.scan).size == 20
-    assert not set(fit.scan.tolist()) & set(val.scan.tolist())
