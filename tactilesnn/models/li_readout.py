@@ -73,6 +73,8 @@ class LIReadout(SpikeModel):
     """Leaky-integrator traces at fixed times -> linear class scores; see the module docstring."""
 
     score_units = "logits of a softmax over classes"
+    #: the feature scaler's buffers: runs written before it load them as identity
+    optional_state: ClassVar[tuple[str, ...]] = ("feat_mean", "feat_scale")
 
     def __init__(self, config: ReadoutConfig, n_afferents: int, max_spikes: int, n_classes: int,
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
@@ -88,11 +90,9 @@ class LIReadout(SpikeModel):
         )
         self.register_buffer("times_ms", times)
         self.tau_ms = float(config.tau_ms) or float(duration_ms)
-        # feature scaling fitted on the training spikes (runs written before it: identity)
+        # feature scaling, fitted on the training spikes by prepare()
         self.register_buffer("feat_mean", torch.zeros(n_in))
         self.register_buffer("feat_scale", torch.ones(n_in))
-
-    optional_state: ClassVar[tuple[str, ...]] = ("feat_mean", "feat_scale")
 
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
