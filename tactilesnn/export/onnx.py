@@ -8,9 +8,10 @@ streaming state (:attr:`~tactilesnn.models.base.SpikeModel.state_names`, e.g. th
 
 Each component owns its graph (``onnx_module()``): the encoder's (channel selection and clock
 afferents added here) is chained into the model's with ``onnx.compose``; scripted components
-(time loops) become ONNX ``Loop``s, so the graph does not grow with the
-number of steps. Every export is run in onnxruntime and compared with torch before it is
-written; a graph whose state inputs do not change its outputs is refused.
+(time loops) become ONNX ``Loop``s and the SNN's scans single ``LSTM`` / ``MatMul`` nodes
+(:mod:`~tactilesnn.models.onnx_ops`), so the graph does not grow with the number of steps.
+Every export is run in onnxruntime and compared with torch before it is written; a graph whose
+state inputs do not change its outputs is refused.
 """
 
 from __future__ import annotations
@@ -275,7 +276,10 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     out = path.with_name(path.stem + ".int8.onnx")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-    quantize_dynamic(str(path), str(out), weight_type=QuantType.QInt8)
+    # only the MatMul / Conv weights: the SNN's LSTM node is the exact LIF recurrence
+    # (models.functional.lif_lstm_parameters), which quantised gate weights would no longer be
+    quantize_dynamic(str(path), str(out), weight_type=QuantType.QInt8,
+                     op_types_to_quantize=["MatMul", "Conv"])  # fmt: skip
     acc = {}
     for name, p in (("float", path), ("int8", out)):
         sess = PipelineSession(str(p))

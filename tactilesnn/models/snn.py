@@ -32,14 +32,15 @@ from ..spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model
 from .functional import (
     decay_factor,
+    li_closed,
+    li_decay_matrix,
     li_scan,
     lif_integrate,
-    lif_rec_scan,
     lif_reset,
-    lif_scan,
     lif_step,
     reduce_readout,
 )
+from .onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
 
 SURROGATES = ("fast_sigmoid", "arctan")
 RESETS = ("subtract", "zero")
@@ -324,7 +325,6 @@ class SNNModel(SpikeModel):
     ``o_state`` (output membrane) and, for a recurrent hidden layer, ``hs_state`` (its last spikes).
     """
 
-    onnx_scripted = True
     score_units = "SNN readout (spike count, or max / mean of the output membrane)"
 
     def __init__(self, config: SNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
@@ -375,10 +375,10 @@ class SNNModel(SpikeModel):
 
 
 class _SNNGraph(nn.Module):
-    """Exported SNN: raster -> hoisted projections -> scans (ONNX ``Loop``s) -> readout.
-
-    The same :mod:`~tactilesnn.models.functional` scans as the reference; scripted, so the graph
-    does not grow with the number of time steps. Takes and returns the streaming state.
+    """Exported SNN: spikes -> input current (one ``ScatterND``) -> LIF hidden layer (one
+    ``LSTM`` node) -> output layer (leaky integrator in closed form, one MatMul; or another
+    ``LSTM`` for spiking output) -> readout. No per-step nodes (:mod:`.onnx_ops`); traced, with
+    the same functional-core arithmetic in torch. Takes and returns the streaming state.
     """
 
     def __init__(self, model: SNNModel) -> None:
@@ -386,28 +386,59 @@ class _SNNGraph(nn.Module):
         net = model.net
         self.dt, self.steps = float(model.config.dt_ms), int(model.steps)
         self.fc1, self.fc2 = net.hidden.fc, net.out.fc
-        w_rec = net.hidden.rec.weight if net.hidden.rec is not None else torch.zeros(1, 1)
-        self.register_buffer("w_rec", w_rec.detach().clone())
+        hidden = net.hidden.fc.out_features
+        rec = net.hidden.rec.weight.detach().clone() if net.hidden.rec is not None else None
+        self.register_buffer("w_rec", rec if rec is not None else torch.zeros(0, 0))
+        self.register_buffer(
+            "updates", self.fc1.weight.detach().t().repeat_interleave(model.max_spikes, 0)
+        )
         self.beta1, self.theta1 = float(net.hidden.beta), float(net.hidden.theta)
         self.sub1 = net.hidden.reset == "subtract"
+        self.lstm1 = _LSTMWeights(hidden, self.beta1, self.theta1, self.sub1, rec)
         self.beta2 = float(net.out.beta)
         self.spiking_out = isinstance(net.out, LIFLayer)
-        self.theta2 = float(net.out.theta) if isinstance(net.out, LIFLayer) else 1.0
-        self.sub2 = net.out.reset == "subtract" if isinstance(net.out, LIFLayer) else True
+        if isinstance(net.out, LIFLayer):
+            self.theta2, self.sub2 = float(net.out.theta), net.out.reset == "subtract"
+            self.lstm2 = _LSTMWeights(net.out.fc.out_features, self.beta2, self.theta2, self.sub2)
+        else:
+            self.register_buffer("decay", li_decay_matrix(self.steps, self.beta2))
         self.readout = net.readout
 
+    def hidden_layer(self, spikes: Tensor, h: Tensor, hs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        cur = RasterCurrent.apply(
+            spikes, self.fc1.weight, self.fc1.bias, self.updates, self.dt, self.steps
+        )
+        return self.lstm1(cur, h, hs, self.w_rec)
+
     def readout_scan(self, hid: Tensor, o: Tensor) -> tuple[Tensor, Tensor]:
+        cur = self.fc2(hid)
         if self.spiking_out:
-            out, o_new = lif_scan(self.fc2(hid), o, self.beta2, self.theta2, self.sub2)
+            out, o_new, _ = self.lstm2(cur, o, torch.zeros_like(o), self.w_rec[:0, :0])
         else:
-            out, o_new = li_scan(self.fc2(hid), o, self.beta2)
+            out = li_closed(cur, o, self.beta2, self.decay)
+            o_new = out[-1]
         return reduce_readout(out, self.readout), o_new
 
     def forward(self, spikes: Tensor, h: Tensor, o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        cur = self.fc1(spike_raster(spikes, self.dt, self.steps))
-        hid, h_new = lif_scan(cur, h, self.beta1, self.theta1, self.sub1)
+        hid, h_new, _ = self.hidden_layer(spikes, h, torch.zeros_like(h))
         scores, o_new = self.readout_scan(hid, o)
         return scores, h_new, o_new
+
+
+class _LSTMWeights(nn.Module):
+    """The ``LSTM`` weights of one LIF layer (:class:`.onnx_ops.LIFAsLSTM`) and its call."""
+
+    def __init__(self, hidden: int, beta: float, theta: float, subtract: bool,
+                 w_rec: Tensor | None = None) -> None:  # fmt: skip
+        super().__init__()
+        for name, value in lif_lstm_buffers(hidden, beta, theta, subtract, w_rec).items():
+            self.register_buffer(name, value)
+        self.beta, self.theta, self.subtract = beta, theta, subtract
+
+    def forward(self, cur: Tensor, u0: Tensor, s0: Tensor, w_rec: Tensor):
+        return LIFAsLSTM.apply(
+            cur, u0, s0, w_rec, self.W, self.R, self.B, self.beta, self.theta, self.subtract
+        )
 
 
 class _RecurrentSNNGraph(_SNNGraph):
@@ -416,9 +447,6 @@ class _RecurrentSNNGraph(_SNNGraph):
     def forward(  # type: ignore[override]
         self, spikes: Tensor, h: Tensor, o: Tensor, hs: Tensor
     ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        cur = self.fc1(spike_raster(spikes, self.dt, self.steps))
-        hid, h_new, hs_new = lif_rec_scan(
-            cur, h, hs, self.w_rec, self.beta1, self.theta1, self.sub1
-        )
+        hid, h_new, hs_new = self.hidden_layer(spikes, h, hs)
         scores, o_new = self.readout_scan(hid, o)
         return scores, h_new, o_new, hs_new

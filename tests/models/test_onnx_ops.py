@@ -1,0 +1,118 @@
+"""The vectorised ONNX forms of the functional core against its reference scans."""
+
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+from torch import nn
+
+from tactilesnn.models.functional import (
+    li_closed,
+    li_decay_matrix,
+    li_scan,
+    lif_rec_scan,
+    lif_scan,
+)
+from tactilesnn.models.onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
+from tactilesnn.spikes import spike_raster
+
+
+def _run_onnx(module: nn.Module, args: tuple, names: list[str]) -> list[np.ndarray]:
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.onnx"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(module, args, str(path), input_names=names, opset_version=17,
+                              dynamo=False, dynamic_axes={n: {0: "b"} for n in names[:1]})  # fmt: skip
+        sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        ops = {n.op_type for n in onnx.load(str(path)).graph.node}
+        assert "Loop" not in ops
+        return sess.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
+
+
+def test_leaky_integrator_closed_form_matches_the_scan_in_float64():
+    g = torch.Generator().manual_seed(0)
+    cur = torch.randn(300, 3, 5, dtype=torch.float64, generator=g)
+    v0 = torch.randn(3, 5, dtype=torch.float64, generator=g)
+    beta = 0.93
+    ref, last = li_scan(cur, v0, beta)
+    got = li_closed(cur, v0, beta, li_decay_matrix(300, beta, torch.float64))
+    assert torch.allclose(got, ref, rtol=0, atol=1e-12)
+    assert torch.allclose(got[-1], last, atol=1e-12)
+    # no overflow or NaN for long windows and strong decay
+    assert torch.isfinite(li_decay_matrix(5000, 1e-3)).all()
+
+
+class _LIF(nn.Module):
+    def __init__(self, hidden, beta, theta, subtract, w_rec=None):
+        super().__init__()
+        for k, v in lif_lstm_buffers(hidden, beta, theta, subtract, w_rec).items():
+            self.register_buffer(k, v)
+        self.register_buffer("w_rec", w_rec if w_rec is not None else torch.zeros(0, 0))
+        self.cfg = (beta, theta, subtract)
+
+    def forward(self, cur, u0, s0):
+        return LIFAsLSTM.apply(cur, u0, s0, self.w_rec, self.W, self.R, self.B, *self.cfg)
+
+
+@pytest.mark.parametrize("subtract", [True, False])
+@pytest.mark.parametrize("recurrent", [False, True])
+def test_lif_as_one_lstm_node_spikes_exactly_like_the_scan(subtract, recurrent):
+    g = torch.Generator().manual_seed(1)
+    steps, batch, hidden = 200, 4, 24
+    beta = 0.9048  # exp(-5 ms / 50 ms), rounded
+    cur = (0.35 * torch.randn(steps, batch, hidden, generator=g) + 0.12).float()
+    cur[0, 0, :] = 1.0  # from a zero membrane: exactly at the threshold (v >= theta spikes)
+    u0 = (0.5 * torch.rand(batch, hidden, generator=g)).float()
+    u0[0] = 0.0
+    w_rec = (0.2 * torch.randn(hidden, hidden, generator=g)).float() if recurrent else None
+    s0 = (
+        (torch.rand(batch, hidden, generator=g) < 0.3).float()
+        if recurrent
+        else torch.zeros_like(u0)
+    )
+    s0[0] = 0.0
+    if recurrent and not subtract:
+        u0 = u0 * (1 - s0)  # a membrane reset to zero after a spike
+    if recurrent:
+        ref_s, ref_u, _ = lif_rec_scan(cur, u0, s0, w_rec, beta, 1.0, subtract)
+    else:
+        ref_s, ref_u = lif_scan(cur, u0, beta, 1.0, subtract)
+    mod = _LIF(hidden, beta, 1.0, subtract, w_rec)
+    spikes, u_t, s_t = _run_onnx(mod, (cur, u0, s0), ["cur", "u0", "s0"])
+    assert ref_s.sum() > 500  # an active layer, not a trivially silent one
+    assert ref_s[0, 0].sum() == hidden
+    assert np.array_equal(spikes, ref_s.numpy())  # every spike at its step
+    assert np.abs(u_t - ref_u.numpy()).max() < 1e-4
+    assert np.array_equal(s_t, ref_s[-1].numpy())
+
+
+class _Raster(nn.Module):
+    def __init__(self, fc, k, dt, steps):
+        super().__init__()
+        self.fc, self.dt, self.steps = fc, dt, steps
+        self.register_buffer("updates", fc.weight.detach().t().repeat_interleave(k, 0))
+
+    def forward(self, spikes):
+        w, b = self.fc.weight, self.fc.bias
+        return RasterCurrent.apply(spikes, w, b, self.updates, self.dt, self.steps)
+
+
+def test_raster_current_scatter_equals_the_dense_raster_product():
+    torch.manual_seed(2)
+    steps, dt, k = 40, 5.0, 3
+    fc = nn.Linear(30, 7)
+    spikes = torch.rand(5, 30, k) * 200.0
+    spikes[0, :, 0] = 0.0  # all in step 0: duplicates accumulate
+    spikes[1, 2] = torch.tensor([steps * dt, float("inf"), float("inf")])  # window end: last step
+    spikes[2, 4] = torch.tensor([-1.0, 250.0, float("nan")])  # outside the window: dropped
+    spikes[3] = float("inf")  # a silent window
+    ref = nn.functional.linear(spike_raster(spikes, dt, steps), fc.weight, fc.bias)
+    (got,) = _run_onnx(_Raster(fc, k, dt, steps).eval(), (spikes,), ["spikes"])
+    assert got.shape == (steps, 5, 7)
+    assert np.abs(got - ref.detach().numpy()).max() < 1e-5
