@@ -122,26 +122,69 @@ class CapacitiveTriangle:
 
     # ------------------------------------------------------------------ mechanics
     def taxel_pressure_Pa(
-        self, force_N: np.ndarray, center_mm: np.ndarray, diameter_mm: float
+        self,
+        force_N: np.ndarray,
+        center_mm: np.ndarray,
+        diameter_mm: float,
+        taxels: np.ndarray | None = None,
     ) -> np.ndarray:
-        """Pressure (Pa) on each pad ``[12, samples]`` from a uniform disc load spread by the foam."""
+        """Pressure (Pa) on each pad ``[12, samples]`` from a uniform disc load spread by the
+        foam; with ``taxels`` only those pads (``[len(taxels), samples]``)."""
         f = np.asarray(force_N, dtype=np.float64)
+        pads = self.taxels_mm if taxels is None else self.taxels_mm[np.asarray(taxels)]
         offs, wts = disc_points(diameter_mm)
         uniq, inv = contact_positions(center_mm, f.size)
-        per = np.empty((12, len(uniq)))
+        per = np.empty((len(pads), len(uniq)))
         for k, u in enumerate(uniq):
-            r = np.linalg.norm(self.taxels_mm[:, None, :] - (u + offs)[None], axis=-1)
+            r = np.linalg.norm(pads[:, None, :] - (u + offs)[None], axis=-1)
             per[:, k] = -boussinesq_t3(1.0, r, self.params.spread_depth_mm) @ wts
         return per[:, inv] * f[None, :]
+
+    def reachable_channels(
+        self,
+        force_N: np.ndarray,
+        center_mm: np.ndarray,
+        diameter_mm: float,
+        tol_lsb: float = 0.0,
+    ) -> np.ndarray:
+        """Channels whose CDC code the contact can move off its rest value ``[channels]`` bool.
+
+        The foam's spread ``|T3|`` falls with distance, so a pad's pressure never exceeds
+        ``max F x |T3|(nearest approach of the disc)``; strain (also through the play operator,
+        whose output stays in ``[0, max strain]``), capacitance and the CDC's rounding are
+        monotone, so if that bound converts to the rest code, every sample does (exact). With
+        ``tol_lsb > 0`` a channel whose bound stays below ``tol_lsb`` LSB of the rest level is
+        also left out: its codes then differ from a full simulation by at most
+        ``ceil(tol_lsb)`` LSB (the CDC's noise is ``noise_lsb`` = 4 LSB rms).
+        """
+        p = self.params
+        if p.eps_r + p.eps_r_gain * p.strain_max <= 0:  # capacitance not monotone in strain
+            return np.ones(self.n_channels, dtype=bool)
+        f_max = max(float(np.max(force_N, initial=0.0)), 0.0)
+        uniq, _ = contact_positions(center_mm, np.asarray(force_N).size)
+        reach = np.linalg.norm(self.taxels_mm[:, None, :] - uniq[None], axis=-1).min(1)
+        nearest = np.maximum(reach - diameter_mm / 2, 0.0)
+        p_max = -boussinesq_t3(f_max, nearest, p.spread_depth_mm)
+        c_rest = self.capacitance_pF(np.zeros(12))
+        c_max = self.capacitance_pF(self.strain_static(p_max))
+        lsb = (p.cdc_hi_pF - p.cdc_lo_pF) / (2**p.cdc_bits - 1)
+        live = []
+        for g in self.groups:
+            lo = c_rest[g].sum() - (len(g) - 1) * p.parasitic_pF
+            hi = c_max[g].sum() - (len(g) - 1) * p.parasitic_pF
+            live.append(self.cdc_code(lo) != self.cdc_code(hi) and hi - lo >= tol_lsb * lsb)
+        return np.array(live)
+
+    def strain_static(self, pressure_Pa: np.ndarray) -> np.ndarray:
+        """Foam compression (fraction) at a pressure, without hysteresis."""
+        p = self.params
+        q = np.maximum(pressure_Pa, 0.0)
+        return p.strain_max * q / (q + p.p_half_Pa)
 
     def strain(self, pressure_Pa: np.ndarray) -> np.ndarray:
         """Foam compression (fraction) with play-operator hysteresis along the last axis."""
         p = self.params
-        s = (
-            p.strain_max
-            * np.maximum(pressure_Pa, 0.0)
-            / (np.maximum(pressure_Pa, 0.0) + p.p_half_Pa)
-        )
+        s = self.strain_static(pressure_Pa)
         if p.hysteresis <= 0:
             return s
         out = np.empty_like(s)
@@ -201,8 +244,16 @@ class CapacitiveTriangle:
         diameter_mm: float,
         fs_in_hz: float,
         rng: np.random.Generator | None = None,
+        skip: bool = True,
+        skip_tol_lsb: float = 0.0,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Contact time course -> ``(t_s [frames], codes [channels, frames])`` (see module doc)."""
+        """Contact time course -> ``(t_s [frames], codes [channels, frames])`` (see module doc).
+
+        ``skip``: pads of channels the contact cannot move off their rest code are not simulated
+        (identical codes, see :meth:`reachable_channels`); ``skip_tol_lsb``: also those it moves
+        by less than this many LSB (codes then within ``ceil(skip_tol_lsb)`` LSB). The number
+        of channels left out is kept in ``last_skipped_channels``.
+        """
         p = self.params
         f = as_float_array(force_N, "force_N", ndim=1).astype(np.float64)
         check_finite(f, "force_N")
@@ -213,7 +264,18 @@ class CapacitiveTriangle:
                 f"fs_in_hz {fs_in_hz} too coarse for {self.stage_ms} ms CDC stages; "
                 f"use >= {2000.0 / self.stage_ms:.0f} Hz"
             )
-        c = self.capacitance_pF(self.strain(self.taxel_pressure_Pa(f, center_mm, diameter_mm)))
+        # skip what the contact cannot reach: the pads of channels whose code cannot change
+        # keep their rest capacitance (exact, see reachable_channels)
+        if skip_tol_lsb < 0 or not np.isfinite(skip_tol_lsb):
+            raise ValueError(f"skip_tol_lsb must be finite and >= 0, got {skip_tol_lsb}")
+        live = self.reachable_channels(f, center_mm, diameter_mm, skip_tol_lsb) if skip else None
+        pads = np.arange(12) if live is None else np.unique(np.concatenate(
+            [g for g, on in zip(self.groups, live, strict=True) if on] or [np.zeros(0, int)]))  # fmt: skip
+        c = np.repeat(self.capacitance_pF(np.zeros((12, 1))), f.size, axis=1)
+        if pads.size:
+            press = self.taxel_pressure_Pa(f, center_mm, diameter_mm, taxels=pads)
+            c[pads] = self.capacitance_pF(self.strain(press))
+        self.last_skipped_channels = 0 if live is None else int((~live).sum())
         c_ch = np.stack([c[g].sum(0) - (len(g) - 1) * p.parasitic_pF for g in self.groups])
         duration = f.size / fs_in
         frames = int(duration * 1000 / self.frame_ms)

@@ -198,8 +198,68 @@ class GaborScalogram(nn.Module):
         keep = int(torch.nonzero(ok)[0])  # smallest L that keeps all but tol of every band
         return taps[:, reach - keep : reach + keep + 1]
 
-    def analytic(self, x: torch.Tensor) -> torch.Tensor:
-        """Complex wavelet coefficients ``[batch, channels, bands, frames]`` (linear in ``x``)."""
+    def band_taps(self, kernels: torch.Tensor, tol: float = 1e-12) -> np.ndarray:
+        """Half-length ``L_b`` of each band's FIR kernel (rows of :meth:`conv_kernels`) that
+        keeps all but ``tol`` of that band's energy."""
+        half = (kernels.shape[1] - 1) // 2
+        power = kernels.abs() ** 2
+        by_dist = power[:, half:].clone()
+        by_dist[:, 1:] += power[:, :half].flip(1)
+        inside = torch.cumsum(by_dist, dim=1)
+        ok = (inside[:, -1:] - inside <= tol * inside[:, -1:]).numpy()
+        return ok.argmax(1)
+
+    def support_bins(self, window: int) -> tuple[int, np.ndarray]:
+        """FFT length of a ``window``-sample input and each band's count of response bins
+        above ``SUPPORT_TOL`` of its peak (the rank of its linear map is at most that)."""
+        n = int(window)
+        n_fft = (
+            n if self.padding == "periodic" else scipy.fft.next_fast_len(n + 2 * self.pad_len(n))
+        )
+        h = self._filters(n_fft, torch.float64).numpy()
+        return n_fft, (h > SUPPORT_TOL * h.max(1, keepdims=True)).sum(1)
+
+    def band_map(self, window: int, band: int) -> torch.Tensor:
+        """Band ``band``'s part of :meth:`linear_map`, ``[window, frames]`` complex128 (computed
+        for that band alone: the full map's FFTs need ``window x bands x n_fft`` values)."""
+        eye = torch.eye(int(window), dtype=torch.float64).unsqueeze(1)
+        return self.analytic(eye, bands=slice(band, band + 1))[:, 0, 0]
+
+    def band_factors(
+        self, window: int, band: int, tol: float = 1e-7
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Band ``band``'s part of :meth:`linear_map` as a low-rank product ``U @ Vh``.
+
+        :meth:`analytic` of a window is ``x -> edge pad -> FFT -> x H_b -> inverse FFT -> the
+        window's frames``; only the bins where ``H_b`` exceeds ``SUPPORT_TOL`` of its peak count,
+        so the map factors exactly as ``[window, K_b] @ [K_b, frames]``. A QR and an SVD of that
+        product keep the singular values above ``tol`` of the largest: ``U [window, r]``,
+        ``Vh [r, frames]`` (complex128), ``r`` ~ the band's time-bandwidth product.
+        """
+        n = int(window)
+        p = self.pad_len(n)
+        n_fft, _ = self.support_bins(n)
+        h = self._filters(n_fft, torch.float64).numpy()[band]
+        (k,) = np.nonzero(h > SUPPORT_TOL * h.max())
+        if self.padding == "reflect":
+            src = np.pad(np.arange(n), p, mode="reflect")
+        else:  # zero padding: the padded samples come from nowhere
+            src = np.pad(np.arange(n), p, mode="constant", constant_values=-1)
+        t = np.arange(src.size)
+        keep = src >= 0
+        dft = np.exp(-2j * np.pi * np.outer(t[keep], k) / n_fft)  # padded sample -> bin
+        b = np.zeros((n, k.size), dtype=np.complex128)
+        np.add.at(b, src[keep], dft)  # the padding folds back onto the samples it copies
+        centres = p + np.arange(0, n, self.hop)
+        a = (h[k] / n_fft)[:, None] * np.exp(2j * np.pi * np.outer(k, centres) / n_fft)
+        q, r = np.linalg.qr(b)
+        u, sv, vh = np.linalg.svd(r @ a, full_matrices=False)
+        rank = max(1, int((sv > tol * sv[0]).sum()))
+        return q @ (u[:, :rank] * sv[:rank]), vh[:rank]
+
+    def analytic(self, x: torch.Tensor, bands: slice | None = None) -> torch.Tensor:
+        """Complex wavelet coefficients ``[batch, channels, bands, frames]`` (linear in ``x``);
+        ``bands``: only these bands (same padding and FFT length as all of them)."""
         if x.ndim != 3:
             raise ValueError(f"expected [batch, channels, samples], got shape {tuple(x.shape)}")
         n = x.shape[-1]
@@ -211,6 +271,8 @@ class GaborScalogram(nn.Module):
         n_fft = n if self.padding == "periodic" else scipy.fft.next_fast_len(x.shape[-1])
         spec = torch.fft.rfft(x, n=n_fft)  # [B, C, K]
         h = self._filters(n_fft, x.dtype)  # [F, K]
+        if bands is not None:
+            h = h[bands]
         # zero negative frequencies: ifft of a half spectrum padded with zeros is analytic
         w = torch.fft.ifft(spec.unsqueeze(-2) * h, n=n_fft)
         return w[..., p : p + n : self.hop]

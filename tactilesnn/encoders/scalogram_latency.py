@@ -20,7 +20,7 @@ from torch import Tensor, nn
 
 from .._checks import check_choice, check_int, check_positive
 from .base import SpikeEncoder, register_encoder
-from .export import GaborConvEncoder, WindowEncoder
+from .export import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import MAPPINGS, STATS, LatencyCode
 from .stft import STFTScalogram
@@ -248,13 +248,19 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
         return GaborScalogram(self.fs_hz, self.freqs_hz, hop=self.config.hop)
 
     def onnx_module(self) -> nn.Module:
-        # the matrix form is exact at the edges; its size grows with window^2 (a 13,000-sample
-        # window needs ~54 GB), the FIR form with the longest wavelet only
-        frames = -(-self.window // self.config.hop)
-        matrix_bytes = 8 * self.window * self.config.n_bands * frames
-        if matrix_bytes <= self.MATRIX_BUDGET_BYTES:
-            return super().onnx_module()
-        return self._gated(_WithSlot(GaborConvEncoder(self.scalogram, self.code, self.window)))
+        # each band in its cheapest exact form (low rank, short FIR, dense); the FIR form of every
+        # band (size bands x the longest wavelet) is the fallback when that is too large (a
+        # 13,000-sample window's dense columns would need GBs)
+        try:
+            graph = FactoredGaborEncoder(
+                self.scalogram, self.code, self.window, self.MATRIX_BUDGET_BYTES
+            )
+            size = sum(b.numel() * b.element_size() for b in graph.buffers())
+        except ValueError:
+            size = np.inf
+        if size > self.MATRIX_BUDGET_BYTES:
+            graph = GaborConvEncoder(self.scalogram, self.code, self.window)
+        return self._gated(_WithSlot(graph))
 
 
 def unit_peak(x: Tensor) -> Tensor:

@@ -110,3 +110,41 @@ def test_hysteresis_steps_only_where_strain_changes_and_equals_every_sample():
     f[20000:22000] = np.linspace(0, 1, 2000)  # a ramp that stops mid-way, then release
     p = sensor.taxel_pressure_Pa(f, np.array([1.0, -2.0]), 12.0)
     np.testing.assert_array_equal(sensor.strain(p), sensor.strain_every_sample(p))
+
+
+@pytest.mark.parametrize("mode", ["12", "3", "1"])
+def test_pads_a_contact_cannot_reach_are_skipped_with_identical_codes(mode):
+    """A small probe on one pad leaves the far pads at their rest code (the spread's bound is
+    exact through the monotone strain, capacitance and CDC): skipping them changes no code."""
+    sensor = CapacitiveTriangle(mode=mode)
+    fs = 5000.0
+    f = np.zeros(4000)
+    f[500:2500] = 3.0 * np.sin(np.linspace(0, np.pi, 2000))
+    scenes = [
+        (f, sensor.taxels_mm[7] + 0.3, 3.0),  # one corner pad
+        (f, np.linspace(sensor.taxels_mm[0], sensor.taxels_mm[4], f.size), 4.0),  # a slide
+        (10 * f, np.zeros(2), 24.0),  # a wide, hard press reaches everything
+        (np.zeros(4000), np.zeros(2), 5.0),  # no contact: nothing to simulate
+    ]
+    skipped = []
+    for force, centre, diam in scenes:
+        got = sensor.read(force, centre, diam, fs, rng=np.random.default_rng(3))
+        n_skip = sensor.last_skipped_channels
+        ref = sensor.read(force, centre, diam, fs, rng=np.random.default_rng(3), skip=False)
+        np.testing.assert_array_equal(got[1], ref[1])
+        skipped.append(n_skip)
+    assert skipped[2] <= skipped[0] and skipped[3] == sensor.n_channels
+    # light touch: far pads stay within one rounding of rest; with a tolerance of 1 LSB more are
+    # left out and every code stays within 1 LSB of the full simulation (noise: 4 LSB rms)
+    light = 0.1 * f
+    exact = sensor.read(light, sensor.taxels_mm[7] + 0.3, 3.0, fs)[1]
+    n_exact = sensor.last_skipped_channels
+    tol = sensor.read(light, sensor.taxels_mm[7] + 0.3, 3.0, fs, skip_tol_lsb=1.0)[1]
+    n_tol = sensor.last_skipped_channels
+    full = sensor.read(light, sensor.taxels_mm[7] + 0.3, 3.0, fs, skip=False)[1]
+    np.testing.assert_array_equal(exact, full)
+    assert np.abs(tol - full).max() <= 1
+    if mode == "12":
+        assert n_exact >= 1 and n_tol >= n_exact + 3
+    with pytest.raises(ValueError, match="skip_tol_lsb"):
+        sensor.read(light, np.zeros(2), 3.0, fs, skip_tol_lsb=-1.0)

@@ -193,3 +193,35 @@ def test_data_defaults_follow_the_rate_and_the_training_spectrum():
     t = np.arange(1500) / fs
     x = (np.sin(2 * np.pi * 0.8 * t) + 0.1 * np.sin(2 * np.pi * 40 * t))[None, None]
     assert median_power_frequency(np.repeat(x, 4, 0), fs) == pytest.approx(0.8, abs=1 / 3)
+
+
+@pytest.mark.parametrize(
+    ("padding", "n", "hop"), [("reflect", 1000, 10), ("reflect", 400, 1), ("zero", 300, 3),
+                              ("periodic", 256, 4)],
+)  # fmt: skip
+def test_factored_export_form_matches_fft_path(padding: str, n: int, hop: int) -> None:
+    """Low-rank, FIR and dense bands together reproduce the FFT path in float64 (to the rank
+    tolerance), with fewer multiply-adds than the dense window matrices, and code the same
+    spikes in band order."""
+    from tactilesnn.encoders.export import FactoredGaborEncoder, WindowEncoder
+    from tactilesnn.encoders.gwt import log_bands
+    from tactilesnn.encoders.latency import LatencyCode
+
+    sc = GaborScalogram(2000.0, log_bands(5.0, 800.0, 20), hop=hop, padding=padding)
+    enc = FactoredGaborEncoder(sc, LatencyCode(stats=("mean", "std")), n).double()
+    x = torch.from_numpy(np.random.default_rng(0).standard_normal((2, 3, n)))
+    x[1, 2] = torch.sin(torch.arange(n) * 0.3)  # a pure tone: most bands far below the peak
+    ref = sc(x)[:, :, enc.order]
+    got = enc.scalogram(x)
+    assert got.shape == ref.shape
+    rel = (got - ref).abs().amax(-1) / ref.abs().amax(-1)
+    assert float(rel.max()) < 3e-5
+    kinds = set(enc.kinds)
+    assert "low_rank" in kinds and ("conv" in kinds or padding == "periodic")
+    frames = -(-n // hop)
+    assert enc.macs_per_channel() < 0.7 * 2 * n * sc.n_bands * frames
+    dense = WindowEncoder(sc, LatencyCode(stats=("mean", "std")), n).double()
+    t_ref, t_got = dense(x), enc(x)
+    fin = torch.isfinite(t_ref)
+    assert torch.equal(torch.isfinite(t_got), fin)
+    assert float((t_got[fin] - t_ref[fin]).abs().max()) < 1e-2  # ms
