@@ -123,8 +123,9 @@ class FactoredGaborEncoder(nn.Module):
     RANK_TOL = 3e-7
     #: bands whose response spans more bins than this are not factored (the QR costs K^2 n)
     MAX_SUPPORT_BINS = 600
-    #: nor bands whose ``window x bins`` factor exceeds this (long windows)
-    MAX_FACTOR_ELEMENTS = 4_000_000
+    #: nor bands whose ``window x bins`` factor exceeds this (long windows: the QR's working
+    #: arrays are a few times 16 bytes x this)
+    MAX_FACTOR_ELEMENTS = 1_000_000
     #: at most this many convolution kernels (each one Conv node) and low-rank groups
     MAX_GROUPS = 3
     #: onnxruntime's one-input-channel strided Conv does ~4x fewer multiply-adds per second
@@ -174,15 +175,12 @@ class FactoredGaborEncoder(nn.Module):
         for gi, group in enumerate(_split_by_length(lr, rank, self.MAX_GROUPS)):
             r_max = int(max(rank[b] for b in group))
             u1 = np.zeros((n, len(group), 2, r_max))
-            v2 = np.zeros((len(group), 2 * r_max, 2 * frames))
+            v2 = np.zeros((len(group), r_max, 2 * frames))  # [Vr | Vi]
             for i, b in enumerate(group):
                 u, vh = factors[b]
                 r = u.shape[1]
                 u1[:, i, 0, :r], u1[:, i, 1, :r] = u.real, u.imag
-                # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr)
                 v2[i, :r, :frames], v2[i, :r, frames:] = vh.real, vh.imag
-                v2[i, r_max : r_max + r, :frames] = -vh.imag
-                v2[i, r_max : r_max + r, frames:] = vh.real
             first.append(u1.reshape(n, -1))
             self.register_buffer(f"lr_v{gi}", torch.from_numpy(v2).float())
             self.lr_sizes.append((len(group), r_max))
@@ -220,7 +218,7 @@ class FactoredGaborEncoder(nn.Module):
         total = 0
         total = self.first.numel()
         for gi in range(len(self.lr_sizes)):
-            total += getattr(self, f"lr_v{gi}").numel()
+            total += 2 * getattr(self, f"lr_v{gi}").numel()  # rows a and b against [Vr | Vi]
         for gi, half in enumerate(self.conv_half):
             total += getattr(self, f"conv{gi}").shape[0] * fr * (2 * half + 1)
         return int(total)
@@ -232,11 +230,13 @@ class FactoredGaborEncoder(nn.Module):
         re, im = [], []
         parts = torch.split(flat @ self.first, self.first_cols, dim=1) if self.first_cols else ()
         for gi, (count, r_max) in enumerate(self.lr_sizes):
-            y = parts[gi].reshape(b * c, count, 2 * r_max)
-            z = torch.matmul(y.transpose(0, 1), getattr(self, f"lr_v{gi}"))  # [count, BC, 2 fr]
-            z = z.transpose(0, 1).reshape(b * c, count, 2, self.frames)
-            re.append(z[:, :, 0])
-            im.append(z[:, :, 1])
+            # rows a (real) and b (imaginary) of y against [Vr | Vi]:
+            # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr)
+            y = parts[gi].reshape(b * c, count, 2, r_max).permute(1, 2, 0, 3)
+            z = torch.matmul(y.reshape(count, 2 * b * c, r_max), getattr(self, f"lr_v{gi}"))
+            z = z.reshape(count, 2, b * c, 2, self.frames)
+            re.append((z[:, 0, :, 0] - z[:, 1, :, 1]).transpose(0, 1))
+            im.append((z[:, 0, :, 1] + z[:, 1, :, 0]).transpose(0, 1))
         if self.conv_half:
             padded = flat.unsqueeze(1)
             if self.pad:

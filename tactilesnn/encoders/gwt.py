@@ -245,11 +245,12 @@ class GaborScalogram(nn.Module):
             src = np.pad(np.arange(n), p, mode="reflect")
         else:  # zero padding: the padded samples come from nowhere
             src = np.pad(np.arange(n), p, mode="constant", constant_values=-1)
-        t = np.arange(src.size)
-        keep = src >= 0
-        dft = np.exp(-2j * np.pi * np.outer(t[keep], k) / n_fft)  # padded sample -> bin
         b = np.zeros((n, k.size), dtype=np.complex128)
-        np.add.at(b, src[keep], dft)  # the padding folds back onto the samples it copies
+        for lo in range(0, src.size, 1024):  # padded sample -> bin, in slices (bounded memory)
+            t = np.arange(lo, min(lo + 1024, src.size))
+            keep = src[t] >= 0
+            dft = np.exp(-2j * np.pi * np.outer(t[keep], k) / n_fft)
+            np.add.at(b, src[t][keep], dft)  # the padding folds back onto the samples it copies
         centres = p + np.arange(0, n, self.hop)
         a = (h[k] / n_fft)[:, None] * np.exp(2j * np.pi * np.outer(k, centres) / n_fft)
         q, r = np.linalg.qr(b)

@@ -184,6 +184,7 @@ def verify(
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         got_m = run_batched(mod, ["scores"], feeds, batch, bar("model"))[0]
         dm = float(np.abs(got_m - ref).max())
+        del enc, mod  # one session at a time: each holds its own copy of the weights
         if dm > SCORE_ATOL:
             raise ExportError(f"exported model differs from torch by {dm:.3g} (> {SCORE_ATOL})")
         report.update(
