@@ -88,7 +88,7 @@ def test_a_1000_x_13000_sample_20_class_file_trains_under_2gib(tmp_path: Path) -
     class, random phase and gain, noise). `train --data` with no setting but the epochs: cut into
     7 windows per recording, bands up to 0.45 fs chosen from the rate, encoder chosen on held-out
     recordings, exported and verified; all under the 2 GiB address-space limit (peak RSS measured
-    with /usr/bin/time -v: 0.84 GB with the default epochs)."""
+    with /usr/bin/time -v: 0.91 GB with the default epochs)."""
     rng = np.random.default_rng(0)
     n, s, fs = 1000, 13000, 2000.0
     y = np.arange(n) % 20
