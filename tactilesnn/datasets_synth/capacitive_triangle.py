@@ -127,13 +127,15 @@ class CapacitiveTriangle:
         center_mm: np.ndarray,
         diameter_mm: float,
         taxels: np.ndarray | None = None,
+        positions: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """Pressure (Pa) on each pad ``[12, samples]`` from a uniform disc load spread by the
-        foam; with ``taxels`` only those pads (``[len(taxels), samples]``)."""
+        foam; with ``taxels`` only those pads (``[len(taxels), samples]``); ``positions``: the
+        contact's :func:`contact_positions`, if already known."""
         f = np.asarray(force_N, dtype=np.float64)
         pads = self.taxels_mm if taxels is None else self.taxels_mm[np.asarray(taxels)]
         offs, wts = disc_points(diameter_mm)
-        uniq, inv = contact_positions(center_mm, f.size)
+        uniq, inv = positions or contact_positions(center_mm, f.size)
         per = np.empty((len(pads), len(uniq)))
         for k, u in enumerate(uniq):
             r = np.linalg.norm(pads[:, None, :] - (u + offs)[None], axis=-1)
@@ -146,6 +148,7 @@ class CapacitiveTriangle:
         center_mm: np.ndarray,
         diameter_mm: float,
         tol_lsb: float = 0.0,
+        positions: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """Channels whose CDC code the contact can move off its rest value ``[channels]`` bool.
 
@@ -161,7 +164,7 @@ class CapacitiveTriangle:
         if p.eps_r + p.eps_r_gain * p.strain_max <= 0:  # capacitance not monotone in strain
             return np.ones(self.n_channels, dtype=bool)
         f_max = max(float(np.max(force_N, initial=0.0)), 0.0)
-        uniq, _ = contact_positions(center_mm, np.asarray(force_N).size)
+        uniq, _ = positions or contact_positions(center_mm, np.asarray(force_N).size)
         reach = np.linalg.norm(self.taxels_mm[:, None, :] - uniq[None], axis=-1).min(1)
         nearest = np.maximum(reach - diameter_mm / 2, 0.0)
         p_max = -boussinesq_t3(f_max, nearest, p.spread_depth_mm)
@@ -268,13 +271,20 @@ class CapacitiveTriangle:
         # keep their rest capacitance (exact, see reachable_channels)
         if skip_tol_lsb < 0 or not np.isfinite(skip_tol_lsb):
             raise ValueError(f"skip_tol_lsb must be finite and >= 0, got {skip_tol_lsb}")
-        live = self.reachable_channels(f, center_mm, diameter_mm, skip_tol_lsb) if skip else None
+        where = contact_positions(center_mm, f.size)
+        live = None
+        if skip:
+            live = self.reachable_channels(f, center_mm, diameter_mm, skip_tol_lsb, where)
         pads = np.arange(12) if live is None else np.unique(np.concatenate(
             [g for g, on in zip(self.groups, live, strict=True) if on] or [np.zeros(0, int)]))  # fmt: skip
-        c = np.repeat(self.capacitance_pF(np.zeros((12, 1))), f.size, axis=1)
-        if pads.size:
-            press = self.taxel_pressure_Pa(f, center_mm, diameter_mm, taxels=pads)
-            c[pads] = self.capacitance_pF(self.strain(press))
+        if pads.size == 12:
+            press = self.taxel_pressure_Pa(f, center_mm, diameter_mm, None, where)
+            c = self.capacitance_pF(self.strain(press))
+        else:
+            c = np.repeat(self.capacitance_pF(np.zeros((12, 1))), f.size, axis=1)
+            if pads.size:
+                press = self.taxel_pressure_Pa(f, center_mm, diameter_mm, pads, where)
+                c[pads] = self.capacitance_pF(self.strain(press))
         self.last_skipped_channels = 0 if live is None else int((~live).sum())
         c_ch = np.stack([c[g].sum(0) - (len(g) - 1) * p.parasitic_pF for g in self.groups])
         duration = f.size / fs_in
