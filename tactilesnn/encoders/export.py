@@ -113,9 +113,10 @@ class FactoredGaborEncoder(nn.Module):
     * a short strided FIR convolution (high bands; at most three kernel lengths);
     * a dense matrix (what is left, e.g. a band whose Nyquist roll-off gives it a long kernel).
 
-    Same frames and edges as :class:`WindowEncoder` (error ~1e-7 of the band's peak response),
-    at a fraction of its ``window x bands x frames`` multiply-adds (1,000-sample windows, 20
-    bands, hop 10: 1.6 M instead of 4.0 M per channel; hop 1: 9.5 M instead of 40 M).
+    Same frames and edges as :class:`WindowEncoder` (within ~1e-6 of a band's peak response:
+    the rank tolerance), at a fraction of its ``window x bands x frames`` multiply-adds
+    (1,000-sample windows, 20 bands, hop 10: 1.6 M instead of 4.0 M per channel; hop 1: 9.5 M
+    instead of 40 M).
     """
 
     #: singular values kept: above this fraction of a band's largest (its error is about that
