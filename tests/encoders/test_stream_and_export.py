@@ -132,7 +132,8 @@ def test_latency_times_to_events_and_dense_agree():
 
 
 def test_long_windows_export_the_gwt_as_a_convolution(tmp_path):
-    """A 4,000-sample window: the matrix form would need 1.3 GB; the FIR form stays small."""
+    """A 4,000-sample window: the dense matrix form would need 1.3 GB; the per-band forms
+    (low rank, short FIR, dense) stay within their 32 MB budget and match the encoder."""
     import onnxruntime as ort
 
     from tactilesnn.config import PipelineConfig
@@ -142,7 +143,7 @@ def test_long_windows_export_the_gwt_as_a_convolution(tmp_path):
     pipe = SpikePipeline(PipelineConfig.from_flat(channels=("all",), f_hi_hz=800.0), fs, n,
                          ("a", "b"), ("x", "y"))  # fmt: skip
     enc, _ = build_parts(pipe)
-    assert enc.ByteSize() < 8 << 20  # ~2.5 MB of kernels instead of 1.3 GB of matrices
+    assert enc.ByteSize() < 32 << 20  # ~21 MB instead of 1.3 GB of matrices
     rng = np.random.default_rng(0)
     t = np.arange(n) / fs
     x = (np.sin(2 * np.pi * 40 * t) * (1 + rng.random((6, 2, 1))) + 0.3 * rng.standard_normal(
