@@ -131,7 +131,7 @@ def test_latency_times_to_events_and_dense_agree():
     np.testing.assert_array_equal(ev.to_dense(1.0), to_dense(t, 500.0, 1.0).numpy()[..., :500])
 
 
-def test_long_windows_export_the_gwt_as_a_convolution(tmp_path):
+def test_long_windows_export_the_gwt_within_its_budget(tmp_path):
     """A 4,000-sample window: the dense matrix form would need 1.3 GB; the per-band forms
     (low rank, short FIR, dense) stay within their 32 MB budget and match the encoder."""
     import onnxruntime as ort
