@@ -163,11 +163,14 @@ def lif_lstm_parameters(
         r[0, 2 * h : 3 * h] = -GATE_SHUT * eye
     if w_rec is not None:
         r[0, 3 * h :] += w_rec.detach().double()
+    return {"W": w.float(), "R": r.float(), "B": b.float(), **lif_lstm_activations(theta)}
+
+
+def lif_lstm_activations(theta: float) -> dict[str, list]:
+    """The activation attributes of :func:`lif_lstm_parameters`' node: gates sigmoid, cell input
+    affine (identity), output hard-sigmoid of slope ``K = 2^24 / theta`` (the threshold step)."""
     k = 2.0**24 / theta
     return {
-        "W": w.float(),
-        "R": r.float(),
-        "B": b.float(),
         "activations": ["Sigmoid", "Affine", "HardSigmoid"],
         "activation_alpha": [1.0, k],
         "activation_beta": [0.0, 1.0 - k * theta],

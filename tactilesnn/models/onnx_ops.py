@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..spikes import spike_raster
-from .functional import lif_lstm_parameters, lif_rec_scan, lif_scan
+from .functional import lif_lstm_activations, lif_lstm_parameters, lif_rec_scan, lif_scan
 
 _I64 = 7  # onnx.TensorProto.INT64
 
@@ -87,8 +87,8 @@ class LIFAsLSTM(torch.autograd.Function):
     def symbolic(g, cur, u0, s0, w_rec, w, r, b, beta: float, theta: float, subtract: bool):
         from torch.onnx.symbolic_opset9 import unused
 
-        hidden = int(w.type().sizes()[-1])  # W [1, 4H, H]
-        attrs = lif_lstm_parameters(hidden, beta, theta, subtract)
+        hidden = int(w.type().sizes()[-1])  # W [1, 4H, H] (lif_lstm_parameters)
+        attrs = lif_lstm_activations(theta)
         axis0 = _const(g, [0])
         # c holds the membrane before reset: after a spike that is u + theta (subtract); with a
         # reset to zero, u0 is already the post-reset value and the forget gate handles s0

@@ -413,7 +413,8 @@ class _SNNGraph(nn.Module):
     def readout_scan(self, hid: Tensor, o: Tensor) -> tuple[Tensor, Tensor]:
         cur = self.fc2(hid)
         if self.spiking_out:
-            out, o_new, _ = self.lstm2(cur, o, torch.zeros_like(o), self.w_rec[:0, :0])
+            no_rec = self.w_rec[:0, :0]  # an empty W_rec: a feed-forward layer
+            out, o_new, _ = self.lstm2(cur, o, torch.zeros_like(o), no_rec)
         else:
             out = li_closed(cur, o, self.beta2, self.decay)
             o_new = out[-1]
