@@ -134,3 +134,16 @@ def test_spike_time_tolerance_grows_for_late_spikes_only():
         compare_spike_times(want + np.float32([0.05, 0.0, 0.0]), want, 500.0, 1e-2)
     with pytest.raises(ExportError, match="missing"):  # a spike lost mid-window
         compare_spike_times(np.array([[10.0, np.inf, np.inf]], np.float32), want, 500.0, 1e-2)
+
+
+@pytest.mark.parametrize("readout", ["count", "mean"])
+def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, test_windows, readout):
+    """Spiking (count) and leaky (mean) output layers: one LSTM per LIF layer, no Loop."""
+    cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_readout=readout)
+    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
+    ops = [n.op_type for n in onnx.load(str(tmp_path / "m.onnx")).graph.node]
+    assert "Loop" not in ops
+    assert ops.count("LSTM") == (2 if readout == "count" else 1)
+    assert rep["max_score_diff"] <= 1e-4 and rep["prediction_agreement"] == 1.0
