@@ -142,7 +142,7 @@ class FactoredGaborEncoder(nn.Module):
         self.hop = int(scalogram.hop)
         self.frames = frames = -(-n // self.hop)
         self.bands = f_total = scalogram.n_bands
-        _, support = scalogram.support_bins(n)
+        support = scalogram.support_bins(n)
         self.pad = scalogram.pad_len(n)
         self.reflect = scalogram.padding == "reflect"
         if scalogram.padding == "periodic":

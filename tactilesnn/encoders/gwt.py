@@ -184,40 +184,36 @@ class GaborScalogram(nn.Module):
             raise ValueError("periodic padding has no FIR form; export it as a matrix")
         n = int(window)
         p = self.pad_len(n)
-        n_fft = scipy.fft.next_fast_len(n + 2 * p)
+        n_fft = self.fft_length(n)
         h = torch.from_numpy(self._filters(n_fft, torch.float64).numpy())
         k = torch.fft.ifft(h, n=n_fft)  # [F, n_fft], impulse at index 0 (circular)
         reach = n + p - 1
         lags = torch.arange(-reach, reach + 1)
         taps = k[:, lags % n_fft]  # [F, 2 reach + 1], lag -reach..reach
-        power = taps.abs() ** 2
-        by_dist = power[:, reach:].clone()  # |lag| = 0..reach
-        by_dist[:, 1:] += power[:, :reach].flip(1)
-        inside = torch.cumsum(by_dist, dim=1)  # energy within |lag| <= L
-        ok = (inside[:, -1:] - inside <= tol * inside[:, -1:]).all(0)
-        keep = int(torch.nonzero(ok)[0])  # smallest L that keeps all but tol of every band
+        keep = int(self.band_taps(taps, tol).max())  # keeps all but tol of every band
         return taps[:, reach - keep : reach + keep + 1]
 
     def band_taps(self, kernels: torch.Tensor, tol: float = 1e-12) -> np.ndarray:
-        """Half-length ``L_b`` of each band's FIR kernel (rows of :meth:`conv_kernels`) that
-        keeps all but ``tol`` of that band's energy."""
+        """Smallest half-length ``L_b`` of each band's FIR kernel (rows ``[bands, 2 L + 1]``,
+        lag ``-L..L``) that keeps all but ``tol`` of that band's energy."""
         half = (kernels.shape[1] - 1) // 2
         power = kernels.abs() ** 2
-        by_dist = power[:, half:].clone()
+        by_dist = power[:, half:].clone()  # |lag| = 0..half
         by_dist[:, 1:] += power[:, :half].flip(1)
-        inside = torch.cumsum(by_dist, dim=1)
+        inside = torch.cumsum(by_dist, dim=1)  # energy within |lag| <= L
         ok = (inside[:, -1:] - inside <= tol * inside[:, -1:]).numpy()
         return ok.argmax(1)
 
-    def support_bins(self, window: int) -> tuple[int, np.ndarray]:
-        """FFT length of a ``window``-sample input and each band's count of response bins
-        above ``SUPPORT_TOL`` of its peak (the rank of its linear map is at most that)."""
+    def fft_length(self, window: int) -> int:
+        """FFT length of the FFT path for a ``window``-sample input (after edge padding)."""
         n = int(window)
-        n_fft = (
-            n if self.padding == "periodic" else scipy.fft.next_fast_len(n + 2 * self.pad_len(n))
-        )
-        h = self._filters(n_fft, torch.float64).numpy()
-        return n_fft, (h > SUPPORT_TOL * h.max(1, keepdims=True)).sum(1)
+        return n if self.padding == "periodic" else scipy.fft.next_fast_len(n + 2 * self.pad_len(n))
+
+    def support_bins(self, window: int) -> np.ndarray:
+        """Each band's count of response bins above ``SUPPORT_TOL`` of its peak at the FFT
+        length of a ``window``-sample input (the rank of the band's linear map is at most that)."""
+        h = self._filters(self.fft_length(window), torch.float64).numpy()
+        return (h > SUPPORT_TOL * h.max(1, keepdims=True)).sum(1)
 
     def band_map(self, window: int, band: int) -> torch.Tensor:
         """Band ``band``'s part of :meth:`linear_map`, ``[window, frames]`` complex128 (computed
@@ -238,7 +234,7 @@ class GaborScalogram(nn.Module):
         """
         n = int(window)
         p = self.pad_len(n)
-        n_fft, _ = self.support_bins(n)
+        n_fft = self.fft_length(n)
         h = self._filters(n_fft, torch.float64).numpy()[band]
         (k,) = np.nonzero(h > SUPPORT_TOL * h.max())
         if self.padding == "reflect":
