@@ -96,6 +96,7 @@ class CapacitiveTriangle:
         self.mode = check_choice(mode, "mode", tuple(MODES))
         self.taxels_mm = triangle12_layout(self.params.circumradius_mm)
         self.groups = macro_groups(mode)
+        self.last_skipped_channels = 0  # channels the last read() did not simulate
 
     @property
     def n_channels(self) -> int:
@@ -275,8 +276,12 @@ class CapacitiveTriangle:
         live = None
         if skip:
             live = self.reachable_channels(f, center_mm, diameter_mm, skip_tol_lsb, where)
-        pads = np.arange(12) if live is None else np.unique(np.concatenate(
-            [g for g, on in zip(self.groups, live, strict=True) if on] or [np.zeros(0, int)]))  # fmt: skip
+        simulate = np.ones(12, dtype=bool)
+        if live is not None:
+            simulate[:] = False
+            for g, on in zip(self.groups, live, strict=True):
+                simulate[g] |= on
+        pads = np.flatnonzero(simulate)
         if pads.size == 12:
             press = self.taxel_pressure_Pa(f, center_mm, diameter_mm, None, where)
             c = self.capacitance_pF(self.strain(press))
