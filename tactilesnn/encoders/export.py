@@ -216,7 +216,6 @@ class FactoredGaborEncoder(nn.Module):
     def macs_per_channel(self) -> int:
         """Multiply-adds of the linear part per channel (what the choice of forms minimised)."""
         fr = self.frames
-        total = 0
         total = self.first.numel()
         for gi in range(len(self.lr_sizes)):
             total += 2 * getattr(self, f"lr_v{gi}").numel()  # rows a and b against [Vr | Vi]
@@ -266,17 +265,16 @@ class FactoredGaborEncoder(nn.Module):
         return grouped.index_select(2, self.perm).reshape(times.shape[0], -1)
 
 
-def _split_by_length(bands: list[int], taps: np.ndarray, groups: int) -> list[list[int]]:
-    """``bands`` (sorted by kernel length) cut into at most ``groups`` runs so that the summed
-    ``run size x longest kernel in the run`` is smallest."""
+def _split_by_length(bands: list[int], size: np.ndarray, groups: int) -> list[list[int]]:
+    """``bands`` (sorted by ``size``: kernel half-length or rank) cut into at most ``groups``
+    runs so that the summed ``run length x largest size in the run`` is smallest."""
     if not bands:
         return []
-    cost = [2 * taps[b] + 1 for b in bands]
     best: tuple[float, list[list[int]]] = (np.inf, [])
     m = len(bands)
     for cuts in _cut_points(m, min(groups, m)):
         runs = [bands[a:e] for a, e in pairwise([0, *cuts, m])]
-        total = sum(len(r) * cost[bands.index(r[-1])] for r in runs)
+        total = sum(len(r) * (2 * size[r[-1]] + 1) for r in runs)
         if total < best[0]:
             best = (total, runs)
     return best[1]
