@@ -77,3 +77,39 @@ def test_training_reports_the_gate_and_the_service_skips_silent_windows_exactly(
     assert sess.info()["stats"]["stream_windows"] == 20
     quiet = (Xte[:20].std(-1) <= res.pipeline.encoder.gate_rms.numpy()).all(1).sum()
     assert sess.info()["stats"]["stream_windows_skipped"] == quiet > 0
+
+
+def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():
+    """The encoder graph gathers the active (window, channel) rows (``NonZero`` -> ``Gather``)
+    and scatters their spikes back: same spikes as the torch path for mixed, wholly silent and
+    wholly active batches, GWT (factored forms, band permutation) and STFT alike."""
+    import onnxruntime as ort
+    import torch
+
+    from tactilesnn.export.onnx import build_parts
+    from tactilesnn.pipeline import SpikePipeline
+
+    X, _ = _touches(16, 3)
+    for name, extra in (("gwt", {"gwt_hop": 5}), ("stft", {})):
+        cfg = PipelineConfig.from_flat(
+            model="readout", encoder=name, channels=("all",), gate=3.0, **extra
+        )
+        pipe = SpikePipeline(cfg, FS, W, ("t0", "t1", "t2"), ("slow", "fast"))
+        pipe.calibrate(X)
+        enc, _ = build_parts(pipe)
+        assert {"NonZero", "Gather"} <= {n.op_type for n in enc.graph.node}
+        sess = ort.InferenceSession(enc.SerializeToString(), providers=["CPUExecutionProvider"])
+        active = X.std(-1) > pipe.encoder.gate_rms.numpy()
+        assert 0 < active.mean() < 0.5
+        silent = np.full_like(X[:3], 1e-6)
+        sig = X[active][0]
+        loud = np.stack([np.stack([sig, 2 * sig, -sig])] * 2)  # every row active
+        for batch in (X, silent, loud):
+            want = pipe.encoder.encode(torch.from_numpy(batch)).numpy()
+            got = sess.run(None, {"window": batch})[0][:, : want.shape[1]]  # then the clock
+            assert got.shape == want.shape
+            np.testing.assert_array_equal(np.isinf(got), np.isinf(want))
+            fin = np.isfinite(want)
+            np.testing.assert_allclose(got[fin], want[fin], atol=0.05)
+        n_aff = pipe.encoder.n_afferents
+        assert np.isinf(sess.run(None, {"window": silent})[0][:, :n_aff]).all()

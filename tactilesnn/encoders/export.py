@@ -98,7 +98,7 @@ class GaborConvEncoder(nn.Module):
             flat = flat[..., -extra : flat.shape[-1] + extra]
         out = nn.functional.conv1d(flat, self.weight, stride=self.hop)
         re, im = out[:, : self.bands], out[:, self.bands :]
-        return torch.sqrt(re * re + im * im).reshape(b, c, self.bands, -1)
+        return torch.sqrt(re * re + im * im).reshape(b, c, self.bands, out.shape[-1])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.code(self.scalogram(x))
@@ -261,8 +261,10 @@ class FactoredGaborEncoder(nn.Module):
         times = self.code(self.scalogram(x))
         if not self.permute:
             return times
-        grouped = times.reshape(times.shape[0], -1, self.bands)
-        return grouped.index_select(2, self.perm).reshape(times.shape[0], -1)
+        # explicit sizes, not -1: the activity gate can pass zero rows
+        b, a = times.shape
+        grouped = times.reshape(b, a // self.bands, self.bands)
+        return grouped.index_select(2, self.perm).reshape(b, a)
 
 
 def _split_by_length(bands: list[int], size: np.ndarray, groups: int) -> list[list[int]]:

@@ -221,9 +221,9 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         return self._gated(_WithSlot(WindowEncoder(self.scalogram, self.code, self.window)))
 
     def _gated(self, graph: nn.Module) -> nn.Module:
-        """The exported encoder with the activity gate applied as a mask (same spikes as
-        :meth:`encode_batch`; the graph computes every channel, the service skips silent
-        windows itself, see :mod:`tactilesnn.service.runtime`)."""
+        """The exported encoder with the activity gate: the graph encodes only the active
+        (window, channel) rows, as :meth:`encode_batch` does (the service also answers wholly
+        silent windows of a stateless model from a cache, see :mod:`tactilesnn.service.runtime`)."""
         if self.config.gate <= 0:
             return graph
         return _GateMask(graph, self.gate_rms, len(self.config.stats) * self.config.n_bands)
@@ -288,7 +288,13 @@ class STFTLatencyEncoder(ScalogramLatencyEncoder):
 
 
 class _GateMask(nn.Module):
-    """Spike times ``[B, C * per, 1]`` silenced where the window's channel RMS <= ``gate_rms``."""
+    """Spike times ``[B, C * per, 1]``, inf where the window's channel RMS <= ``gate_rms``.
+
+    Only the active (window, channel) rows go through ``inner`` (a ``[rows, 1, samples]`` ->
+    ``[rows, per, 1]`` encoder): the exported graph gathers them (``NonZero``, ``Gather``) and
+    scatters their spikes back, so onnxruntime's work scales with the touched taxels, as the
+    torch path's does (:meth:`ScalogramLatencyEncoder.encode_batch`).
+    """
 
     def __init__(self, inner: nn.Module, gate_rms: Tensor, per: int) -> None:
         super().__init__()
@@ -296,10 +302,12 @@ class _GateMask(nn.Module):
         self.register_buffer("gate_rms", gate_rms.clone().float())
 
     def forward(self, x: Tensor) -> Tensor:
-        t = self.inner(x)
-        active = x.std(-1, unbiased=False) > self.gate_rms  # [B, C]
-        mask = active.unsqueeze(-1).expand(-1, -1, self.per).reshape(t.shape[0], -1, 1)
-        return torch.where(mask, t, torch.full_like(t, math.inf))
+        b, c, n = x.shape
+        active = (x.std(-1, unbiased=False) > self.gate_rms).reshape(-1)  # [B * C]
+        rows = torch.nonzero(active).reshape(-1)
+        t = self.inner(x.reshape(-1, 1, n).index_select(0, rows))  # [rows, per, 1]
+        out = torch.full((b * c, self.per, 1), math.inf, dtype=t.dtype)
+        return out.index_put((rows,), t).reshape(b, c * self.per, 1)
 
 
 class _WithSlot(nn.Module):

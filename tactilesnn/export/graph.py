@@ -38,6 +38,39 @@ def torch_to_onnx(
             opset_version=opset,
             dynamo=False,
         )
+    model = onnx.load(str(path))
+    if literal_zero_reshapes(model):
+        onnx.save(model, str(path))
+
+
+def literal_zero_reshapes(model: onnx.ModelProto) -> int:
+    """Set ``allowzero=1`` on every ``Reshape`` whose shape is computed from sizes at run time;
+    returns how many changed.
+
+    ONNX reads a 0 in a shape as "copy this axis from the input" unless ``allowzero`` is set, so
+    a traced ``reshape(rows, ...)`` breaks when ``rows`` is 0 at run time (the activity gate
+    passes zero rows when every taxel is silent). Constant shapes keep the exporter's meaning.
+    """
+    from onnx import numpy_helper
+
+    constant = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    for node in model.graph.node:
+        if node.op_type == "Constant":
+            for a in node.attribute:
+                if a.name == "value":
+                    constant[node.output[0]] = numpy_helper.to_array(a.t)
+    changed = 0
+    for node in model.graph.node:
+        if node.op_type != "Reshape" or node.input[1] in constant:
+            continue
+        attrs = [a for a in node.attribute if a.name == "allowzero"]
+        if attrs and attrs[0].i == 1:
+            continue
+        for a in attrs:
+            node.attribute.remove(a)
+        node.attribute.append(onnx.helper.make_attribute("allowzero", 1))
+        changed += 1
+    return changed
 
 
 def chain(

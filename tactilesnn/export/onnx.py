@@ -74,7 +74,10 @@ def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
     states = list(pipe.model.state_names)
     with tempfile.TemporaryDirectory() as tmp:
         enc_path, model_path = Path(tmp) / "enc.onnx", Path(tmp) / "model.onnx"
-        dummy = torch.zeros(2, len(pipe.channel_names), pipe.window)
+        # a signal, not zeros: traced on all-silent windows, the activity gate's row count
+        # would be 0, a size the tracer may fix as a constant
+        gen = torch.Generator().manual_seed(0)
+        dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
         torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), enc_path, ["window"], ["spikes"],
                       scripted=pipe.encoder.onnx_scripted)  # fmt: skip
         spikes = torch.rand(2, pipe.n_afferents, pipe.max_spikes) * pipe.duration_ms
