@@ -77,6 +77,9 @@ def test_training_reports_the_gate_and_the_service_skips_silent_windows_exactly(
     assert sess.info()["stats"]["stream_windows"] == 20
     quiet = (Xte[:20].std(-1) <= res.pipeline.encoder.gate_rms.numpy()).all(1).sum()
     assert sess.info()["stats"]["stream_windows_skipped"] == quiet > 0
+    silent = int((Xte[:20].std(-1) <= res.pipeline.encoder.gate_rms.numpy()).sum())
+    assert sess.info()["stats"]["stream_channel_windows"] == 60
+    assert sess.info()["stats"]["stream_channel_windows_skipped"] == silent > quiet * 3
 
 
 def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():

@@ -107,14 +107,20 @@ class PipelineSession:
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
         self.stateful = bool(self.state_units)
-        # activity gate of the encoder: a window in which no encoder channel exceeds its RMS
-        # threshold is all silent, and a stateless model's scores for it are always the same,
-        # so the stream path answers it from a cache instead of running the graph
+        # activity gate of the encoder: the graph encodes only the channels above their RMS
+        # threshold (the rest is silent); a window in which every channel is silent has the
+        # same scores each time for a stateless model, so the stream path answers it from a
+        # cache instead of running the graph
         gate = json.loads(meta.get("gate_rms", "null") or "null")
-        self.gate_rms = None if gate is None or self.stateful else np.asarray(gate, np.float64)
+        self.gate_rms = None if gate is None else np.asarray(gate, np.float64)
         self.gate_channels = json.loads(meta.get("encoder_channels", "null") or "null")
         self._silent: tuple[np.ndarray, np.ndarray | None] | None = None
-        self.stats = {"stream_windows": 0, "stream_windows_skipped": 0}
+        self.stats = {
+            "stream_windows": 0,
+            "stream_windows_skipped": 0,
+            "stream_channel_windows": 0,  # (window, encoder channel) pairs seen by the gate
+            "stream_channel_windows_skipped": 0,  # of which silent: not encoded
+        }
 
     def info(self) -> dict:
         return {
@@ -191,17 +197,23 @@ class PipelineSession:
             "scores": scores.tolist(),
         }
 
-    def _silent_window(self, win: np.ndarray) -> bool:
+    def _silent_channels(self, win: np.ndarray) -> int:
+        """How many of the window's encoder channels the gate silences (0 without a gate)."""
         if self.gate_rms is None or self.gate_channels is None:
-            return False
+            return 0
         rms = win[0, self.gate_channels].astype(np.float64).std(axis=-1)
-        return bool((rms <= self.gate_rms).all())
+        silent = int((rms <= self.gate_rms).sum())
+        self.stats["stream_channel_windows"] += len(self.gate_channels)
+        self.stats["stream_channel_windows_skipped"] += silent
+        return silent
 
     def _run_gated(self, win: np.ndarray, state: StreamState):
-        """One stream window: from the silent-window cache when the gate skips it (stateless
-        models only; the result is identical), else through the graph."""
+        """One stream window: from the silent-window cache when the gate silences every channel
+        of a stateless model (the result is identical), else through the graph (which encodes
+        only the active channels)."""
         self.stats["stream_windows"] += 1
-        if self._silent_window(win):
+        silent = self._silent_channels(win)
+        if not self.stateful and self.gate_channels and silent == len(self.gate_channels):
             if self._silent is None:
                 self._silent = self.run_detail(np.zeros_like(win))
             self.stats["stream_windows_skipped"] += 1
