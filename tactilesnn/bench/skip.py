@@ -8,6 +8,8 @@ Six mechanisms, each as compute saved against output change:
   RMS, fitted on the all-touched scene. Encode time with and without the gate (1 thread, median),
   (window, taxel) pairs skipped, the largest spike-time change on the transformed pairs, and the
   fraction of spike slots that changed (a skipped quiet pair loses the spikes its noise made);
+  the same for the exported encoder graphs in onnxruntime (the gated graph encodes only the
+  active rows), with its spikes checked against the torch path's;
 * **PVDF sensor skipping** (readout simulates only what a contact can reach): from
   :func:`tactilesnn.bench.tasks.skip_pvdf`;
 * **capacitive time skipping**: the foam's play-operator hysteresis stepped only where a pad's
@@ -43,7 +45,24 @@ def _windows(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(v.transpose(1, 0, 2))
 
 
+def _encoder_session(encoder, n_channels: int, tmp: Path):
+    """The encoder's exported graph (``[B, C, window]`` -> spike times) in onnxruntime, 1 thread."""
+    import onnxruntime as ort
+
+    from ..export.graph import torch_to_onnx
+
+    path = tmp / f"enc{len(list(tmp.iterdir()))}.onnx"
+    dummy = torch.randn(2, n_channels, WINDOW, generator=torch.Generator().manual_seed(0))
+    torch_to_onnx(encoder.onnx_module(), (dummy,), path, ["window"], ["spikes"])
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = so.inter_op_num_threads = 1
+    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+    return lambda x: sess.run(None, {"window": x})[0]
+
+
 def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
+    import tempfile
+
     from ..encoders import build_encoder
     from ..encoders.base import ENCODERS
 
@@ -54,26 +73,39 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
     gated = build_encoder(cfg(gate=GATE), 200.0, WINDOW, 12).fit(Xtr)
     plain = build_encoder(cfg(), 200.0, WINDOW, 12)
     rows = []
-    for touched in (1, 3) if quick else (1, 3, 6, 12):
-        x, _ = taxel_streams(12, touched)
-        X = _windows(x)
-        if quick:
-            X = X[:64]
-        ref = plain.encode(X).numpy()
-        gated.gate_counts = [0, 0]
-        out = gated.encode(X).numpy()
-        skipped = gated.skip_stats()["skipped_fraction"]
-        t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
-        t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
-        both = np.isfinite(ref) & np.isfinite(out)
-        rows.append({
-            "touched_taxels": touched, "windows": int(X.shape[0]),
-            "ms_ungated": 1000 * t_plain, "ms_gated": 1000 * t_gated,
-            "speedup": t_plain / t_gated, "skipped_fraction": skipped,
-            "max_time_change_ms_transformed": float(np.abs(ref[both] - out[both]).max())
-            if both.any() else 0.0,
-            "slots_changed_fraction": float((np.isfinite(ref) != np.isfinite(out)).mean()),
-        })  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        ort_plain = _encoder_session(plain, 12, Path(tmp))
+        ort_gated = _encoder_session(gated, 12, Path(tmp))
+        for touched in (1, 3) if quick else (1, 3, 6, 12):
+            x, _ = taxel_streams(12, touched)
+            X = _windows(x)
+            if quick:
+                X = X[:64]
+            ref = plain.encode(X).numpy()
+            gated.gate_counts = [0, 0]
+            out = gated.encode(X).numpy()
+            skipped = gated.skip_stats()["skipped_fraction"]
+            t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
+            t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
+            both = np.isfinite(ref) & np.isfinite(out)
+            Xf = X.astype(np.float32)
+            o_plain = statistics.median(_time(ort_plain, Xf) for _ in range(repeats))
+            o_gated = statistics.median(_time(ort_gated, Xf) for _ in range(repeats))
+            got = ort_gated(Xf)
+            fin = np.isfinite(out)
+            rows.append({
+                "touched_taxels": touched, "windows": int(X.shape[0]),
+                "ms_ungated": 1000 * t_plain, "ms_gated": 1000 * t_gated,
+                "speedup": t_plain / t_gated, "skipped_fraction": skipped,
+                "max_time_change_ms_transformed": float(np.abs(ref[both] - out[both]).max())
+                if both.any() else 0.0,
+                "slots_changed_fraction": float((np.isfinite(ref) != np.isfinite(out)).mean()),
+                "ort_ms_ungated": 1000 * o_plain, "ort_ms_gated": 1000 * o_gated,
+                "ort_speedup": o_plain / o_gated,
+                "ort_gated_same_slots": bool(np.array_equal(np.isfinite(got), fin)),
+                "ort_gated_max_diff_ms": float(np.abs(got[fin] - out[fin]).max())
+                if fin.any() else 0.0,
+            })  # fmt: skip
     return rows
 
 
@@ -194,14 +226,18 @@ def format_report(res: dict) -> str:
     lines = [
         f"Encoder activity gate (GWT, gate {GATE} x median training RMS), 12 taxels:",
         "| touched | windows | ungated ms | gated ms | speed-up | (window, taxel) skipped | "
-        "max change on transformed (ms) | spike slots changed |",
-        "|---|---|---|---|---|---|---|---|",
+        "max change on transformed (ms) | spike slots changed | onnxruntime ungated / gated ms |"
+        " speed-up | gated graph vs torch |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in res["encoder_gate"]:
         lines.append(
             f"| {r['touched_taxels']} / 12 | {r['windows']} | {r['ms_ungated']:.1f} | "
             f"{r['ms_gated']:.1f} | {r['speedup']:.1f}x | {100 * r['skipped_fraction']:.0f} % | "
             f"{r['max_time_change_ms_transformed']:.1e} | {100 * r['slots_changed_fraction']:.1f} % |"
+            f" {r['ort_ms_ungated']:.1f} / {r['ort_ms_gated']:.1f} | {r['ort_speedup']:.1f}x | "
+            f"{'same' if r['ort_gated_same_slots'] else 'DIFFERENT'} slots, "
+            f"{r['ort_gated_max_diff_ms']:.1e} ms |"
         )
     p = res["pvdf"]
     lines.append(

@@ -75,6 +75,8 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     # fewer touched taxels: more skipped; the transformed pairs keep their code
     assert g[0]["skipped_fraction"] > g[1]["skipped_fraction"] > 0.3
     assert all(r["max_time_change_ms_transformed"] < 0.05 for r in g)
+    # the exported gated graph gives the torch path's spikes
+    assert all(r["ort_gated_same_slots"] and r["ort_gated_max_diff_ms"] < 0.05 for r in g)
     assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
     assert res["capacitive"]["identical"] and res["capacitive"]["speedup"] > 1
     assert res["teng"]["max_diff_V"] <= 1e-12 and res["teng"]["speedup"] > 1
