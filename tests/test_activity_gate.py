@@ -116,3 +116,29 @@ def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():
             np.testing.assert_allclose(got[fin], want[fin], atol=0.05)
         n_aff = pipe.encoder.n_afferents
         assert np.isinf(sess.run(None, {"window": silent})[0][:, :n_aff]).all()
+
+
+def test_a_stateful_snn_stream_counts_gated_channels_but_never_skips_windows(tmp_path):
+    """An SNN carries its state from window to window, so no window is answered from the
+    silent cache; the graph still encodes only the active taxels, and the stream's scores are
+    those of running the windows one by one with the state carried."""
+    from tactilesnn.pipeline import SpikePipeline
+
+    X, _ = _touches(12, 4)
+    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), gate=3.0)
+    pipe = SpikePipeline(cfg, FS, W, ("t0", "t1", "t2"), ("slow", "fast"))
+    pipe.calibrate(X)
+    path = tmp_path / "snn.onnx"
+    export_pipeline(pipe, path, X)
+    sess = PipelineSession(str(path))
+    assert sess.stateful
+    got = sess.feed_stream(StreamState(), np.concatenate(list(X), axis=1), hop=W)
+    state, want = StreamState(), []
+    for x in X:
+        want.append(sess.run(x[None], state)[0])
+    np.testing.assert_allclose([r["scores"] for r in got], want, atol=1e-6)
+    stats = sess.info()["stats"]
+    silent = int((X.std(-1) <= pipe.encoder.gate_rms.numpy()).sum())
+    assert stats["stream_windows"] == 12 and stats["stream_windows_skipped"] == 0
+    assert stats["stream_channel_windows"] == 36
+    assert stats["stream_channel_windows_skipped"] == silent > 0
