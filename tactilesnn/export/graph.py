@@ -38,9 +38,6 @@ def torch_to_onnx(
             opset_version=opset,
             dynamo=False,
         )
-    model = onnx.load(str(path))
-    if literal_zero_reshapes(model):
-        onnx.save(model, str(path))
 
 
 def literal_zero_reshapes(model: onnx.ModelProto) -> int:
@@ -51,14 +48,8 @@ def literal_zero_reshapes(model: onnx.ModelProto) -> int:
     a traced ``reshape(rows, ...)`` breaks when ``rows`` is 0 at run time (the activity gate
     passes zero rows when every taxel is silent). Constant shapes keep the exporter's meaning.
     """
-    from onnx import numpy_helper
-
-    constant = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
-    for node in model.graph.node:
-        if node.op_type == "Constant":
-            for a in node.attribute:
-                if a.name == "value":
-                    constant[node.output[0]] = numpy_helper.to_array(a.t)
+    constant = {i.name for i in model.graph.initializer}
+    constant |= {n.output[0] for n in model.graph.node if n.op_type == "Constant"}
     changed = 0
     for node in model.graph.node:
         if node.op_type != "Reshape" or node.input[1] in constant:

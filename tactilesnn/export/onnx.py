@@ -31,9 +31,14 @@ from .. import __version__
 from ..pipeline import SpikePipeline
 from ..service.runtime import run_batched
 from ..spikes import clock_times
-from .graph import chain, torch_to_onnx
+from .graph import chain, literal_zero_reshapes, torch_to_onnx
 
 SCORE_ATOL = 1e-4
+#: graph outputs of a model that decides before the window ends: the class of the first output
+#: neuron to fire (int64) and when, in ms of the window's spike code (the duration if none fires)
+EARLY_OUTPUTS = ("early_class", "decision_ms")
+#: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
+DECISION_ATOL_MS = 1e-3
 
 
 class ExportError(RuntimeError):
@@ -84,9 +89,14 @@ def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
         args = (spikes, *(torch.zeros(2, units) for _, units in states))
         names_in = ["spikes_in", *(n for n, _ in states)]
         names_out = ["scores", *(f"{n}_out" for n, _ in states)]
+        if pipe.model.decides_early:
+            names_out += list(EARLY_OUTPUTS)
         torch_to_onnx(pipe.model.onnx_module(), args, model_path, names_in, names_out,
                       scripted=pipe.model.onnx_scripted)  # fmt: skip
-        return onnx.load(str(enc_path)), onnx.load(str(model_path))
+        parts = onnx.load(str(enc_path)), onnx.load(str(model_path))
+    for part in parts:
+        literal_zero_reshapes(part)
+    return parts
 
 
 def export_pipeline(
@@ -155,6 +165,28 @@ TIME_RTOL = 1e-5
 LATE_SPIKE_FACTOR = 10 ** (30 / 20)
 
 
+def _check_early(pipe: SpikePipeline, spikes, cls: np.ndarray, t_ms: np.ndarray) -> dict:
+    """The graph's early decisions against torch's on the same spike times: decision times
+    within ``DECISION_ATOL_MS`` (or ``TIME_RTOL`` of the window), and the same class except on
+    at most ``MAX_BOUNDARY_FRACTION`` of windows (two classes firing within float32 rounding of
+    each other: either may be first)."""
+    batch = pipe.model.batch_size(spikes)
+    ref_c, ref_t = [], []
+    for i in range(0, len(spikes), batch):
+        c, t = pipe.model.early_decision(spikes[i : i + batch])
+        ref_c.append(c.numpy())
+        ref_t.append(t.numpy())
+    ref_c, ref_t = np.concatenate(ref_c), np.concatenate(ref_t)
+    dt = np.abs(t_ms.astype(np.float64) - ref_t)
+    if dt.size and dt.max() > max(DECISION_ATOL_MS, TIME_RTOL * pipe.duration_ms):
+        raise ExportError(f"exported decision time differs from torch by {dt.max():.3g} ms")
+    other = int((cls != ref_c).sum())
+    if other > MAX_BOUNDARY_FRACTION * len(cls):
+        raise ExportError(f"exported early decision names another class on {other} windows")
+    return {"early_max_time_diff_ms": float(dt.max()) if dt.size else 0.0,
+            "early_class_agreement": 1.0 - other / max(len(cls), 1)}  # fmt: skip
+
+
 def verify(
     model: onnx.ModelProto,
     pipe: SpikePipeline,
@@ -185,11 +217,14 @@ def verify(
         dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, tol)
         mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
-        got_m = run_batched(mod, ["scores"], feeds, batch, bar("model"))[0]
+        early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
+        got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"))
         dm = float(np.abs(got_m - ref).max())
         del enc, mod  # one session at a time: each holds its own copy of the weights
         if dm > SCORE_ATOL:
             raise ExportError(f"exported model differs from torch by {dm:.3g} (> {SCORE_ATOL})")
+        if early:
+            report.update(_check_early(pipe, spikes, *got_e))
         report.update(
             encoder_max_time_diff_ms=dt, encoder_cutoff_flips=flips, model_max_score_diff=dm
         )

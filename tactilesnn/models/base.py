@@ -84,6 +84,10 @@ class SpikeModel(nn.Module):
         """Peak intermediate bytes per sample (for batching by a byte budget)."""
         return 4 * afferents * k
 
+    #: the model decides before the window ends (:meth:`early_decision`), and its
+    #: :meth:`onnx_module` returns ``(scores, *new state, early class [B] int64, decision_ms [B])``
+    decides_early: ClassVar[bool] = False
+
     def early_decision(self, spikes: Tensor) -> tuple[Tensor, Tensor] | None:
         """``(classes [B], decision_ms [B])`` if the model can decide before the window ends."""
         return None
@@ -117,7 +121,8 @@ class SpikeModel(nn.Module):
 
     @abstractmethod
     def onnx_module(self) -> nn.Module:
-        """Module ``(spikes [B, A, k], *state) -> (scores, *new state)`` for ONNX export."""
+        """Module ``(spikes [B, A, k], *state) -> (scores, *new state)`` for ONNX export (then
+        ``early class, decision_ms`` if :attr:`decides_early`)."""
 
     def upgrade_state(self, state: dict) -> dict:
         """Map a ``state_dict`` saved before the component layer to the current keys (buffers

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import onnxruntime as ort
@@ -34,6 +35,21 @@ class StreamState:
     def h(self) -> np.ndarray | None:
         """The SNN hidden-layer membrane (``h_state``), if the model has one."""
         return self.values.get("h_state")
+
+
+class Detail(NamedTuple):
+    """One graph run: scores ``[B, classes]``; the encoder's spike times ``[B, afferents, k]``
+    (ms, inf = silent) when exposed; a model deciding early also gives the class of its first
+    output neuron to fire ``[B]`` and when, ``decision_ms [B]`` (the duration if none fires)."""
+
+    scores: np.ndarray
+    spikes: np.ndarray | None = None
+    early_class: np.ndarray | None = None
+    decision_ms: np.ndarray | None = None
+
+
+#: graph outputs of a model that decides early (see :data:`tactilesnn.export.onnx.EARLY_OUTPUTS`)
+EARLY_OUTPUTS = ("early_class", "decision_ms")
 
 
 def _check_float32(arr: np.ndarray, name: str) -> None:
@@ -90,7 +106,9 @@ class PipelineSession:
             self.session = ort.InferenceSession(source, opts, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime / protobuf raise their own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
-        self.has_spikes = any(o.name == "spikes" for o in self.session.get_outputs())
+        outs = {o.name for o in self.session.get_outputs()}
+        self.has_spikes = "spikes" in outs
+        self.decides_early = set(EARLY_OUTPUTS) <= outs
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.fs_hz = float(meta["fs_hz"])
@@ -114,13 +132,16 @@ class PipelineSession:
         gate = json.loads(meta.get("gate_rms", "null") or "null")
         self.gate_rms = None if gate is None else np.asarray(gate, np.float64)
         self.gate_channels = json.loads(meta.get("encoder_channels", "null") or "null")
-        self._silent: tuple[np.ndarray, np.ndarray | None] | None = None
+        self._silent: Detail | None = None
         self.stats = {
             "stream_windows": 0,
             "stream_windows_skipped": 0,
             "stream_channel_windows": 0,  # (window, encoder channel) pairs seen by the gate
             "stream_channel_windows_skipped": 0,  # of which silent: not encoded
         }
+        if self.decides_early:  # the first output neuron to fire vs the full-window answer
+            self.stats.update(stream_early_decisions=0, stream_early_differs=0,
+                              stream_early_mean_decision_ms=0.0)  # fmt: skip
 
     def info(self) -> dict:
         return {
@@ -167,25 +188,26 @@ class PipelineSession:
 
         Batches larger than the memory budget run in slices (same results, bounded memory).
         """
-        return self.run_detail(x, state)[0]
+        return self.run_detail(x, state).scores
 
-    def run_detail(
-        self, x: np.ndarray, state: StreamState | None = None
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`run`, plus the encoder's spike times ``[batch, afferents, k]`` (ms, inf =
-        silent) when the session exposes them (``expose_spikes``), else None."""
+    def run_detail(self, x: np.ndarray, state: StreamState | None = None) -> Detail:
+        """:meth:`run`, plus the encoder's spike times when the session exposes them
+        (``expose_spikes``) and the model's early decision when it makes one."""
         feeds = {"window": x}
         names = list(self.state_units)
         for name, units in self.state_units.items():
             held = state.values.get(name) if state is not None else None
             feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
-        outputs = ["scores", *(f"{k}_out" for k in names)] + (["spikes"] if self.has_spikes else [])
+        early = list(EARLY_OUTPUTS) if self.decides_early else []
+        spikes = ["spikes"] if self.has_spikes else []
+        outputs = ["scores", *(f"{k}_out" for k in names), *early, *spikes]
         got = run_batched(self.session, outputs, feeds, self.batch)
-        spikes = got.pop() if self.has_spikes else None
-        scores, *new = got
+        scores, rest = got[0], got[1:]
+        new, rest = rest[: len(names)], rest[len(names) :]
         if state is not None and names:
             state.values = dict(zip(names, new, strict=True))
-        return scores, spikes
+        cls, t = (rest[0], rest[1]) if early else (None, None)
+        return Detail(scores, rest[-1] if spikes else None, cls, t)
 
     def classify(self, x: object, fs_hz: float | None = None) -> dict:
         arr = self.validate(x, fs_hz)
@@ -207,7 +229,7 @@ class PipelineSession:
         self.stats["stream_channel_windows_skipped"] += silent
         return silent
 
-    def _run_gated(self, win: np.ndarray, state: StreamState):
+    def _run_gated(self, win: np.ndarray, state: StreamState) -> Detail:
         """One stream window: from the silent-window cache when the gate silences every channel
         of a stateless model (the result is identical), else through the graph (which encodes
         only the active channels)."""
@@ -219,6 +241,14 @@ class PipelineSession:
             self.stats["stream_windows_skipped"] += 1
             return self._silent
         return self.run_detail(win, state if self.stateful else None)
+
+    def _early(self, full: int, early: int, t_ms: float) -> dict:
+        """A window's early decision, counted in :attr:`stats`."""
+        st = self.stats
+        n = st["stream_early_decisions"] = st["stream_early_decisions"] + 1
+        st["stream_early_differs"] += int(early != full)
+        st["stream_early_mean_decision_ms"] += (t_ms - st["stream_early_mean_decision_ms"]) / n
+        return {"early_class": self.class_names[early], "decision_ms": t_ms}
 
     def feed_stream(
         self, state: StreamState, chunk: object, hop: int | None = None, detail: bool = False
@@ -248,15 +278,17 @@ class PipelineSession:
         results = []
         while buf.shape[1] >= self.window:
             win = buf[None, :, : self.window]
-            scores, spikes = self._run_gated(win, state)
-            k = int(scores[0].argmax())
+            out = self._run_gated(win, state)
+            k = int(out.scores[0].argmax())
             res = {
                 "window_index": state.windows_done,
                 "class": self.class_names[k],
-                "scores": scores[0].tolist(),
+                "scores": out.scores[0].tolist(),
             }
+            if out.decision_ms is not None:
+                res.update(self._early(k, int(out.early_class[0]), float(out.decision_ms[0])))
             if detail:
-                res.update(window=win[0], spikes=None if spikes is None else spikes[0])
+                res.update(window=win[0], spikes=None if out.spikes is None else out.spikes[0])
             results.append(res)
             state.windows_done += 1
             buf = buf[:, hop:]

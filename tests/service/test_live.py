@@ -43,7 +43,7 @@ def test_exposed_spikes_are_the_encoders_and_scores_unchanged(exported):
     plain = PipelineSession(str(path))
     live = PipelineSession(str(path), expose_spikes=True)
     assert live.has_spikes and not plain.has_spikes
-    scores, spikes = live.run_detail(x)
+    scores, spikes = live.run_detail(x)[:2]
     np.testing.assert_array_equal(scores, plain.run(x))
     ref = pipe.encode(x).numpy()
     assert np.array_equal(np.isfinite(spikes), np.isfinite(ref))

@@ -1,0 +1,94 @@
+"""Early decision on the service path: the exported tempotron names the first class to fire and
+when, as the torch model does; the stream reports it per window and counts it in its stats."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tactilesnn.config import PipelineConfig
+from tactilesnn.datasets_synth import HookLoopTask
+from tactilesnn.export import export_pipeline
+from tactilesnn.service.runtime import PipelineSession, StreamState
+from tactilesnn.training import fit_and_evaluate
+
+SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+
+
+@pytest.fixture(scope="module")
+def tasks():
+    return HookLoopTask(**SMALL).build()
+
+
+def _export(tasks, model: str, path):
+    train, test = tasks
+    res = fit_and_evaluate(PipelineConfig.from_flat(epochs=2, model=model), train, test)
+    report = export_pipeline(res.pipeline, path, test.X[:48])
+    return res.pipeline, test, report
+
+
+def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
+    pipe, test, report = _export(tasks, "tempotron", tmp_path / "t.onnx")
+    assert report["early_class_agreement"] == 1.0 and report["early_max_time_diff_ms"] < 1e-3
+    sess = PipelineSession(str(tmp_path / "t.onnx"))
+    assert sess.decides_early
+    x = test.X[:48]
+    out = sess.run_detail(x)
+    cls, t = pipe.model.early_decision(pipe.encode(x))
+    np.testing.assert_array_equal(out.early_class, cls.numpy())
+    np.testing.assert_allclose(out.decision_ms, t.numpy(), atol=1e-3)
+    # decided before the window's end where a class fired; the duration where none did
+    fired = (out.scores >= pipe.model.net.theta + pipe.model.net.v_rest).any(1)
+    assert (out.decision_ms[fired] < pipe.duration_ms).all()
+    np.testing.assert_array_equal(out.decision_ms[~fired], pipe.duration_ms)
+
+    # the stream: every window carries its early class and time; the stats count them
+    stream = np.concatenate(list(x[:10]), axis=1)
+    got = sess.feed_stream(StreamState(), stream, hop=pipe.window)
+    assert [r["early_class"] for r in got] == [pipe.class_names[i] for i in cls[:10]]
+    np.testing.assert_allclose([r["decision_ms"] for r in got], t[:10].numpy(), atol=1e-3)
+    stats = sess.info()["stats"]
+    full = out.scores[:10].argmax(1)
+    assert stats["stream_early_decisions"] == 10
+    assert stats["stream_early_differs"] == int((cls[:10].numpy() != full).sum())
+    assert stats["stream_early_mean_decision_ms"] == pytest.approx(float(t[:10].mean()), abs=1e-3)
+
+
+def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
+    _, test, report = _export(tasks, "readout", tmp_path / "r.onnx")
+    assert "early_class_agreement" not in report
+    sess = PipelineSession(str(tmp_path / "r.onnx"))
+    assert not sess.decides_early and "stream_early_decisions" not in sess.info()["stats"]
+    out = sess.run_detail(test.X[:4])
+    assert out.early_class is None and out.decision_ms is None
+    got = sess.feed_stream(StreamState(), np.concatenate(list(test.X[:2]), axis=1))
+    assert got and all("early_class" not in r for r in got)
+
+
+def test_grid_crossings_agree_with_a_fine_bisection():
+    """The grid rounds (the exported form) against 60 bisection steps in float64."""
+    from tactilesnn.models.tempotron import Tempotron
+
+    g = torch.Generator().manual_seed(5)
+    m = Tempotron(12, 3, 200.0, tau_ms=20.0, tau_s_ms=5.0).double()
+    with torch.no_grad():
+        m.weight.copy_(torch.randn(3, 12, generator=g, dtype=torch.float64))
+    times = torch.rand(64, 12, 1, generator=g, dtype=torch.float64) * 200
+    got = m.decision_times(times, levels=3)
+    grid = torch.linspace(0, 200, 200_001, dtype=torch.float64)
+    with torch.no_grad():
+        above = m.potential(times, grid) >= m.theta + m.v_rest
+    fin = above.any(2)
+    assert torch.equal(fin, torch.isfinite(got)) and fin.any()
+    # bisect between the dense grid's bracketing points
+    idx = above.to(torch.int32).argmax(2)
+    lo, hi = grid[(idx - 1).clamp_min(0)], grid[idx]
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        v = torch.stack([
+            torch.diagonal(m.potential(times, mid[:, c])[:, c], 0) for c in range(3)
+        ], 1)  # fmt: skip
+        up = v >= m.theta + m.v_rest
+        hi, lo = torch.where(up, mid, hi), torch.where(up, lo, mid)
+    np.testing.assert_allclose(got[fin].numpy(), hi[fin].numpy(), atol=200 * 64.0**-3)
