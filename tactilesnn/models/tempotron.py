@@ -113,7 +113,7 @@ class Tempotron(nn.Module):
         b, n, k = spike_times.shape
         t = spike_times.reshape(b, n * k).to(self.weight.dtype)
         valid = torch.isfinite(t) & (t >= 0) & (t <= self.duration_ms)
-        t = torch.where(valid, t, torch.full_like(t, self.duration_ms))
+        t = torch.where(valid, t, self.duration_ms)
         weight = self.weight if weight is None else weight
         w = weight if k == 1 else weight.repeat_interleave(k, dim=1)  # [C, M]
         w = torch.where(valid.unsqueeze(1), w.unsqueeze(0), torch.zeros(()))  # [B, C, M]
@@ -139,9 +139,9 @@ class Tempotron(nn.Module):
         w = torch.gather(w, 2, order.unsqueeze(1).expand_as(w))
         lag = t.unsqueeze(2) - t.unsqueeze(1)  # [B, k, j] = t_k - t_j
         causal = lag >= 0
-        lag = torch.where(causal, lag, torch.zeros_like(lag))
-        e_m = torch.where(causal, torch.exp(-lag / self.tau_ms), torch.zeros_like(lag))
-        e_s = torch.where(causal, torch.exp(-lag / self.tau_s_ms), torch.zeros_like(lag))
+        lag = torch.where(causal, lag, 0.0)
+        e_m = torch.where(causal, torch.exp(-lag / self.tau_ms), 0.0)
+        e_s = torch.where(causal, torch.exp(-lag / self.tau_s_ms), 0.0)
         a = torch.einsum("bkj,bcj->bck", e_m, w)  # rescaled state just after spike k
         b = torch.einsum("bkj,bcj->bck", e_s, w)
         v_at = self.v0 * (a - b)
@@ -150,12 +150,12 @@ class Tempotron(nn.Module):
         # interior maxima, in the rescaled (overflow-free) form
         tau, tau_s = self.tau_ms, self.tau_s_ms
         pos = (a > 0) & (b > 0)
-        ratio = torch.where(pos, (tau * b) / (tau_s * a).clamp_min(1e-30), torch.ones_like(a))
+        ratio = torch.where(pos, (tau * b) / (tau_s * a).clamp_min(1e-30), 1.0)
         s_star = tau * tau_s / (tau - tau_s) * torch.log(ratio.clamp_min(1e-30))
         inside = pos & (s_star > 0) & (s_star < gap)
-        s_safe = torch.where(inside, s_star, torch.zeros_like(s_star))
+        s_safe = torch.where(inside, s_star, 0.0)
         v_int = self.v0 * (a * torch.exp(-s_safe / tau) - b * torch.exp(-s_safe / tau_s))
-        v_int = torch.where(inside, v_int, torch.full_like(v_int, -math.inf))
+        v_int = torch.where(inside, v_int, -math.inf)
         return {"t": t, "a": a, "b": b, "v_at": v_at, "v_int": v_int, "s": s_safe, "gap": gap}
 
     def forward(self, spike_times: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -201,7 +201,7 @@ class Tempotron(nn.Module):
         a, b = pick(iv["a"]).unsqueeze(-1), pick(iv["b"]).unsqueeze(-1)
         # V rises on [0, hi] and V(hi) >= theta: the crossing is in (lo, lo + width]
         width = torch.where(pick(v_int) >= thr, pick(s_hi_int), pick(gap))
-        lo = torch.zeros_like(width)
+        lo = width * 0.0
         frac = torch.arange(1, self.GRID + 1, dtype=width.dtype) / self.GRID
         for _ in range(levels):
             s = lo.unsqueeze(-1) + width.unsqueeze(-1) * frac
@@ -212,7 +212,7 @@ class Tempotron(nn.Module):
         start_v = pick(v_at)
         t_k = pick(iv["t"].unsqueeze(1))
         t_cross = torch.where(start_v >= thr, t_k, t_k + lo + width)
-        return torch.where(any_k, t_cross, torch.full_like(t_cross, math.inf))
+        return torch.where(any_k, t_cross, math.inf)
 
     def predict_early(
         self, spike_times: torch.Tensor, levels: int = 4
@@ -235,7 +235,7 @@ class Tempotron(nn.Module):
         first, cls = self._first_crossings(iv, levels).min(dim=1)
         fired = torch.isfinite(first)
         early = torch.where(fired, cls, v_max.argmax(dim=1))
-        return v_max, early, torch.where(fired, first, torch.full_like(first, self.duration_ms))
+        return v_max, early, torch.where(fired, first, self.duration_ms)
 
     def fired(self, v_max: torch.Tensor) -> torch.Tensor:
         return v_max >= self.theta + self.v_rest
