@@ -29,14 +29,11 @@ from torch import Tensor, nn
 
 from .. import __version__
 from ..pipeline import SpikePipeline
-from ..service.runtime import run_batched
+from ..service.runtime import EARLY_OUTPUTS, run_batched
 from ..spikes import clock_times
 from .graph import chain, literal_zero_reshapes, torch_to_onnx
 
 SCORE_ATOL = 1e-4
-#: graph outputs of a model that decides before the window ends: the class of the first output
-#: neuron to fire (int64) and when, in ms of the window's spike code (the duration if none fires)
-EARLY_OUTPUTS = ("early_class", "decision_ms")
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
 DECISION_ATOL_MS = 1e-3
 

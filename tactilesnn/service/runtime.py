@@ -48,7 +48,8 @@ class Detail(NamedTuple):
     decision_ms: np.ndarray | None = None
 
 
-#: graph outputs of a model that decides early (see :data:`tactilesnn.export.onnx.EARLY_OUTPUTS`)
+#: graph outputs of a model that decides before the window ends: the class of its first output
+#: neuron to fire (int64) and when, in ms of the window's spike code (the duration if none fires)
 EARLY_OUTPUTS = ("early_class", "decision_ms")
 
 
