@@ -74,15 +74,20 @@ def test_grid_crossings_agree_with_a_fine_bisection():
     m = Tempotron(12, 3, 200.0, tau_ms=20.0, tau_s_ms=5.0).double()
     with torch.no_grad():
         m.weight.copy_(torch.randn(3, 12, generator=g, dtype=torch.float64))
-    times = torch.rand(64, 12, 1, generator=g, dtype=torch.float64) * 200
+    times = torch.rand(32, 12, 1, generator=g, dtype=torch.float64) * 200
     got = m.decision_times(times, levels=3)
+    # first grid point at or above threshold, on a 1 us grid, in 10 chunks (bounded memory)
     grid = torch.linspace(0, 200, 200_001, dtype=torch.float64)
+    idx = torch.full(got.shape, -1, dtype=torch.long)
     with torch.no_grad():
-        above = m.potential(times, grid) >= m.theta + m.v_rest
-    fin = above.any(2)
+        for part in torch.arange(grid.numel()).chunk(10):
+            above = m.potential(times, grid[part]) >= m.theta + m.v_rest
+            first = part[0] + above.to(torch.int32).argmax(2)
+            idx = torch.where((idx < 0) & above.any(2), first, idx)
+    fin = idx >= 0
     assert torch.equal(fin, torch.isfinite(got)) and fin.any()
     # bisect between the dense grid's bracketing points
-    idx = above.to(torch.int32).argmax(2)
+    idx = idx.clamp_min(0)
     lo, hi = grid[(idx - 1).clamp_min(0)], grid[idx]
     for _ in range(60):
         mid = 0.5 * (lo + hi)
