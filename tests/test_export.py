@@ -116,6 +116,26 @@ def test_verification_checks_each_component_graph(tmp_path, test_windows):
     whole = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     rep = verify(whole, pipe, X, parts=(enc, mod))
     assert rep["model_max_score_diff"] <= 1e-4 and rep["encoder_max_time_diff_ms"] <= 1e-2
+    assert rep["model_windows_beyond_atol"] == 0
+    # one window off (a membrane within rounding of threshold flips a spike) is allowed; two are
+    # not: the torch scores of windows 0 and 1 are shifted as such a flip would shift them
+    plain = pipe.scores
+
+    def shifted(k):
+        def scores(spikes):
+            out = plain(spikes).clone()
+            if len(out) == len(X):
+                out[:k] += 0.5
+            return out
+
+        return scores
+
+    pipe.scores = shifted(1)
+    assert verify(whole, pipe, X, parts=(enc, mod))["model_windows_beyond_atol"] == 1
+    pipe.scores = shifted(2)
+    with pytest.raises(RuntimeError, match="on 2 of 32 windows"):
+        verify(whole, pipe, X, parts=(enc, mod))
+    pipe.scores = plain
     with torch.no_grad():  # the torch model drifts from the graph that was built
         pipe.model.net.out.fc.bias += 0.5
     with pytest.raises(RuntimeError, match="exported model differs"):

@@ -148,9 +148,18 @@ def export_pipeline(
 
 
 #: end to end, a spike time within float rounding of a raster step boundary may fall into the
-#: neighbouring step in the graph (MatMul scalogram) and in torch (FFT); that changes a discrete-time
-#: model's score for that window. Such windows may be at most this fraction of the check set.
+#: neighbouring step in the graph (MatMul scalogram) and in torch (FFT); in the model alone, a LIF
+#: membrane within float rounding of its threshold may spike in one and not the other (the LSTM
+#: node's and torch's sums round differently). Either changes a discrete-time model's score for
+#: that window. Such windows may be at most this fraction of the check set, or one window.
 MAX_BOUNDARY_FRACTION = 0.002
+
+
+def _boundary_allowance(n: int) -> int:
+    """Windows of ``n`` that may differ by a rounding-boundary flip (see above)."""
+    return max(1, int(MAX_BOUNDARY_FRACTION * n))
+
+
 #: spike-time tolerance of the exported encoder: 1e-2 ms, or 1e-5 of the window if longer (a latency
 #: code turns a relative amplitude error e into ~0.3 e x the window: float32 sums over long
 #: wavelets reach e ~ 1e-5)
@@ -178,7 +187,7 @@ def _check_early(pipe: SpikePipeline, spikes, cls: np.ndarray, t_ms: np.ndarray)
     if dt.size and dt.max() > max(DECISION_ATOL_MS, TIME_RTOL * pipe.duration_ms):
         raise ExportError(f"exported decision time differs from torch by {dt.max():.3g} ms")
     other = int((cls != ref_c).sum())
-    if other > MAX_BOUNDARY_FRACTION * len(cls):
+    if other > _boundary_allowance(len(cls)):
         raise ExportError(f"exported early decision names another class on {other} windows")
     return {"early_max_time_diff_ms": float(dt.max()) if dt.size else 0.0,
             "early_class_agreement": 1.0 - other / max(len(cls), 1)}  # fmt: skip
@@ -216,21 +225,26 @@ def verify(
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
         got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"))
-        dm = float(np.abs(got_m - ref).max())
+        per_m = np.abs(got_m - ref).max(1)
+        dm, off_m = float(per_m.max()), int((per_m > SCORE_ATOL).sum())
         del enc, mod  # one session at a time: each holds its own copy of the weights
-        if dm > SCORE_ATOL:
-            raise ExportError(f"exported model differs from torch by {dm:.3g} (> {SCORE_ATOL})")
+        if off_m > _boundary_allowance(len(x)):
+            raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
+                              f"{SCORE_ATOL}) on {off_m} of {len(x)} windows")  # fmt: skip
         if early:
             report.update(_check_early(pipe, spikes, *got_e))
         report.update(
-            encoder_max_time_diff_ms=dt, encoder_cutoff_flips=flips, model_max_score_diff=dm
+            encoder_max_time_diff_ms=dt,
+            encoder_cutoff_flips=flips,
+            model_max_score_diff=dm,
+            model_windows_beyond_atol=off_m,
         )
     sess = _session(model)
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"))[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
     off = int((per_window > SCORE_ATOL).sum())
-    if off > MAX_BOUNDARY_FRACTION * len(x):
+    if off > _boundary_allowance(len(x)):
         worst = float(per_window.max())
         raise ExportError(
             f"exported graph differs from torch by up to {worst:.3g} on {off} of {len(x)} windows"
