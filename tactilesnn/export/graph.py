@@ -21,9 +21,10 @@ def torch_to_onnx(
     outputs: Sequence[str],
     scripted: bool = False,
     opset: int = OPSET,
-) -> None:
+) -> onnx.ModelProto:
     """Export ``module`` (scripted first if ``scripted``: time loops become ONNX ``Loop``s) with
-    a dynamic batch axis on every input and output."""
+    a dynamic batch axis on every input and output; returns the graph as written to ``path``,
+    its run-time-sized reshapes made literal (:func:`literal_zero_reshapes`)."""
     if scripted:
         module = torch.jit.script(module)
     with warnings.catch_warnings():
@@ -38,6 +39,10 @@ def torch_to_onnx(
             opset_version=opset,
             dynamo=False,
         )
+    model = onnx.load(str(path))
+    if literal_zero_reshapes(model):
+        onnx.save(model, str(path))
+    return model
 
 
 def literal_zero_reshapes(model: onnx.ModelProto) -> int:

@@ -31,7 +31,7 @@ from .. import __version__
 from ..pipeline import SpikePipeline
 from ..service.runtime import EARLY_OUTPUTS, run_batched
 from ..spikes import clock_times
-from .graph import chain, literal_zero_reshapes, torch_to_onnx
+from .graph import chain, torch_to_onnx
 
 SCORE_ATOL = 1e-4
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
@@ -80,20 +80,17 @@ def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
         # would be 0, a size the tracer may fix as a constant
         gen = torch.Generator().manual_seed(0)
         dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
-        torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), enc_path, ["window"], ["spikes"],
-                      scripted=pipe.encoder.onnx_scripted)  # fmt: skip
+        enc = torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), enc_path, ["window"],
+                            ["spikes"], scripted=pipe.encoder.onnx_scripted)  # fmt: skip
         spikes = torch.rand(2, pipe.n_afferents, pipe.max_spikes) * pipe.duration_ms
         args = (spikes, *(torch.zeros(2, units) for _, units in states))
         names_in = ["spikes_in", *(n for n, _ in states)]
         names_out = ["scores", *(f"{n}_out" for n, _ in states)]
         if pipe.model.decides_early:
             names_out += list(EARLY_OUTPUTS)
-        torch_to_onnx(pipe.model.onnx_module(), args, model_path, names_in, names_out,
-                      scripted=pipe.model.onnx_scripted)  # fmt: skip
-        parts = onnx.load(str(enc_path)), onnx.load(str(model_path))
-    for part in parts:
-        literal_zero_reshapes(part)
-    return parts
+        mod = torch_to_onnx(pipe.model.onnx_module(), args, model_path, names_in, names_out,
+                            scripted=pipe.model.onnx_scripted)  # fmt: skip
+    return enc, mod
 
 
 def export_pipeline(
