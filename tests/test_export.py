@@ -102,6 +102,26 @@ def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
     assert q["float_accuracy"] == pytest.approx(pipe.score(test_windows.X, test_windows.y))
 
 
+def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path):
+    """A 2 kHz window whose high GWT bands are strided Convs: those stay float32 (onnxruntime's
+    ConvInteger is slower and ~1 % of peak off); the MatMuls are quantised."""
+    from tactilesnn.export import quantize_int8
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(
+        model="readout", channels=("all",), f_lo_hz=5.0, f_hi_hz=800.0, gwt_hop=10
+    )
+    pipe = SpikePipeline(cfg, 2000.0, 1000, ("a", "b"), ("x", "y"))
+    X = np.random.default_rng(0).standard_normal((8, 2, 1000)).astype(np.float32)
+    pipe.calibrate(X)
+    export_pipeline(pipe, tmp_path / "m.onnx", X)
+    assert "Conv" in {n.op_type for n in onnx.load(tmp_path / "m.onnx").graph.node}
+    q = quantize_int8(tmp_path / "m.onnx", X, np.arange(8) % 2)
+    ops = {n.op_type for n in onnx.load(q["path"]).graph.node}
+    assert "Conv" in ops and "ConvInteger" not in ops
+    assert "DynamicQuantizeMatMul" in ops or "MatMulInteger" in ops
+
+
 def test_verification_checks_each_component_graph(tmp_path, test_windows):
     import torch
 

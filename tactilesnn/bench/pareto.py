@@ -173,14 +173,20 @@ def pareto_front(rows: list[dict], cost_key: str = "ms_per_signal_s_batch1") -> 
 
 
 def realtime_factor_12_taxels(
-    repeats: int, tmp: Path, window: int = 1000, hop: int = 1, touched: int | None = None
+    repeats: int,
+    tmp: Path,
+    window: int = 1000,
+    hop: int = 1,
+    touched: int | None = None,
+    int8: bool = False,
 ) -> dict:
     """GWT + SNN on 12 taxels at 2 kHz, onnxruntime, 1 thread, batch 1: real-time factor of
     classifying a window every half window (random weights: cost does not depend on them);
     ``hop``: the GWT's frame hop. With ``touched``, the activity gate is on (0.5 x the training
     RMS) and only that many taxels carry signal (the others 1 % of it): the graph encodes only
-    the touched ones."""
-    from ..export import export_pipeline
+    the touched ones. ``int8``: the graph's MatMuls dynamically quantised (:func:`quantize_int8`;
+    the Convs and the LSTM stay float32)."""
+    from ..export import export_pipeline, quantize_int8
     from ..service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
@@ -190,8 +196,10 @@ def realtime_factor_12_taxels(
     rng = np.random.default_rng(0)
     X = rng.standard_normal((8, 12, window)).astype(np.float32)
     pipe.calibrate(X)
-    path = tmp / f"rt{hop}_{touched}.onnx"
+    path = tmp / f"rt{hop}_{touched}_{int(int8)}.onnx"
     export_pipeline(pipe, path, X)
+    if int8:
+        path = Path(quantize_int8(path, X, np.arange(len(X)) % 2)["path"])
     sess = PipelineSession(str(path), threads=1)
     x = X[:1].copy()
     if touched is not None:
@@ -199,12 +207,14 @@ def realtime_factor_12_taxels(
     t = _median_s(lambda: sess.run(x), repeats)
     cost = _cost_ms_per_s(t, pipe)
     return {"window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
-            "ms_per_window": 1000 * t, "ms_per_signal_s": cost,
+            "precision": "int8" if int8 else "float32", "ms_per_window": 1000 * t, "ms_per_signal_s": cost,
             "realtime_factor": 1000.0 / cost}  # fmt: skip
 
 
-#: the real-time rows: (GWT hop, touched taxels with the activity gate on; None = gate off)
-RT_ROWS = ((1, None), (10, None), (10, 6), (10, 3), (10, 1))
+#: the real-time rows: (GWT hop, touched taxels with the activity gate on (None = gate off),
+#: int8 MatMuls)
+RT_ROWS = ((1, None, False), (10, None, False), (10, None, True), (10, 6, False), (10, 3, False),
+           (10, 1, False), (10, 1, True))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -230,8 +240,9 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
                 for r in measure_point(res.pipeline, test, 3 if quick else repeats, folder):
                     rows.append({"config": p.label, **r})
             rt = [realtime_factor_12_taxels(3 if quick else repeats, Path(tmp),
-                                            window=400 if quick else 1000, hop=h, touched=k)
-                  for h, k in RT_ROWS]  # fmt: skip
+                                            window=400 if quick else 1000, hop=h, touched=k,
+                                            int8=q)
+                  for h, k, q in RT_ROWS]  # fmt: skip
         torch.set_num_threads(threads)
         pareto_front(rows)
         result = {"task": task, "epochs": 1 if quick else epochs, "rows": rows,
@@ -254,6 +265,8 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
 def format_rt(rt: dict) -> str:
     k = rt.get("touched_taxels")
     scene = "" if k is None else f", activity gate on, {k} touched"
+    if rt.get("precision") == "int8":
+        scene += ", int8 MatMuls"
     return (f"GWT (hop {rt['gwt_hop']}) + SNN, 12 taxels @ 2 kHz{scene}, "
             f"{rt['window_samples']}-sample windows every half "
             f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "

@@ -188,19 +188,23 @@ class PipelineSession:
         """Scores ``[batch, classes]`` for validated windows (updates ``state`` if given).
 
         Batches larger than the memory budget run in slices (same results, bounded memory).
+        Only the scores (and state) are asked for: onnxruntime then skips the nodes that feed
+        nothing else, such as the tempotron's early decision.
         """
-        return self.run_detail(x, state).scores
+        return self.run_detail(x, state, detail=False).scores
 
-    def run_detail(self, x: np.ndarray, state: StreamState | None = None) -> Detail:
-        """:meth:`run`, plus the encoder's spike times when the session exposes them
-        (``expose_spikes``) and the model's early decision when it makes one."""
+    def run_detail(
+        self, x: np.ndarray, state: StreamState | None = None, detail: bool = True
+    ) -> Detail:
+        """:meth:`run`, plus (``detail``) the encoder's spike times when the session exposes
+        them (``expose_spikes``) and the model's early decision when it makes one."""
         feeds = {"window": x}
         names = list(self.state_units)
         for name, units in self.state_units.items():
             held = state.values.get(name) if state is not None else None
             feeds[name] = held if held is not None else np.zeros((len(x), units), np.float32)
-        early = list(EARLY_OUTPUTS) if self.decides_early else []
-        spikes = ["spikes"] if self.has_spikes else []
+        early = list(EARLY_OUTPUTS) if self.decides_early and detail else []
+        spikes = ["spikes"] if self.has_spikes and detail else []
         outputs = ["scores", *(f"{k}_out" for k in names), *early, *spikes]
         got = run_batched(self.session, outputs, feeds, self.batch)
         scores, rest = got[0], got[1:]

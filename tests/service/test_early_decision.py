@@ -54,6 +54,19 @@ def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
     assert stats["stream_early_differs"] == int((cls[:10].numpy() != full).sum())
     assert stats["stream_early_mean_decision_ms"] == pytest.approx(float(t[:10].mean()), abs=1e-3)
 
+    # plain classification asks onnxruntime for the scores alone (so it skips the decision
+    # nodes) and gets the same scores
+    asked = []
+    real_run = sess.session.run
+
+    def spy(names, feeds):
+        asked.append(list(names))
+        return real_run(names, feeds)
+
+    sess.session.run = spy
+    np.testing.assert_array_equal(sess.run(x), out.scores)
+    assert asked == [["scores"]]
+
 
 def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     _, test, report = _export(tasks, "readout", tmp_path / "r.onnx")
