@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
 import tempfile
 from pathlib import Path
@@ -329,8 +330,19 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     # The scalogram's strided Convs stay float32: onnxruntime's ConvInteger is 2.3x slower than
     # its float Conv there (0.56 vs 0.24 ms, 12 taxels, hop 10) and errs by 1 % of the peak,
     # while DynamicQuantizeMatMul is 2.7x faster than the float MatMul (0.19 vs 0.50 ms)
-    quantize_dynamic(str(path), str(out), weight_type=QuantType.QInt8,
-                     op_types_to_quantize=["MatMul"])  # fmt: skip
+    # written beside the target, then renamed (atomic); the quantiser's per-tensor INFO lines
+    # and its pre-processing hint go to the root logger, which the CLI shows: held back here
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(logging.ERROR)
+    try:
+        quantize_dynamic(str(path), str(tmp), weight_type=QuantType.QInt8,
+                         op_types_to_quantize=["MatMul"])  # fmt: skip
+        os.replace(tmp, out)
+    finally:
+        root.setLevel(level)
+        tmp.unlink(missing_ok=True)
     acc = {}
     for name, p in (("float", path), ("int8", out)):
         sess = PipelineSession(str(p))
