@@ -141,6 +141,8 @@ class Trainer:
                 break
         if cfg.keep_best:
             model.load_state_dict(best_w)
+        model.eval()
+        model.calibrate_decision(spikes)  # on the weights kept
         self.history = st
         return st["history"]
 

@@ -171,9 +171,10 @@ LATE_SPIKE_FACTOR = 10 ** (30 / 20)
 
 def _check_early(pipe: SpikePipeline, spikes, cls: np.ndarray, t_ms: np.ndarray) -> dict:
     """The graph's early decisions against torch's on the same spike times: decision times
-    within ``DECISION_ATOL_MS`` (or ``TIME_RTOL`` of the window), and the same class except on
-    at most ``MAX_BOUNDARY_FRACTION`` of windows (two classes firing within float32 rounding of
-    each other: either may be first)."""
+    within ``DECISION_ATOL_MS`` (or ``TIME_RTOL`` of the window) and the same class, except on
+    at most ``MAX_BOUNDARY_FRACTION`` of windows (two tempotron classes firing within float32
+    rounding of each other, either may be first; an SNN's lead within rounding of its margin
+    at some step may decide a step apart)."""
     batch = pipe.model.batch_size(spikes)
     ref_c, ref_t = [], []
     for i in range(0, len(spikes), batch):
@@ -182,13 +183,16 @@ def _check_early(pipe: SpikePipeline, spikes, cls: np.ndarray, t_ms: np.ndarray)
         ref_t.append(t.numpy())
     ref_c, ref_t = np.concatenate(ref_c), np.concatenate(ref_t)
     dt = np.abs(t_ms.astype(np.float64) - ref_t)
-    if dt.size and dt.max() > max(DECISION_ATOL_MS, TIME_RTOL * pipe.duration_ms):
-        raise ExportError(f"exported decision time differs from torch by {dt.max():.3g} ms")
-    other = int((cls != ref_c).sum())
-    if other > _boundary_allowance(len(cls)):
-        raise ExportError(f"exported early decision names another class on {other} windows")
-    return {"early_max_time_diff_ms": float(dt.max()) if dt.size else 0.0,
-            "early_class_agreement": 1.0 - other / max(len(cls), 1)}  # fmt: skip
+    late = dt > max(DECISION_ATOL_MS, TIME_RTOL * pipe.duration_ms)
+    off = late | (cls != ref_c)
+    if off.sum() > _boundary_allowance(len(cls)):
+        raise ExportError(
+            f"exported early decision differs from torch on {int(off.sum())} windows "
+            f"({int((cls != ref_c).sum())} name another class; time up to {dt.max():.3g} ms off)"
+        )
+    return {"early_max_time_diff_ms": float(dt[~off].max()) if (~off).any() else 0.0,
+            "early_class_agreement": float((cls == ref_c).mean()) if cls.size else 1.0,
+            "early_windows_differing": int(off.sum())}  # fmt: skip
 
 
 def verify(

@@ -92,6 +92,10 @@ class SpikeModel(nn.Module):
         """``(classes [B], decision_ms [B])`` if the model can decide before the window ends."""
         return None
 
+    def calibrate_decision(self, spikes: Tensor) -> None:
+        """After training: fit what :meth:`early_decision` needs on the training spikes
+        ``[N, A, k]`` (e.g. the SNN's decision margin); default: nothing."""
+
     # ------------------------------------------------------------------ training
     def prepare(self, spikes: Tensor) -> None:
         """Fit input statistics on the training spikes ``[N, A, k]`` before the first epoch

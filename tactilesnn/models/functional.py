@@ -184,3 +184,44 @@ def reduce_readout(out: Tensor, readout: str) -> Tensor:
     if readout == "max":
         return out.amax(0)
     return out.mean(0)
+
+
+def prefix_max(x: Tensor) -> Tensor:
+    """Running maximum over the leading (time) axis: ``out[t] = max(x[0..t])``.
+
+    Hillis-Steele doubling, ``ceil(log2 T)`` elementwise maxima, because ONNX has no running
+    maximum (a max is exact, so this equals ``torch.cummax`` bit for bit)."""
+    k = 1
+    while k < x.shape[0]:
+        x = torch.cat([x[:k], torch.maximum(x[k:], x[:-k])], 0)
+        k *= 2
+    return x
+
+
+def running_readout(out: Tensor, readout: str) -> Tensor:
+    """Output activity ``[T, B, classes]`` -> ``[T, B, classes]``: the scores the window would
+    have if it ended after step ``t`` (:func:`reduce_readout` of ``out[: t + 1]``; ``mean`` is
+    the sum so far over the window's ``T`` steps, so the last step is the window's score)."""
+    if readout == "max":
+        return prefix_max(out)
+    total = torch.cumsum(out, 0)
+    return total if readout == "count" else total / out.shape[0]
+
+
+def decide_by_margin(
+    running: Tensor, margin: Tensor, dt_ms: float, duration_ms: float, final: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Early decision on running scores ``[T, B, classes]``: at the first step whose leading
+    class leads the runner-up by ``>= margin`` (score units) -> ``(class [B] int64,
+    decision_ms [B])``, the step's end ``(t + 1) dt`` capped at the window; a window that never
+    does gets its full-window class ``final [B]`` at ``duration_ms``."""
+    if running.shape[-1] < 2:  # one class: nothing to wait for
+        return final, torch.full(final.shape, min(dt_ms, duration_ms), dtype=running.dtype)
+    top = running.topk(2, dim=-1).values
+    hit = (top[..., 0] - top[..., 1] >= margin).to(torch.int32)  # [T, B]
+    first = hit.argmax(0)  # the first hit (ties: the first index)
+    decided = hit.amax(0) > 0
+    leader = running.argmax(-1).gather(0, first.unsqueeze(0)).squeeze(0)
+    t_ms = torch.clamp((first + 1).to(running.dtype) * dt_ms, max=duration_ms)
+    return (torch.where(decided, leader, final),
+            torch.where(decided, t_ms, torch.full_like(t_ms, duration_ms)))  # fmt: skip

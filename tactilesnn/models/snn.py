@@ -24,6 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -32,6 +33,7 @@ from ..spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model
 from .functional import (
     decay_factor,
+    decide_by_margin,
     li_closed,
     li_decay_matrix,
     li_scan,
@@ -39,6 +41,7 @@ from .functional import (
     lif_reset,
     lif_step,
     reduce_readout,
+    running_readout,
 )
 from .onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
 
@@ -263,12 +266,18 @@ class SNNClassifier(nn.Module):
         else:
             self.out = LeakyReadout(n_hidden, n_classes, **kw)
 
-    def forward(self, x: torch.Tensor, state=None):
-        """``x [T, B, n_in]`` -> ``(scores [B, classes], state)`` (state: (hidden, out))."""
+    def trajectory(self, x: torch.Tensor, state=None):
+        """``x [T, B, n_in]`` -> ``(output activity [T, B, classes], state)``: the output
+        layer's spikes (``count``) or membrane (``max`` / ``mean``) at every step."""
         h_state, o_state = (None, None) if state is None else state
         h, h_state = self.hidden(x, h_state)
         o, o_state = self.out(h, o_state)
-        return reduce_readout(o, self.readout), (h_state, o_state)
+        return o, (h_state, o_state)
+
+    def forward(self, x: torch.Tensor, state=None):
+        """``x [T, B, n_in]`` -> ``(scores [B, classes], state)`` (state: (hidden, out))."""
+        o, state = self.trajectory(x, state)
+        return reduce_readout(o, self.readout), state
 
 
 # ---------------------------------------------------------------------------------- component
@@ -327,6 +336,19 @@ class SNNModel(SpikeModel):
 
     score_units = "SNN readout (spike count, or max / mean of the output membrane)"
 
+    #: early decision (:func:`~.functional.decide_by_margin`): at the first step at which the
+    #: leading class's score so far leads the runner-up's by ``early_margin``
+    decides_early = True
+    #: runs saved before the early decision load with it off (decided at the window's end)
+    optional_state = ("early_margin",)
+    #: the margin is the smallest at which the early class is the full-window class on at
+    #: least this fraction of the training windows
+    EARLY_AGREEMENT = 0.99
+    #: training windows the margin is fitted on (evenly spaced; bounds the fit's memory)
+    CALIBRATION_WINDOWS = 4096
+    #: a margin no lead reaches: the decision waits for the window's end
+    NEVER = float(torch.finfo(torch.float32).max)
+
     def __init__(self, config: SNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
@@ -336,6 +358,7 @@ class SNNModel(SpikeModel):
             recurrent=config.recurrent, tau_mem_ms=config.tau_ms, dt_ms=config.dt_ms,
         )  # fmt: skip
         self.steps = raster_steps(duration_ms, config.dt_ms) + config.extra_steps
+        self.register_buffer("early_margin", torch.tensor(self.NEVER))
 
     def raster(self, spikes: Tensor) -> Tensor:
         """Spike times ``[B, A, k]`` -> counts ``[steps, B, A]`` (:func:`~tactilesnn.spikes.spike_raster`)."""
@@ -343,6 +366,57 @@ class SNNModel(SpikeModel):
 
     def scores(self, spikes: Tensor) -> Tensor:
         return self.net(self.raster(spikes))[0]
+
+    def running_scores(self, spikes: Tensor) -> tuple[Tensor, Tensor]:
+        """``(scores so far [steps, B, classes], window scores [B, classes])``."""
+        out, _ = self.net.trajectory(self.raster(spikes))
+        readout = self.config.readout
+        return running_readout(out, readout), reduce_readout(out, readout)
+
+    @torch.no_grad()
+    def early_decision(self, spikes: Tensor) -> tuple[Tensor, Tensor]:
+        run, scores = self.running_scores(spikes)
+        dt, duration = self.config.dt_ms, self.duration_ms
+        return decide_by_margin(run, self.early_margin, dt, duration, scores.argmax(1))
+
+    @torch.no_grad()
+    def calibrate_decision(self, spikes: Tensor) -> None:
+        """The smallest margin (among 512 quantiles of the leads seen, and :attr:`NEVER`) at
+        which the early class agrees with the full-window class on :attr:`EARLY_AGREEMENT` of
+        the training windows; found by bisection (agreement grows with the margin, except for
+        noise: every margin taken is one measured to agree)."""
+        n = spikes.shape[0]
+        if n == 0 or self.n_classes < 2:
+            return
+        pick = torch.linspace(0, n - 1, min(n, self.CALIBRATION_WINDOWS)).round().long().unique()
+        sub = spikes[pick]
+        batch = self.batch_size(sub)
+        leads, same = [], []
+        for i in range(0, len(sub), batch):
+            run, scores = self.running_scores(sub[i : i + batch])
+            top = run.topk(2, dim=-1).values
+            leads.append((top[..., 0] - top[..., 1]).T)  # [b, steps]
+            same.append((run.argmax(-1) == scores.argmax(1)).T)
+        lead, same = torch.cat(leads), torch.cat(same)
+
+        def agreement(m: float) -> float:
+            hit = lead >= torch.tensor(m, dtype=lead.dtype)
+            first = hit.to(torch.int32).argmax(1, keepdim=True)
+            return float(torch.where(hit.any(1), same.gather(1, first)[:, 0], True).float().mean())
+
+        positive = lead[lead > 0].double().numpy()
+        cands = [self.NEVER]  # no class ever leads (e.g. no output spike): wait for the end
+        if positive.size:
+            q = np.unique(np.quantile(positive, np.linspace(0, 1, 513)).astype(np.float32))
+            cands = [float(c) for c in q] + cands
+        lo, hi = 0, len(cands) - 1  # the last always agrees
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if agreement(cands[mid]) >= self.EARLY_AGREEMENT:
+                hi = mid
+            else:
+                lo = mid + 1
+        self.early_margin.fill_(cands[lo])
 
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         units = afferents * (k + 1) + 3 * self.config.hidden + 2 * self.n_classes
@@ -403,6 +477,8 @@ class _SNNGraph(nn.Module):
         else:
             self.register_buffer("decay", li_decay_matrix(self.steps, self.beta2))
         self.readout = net.readout
+        self.duration_ms = float(model.duration_ms)
+        self.register_buffer("early_margin", model.early_margin.detach().clone())
 
     def hidden_layer(self, spikes: Tensor, h: Tensor, hs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         cur = RasterCurrent.apply(
@@ -410,7 +486,8 @@ class _SNNGraph(nn.Module):
         )
         return self.lstm1(cur, h, hs, self.w_rec)
 
-    def readout_scan(self, hid: Tensor, o: Tensor) -> tuple[Tensor, Tensor]:
+    def readout_scan(self, hid: Tensor, o: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """-> ``(scores, new output state, early class, decision_ms)``."""
         cur = self.fc2(hid)
         if self.spiking_out:
             no_rec = self.w_rec[:0, :0]  # an empty W_rec: a feed-forward layer
@@ -418,12 +495,18 @@ class _SNNGraph(nn.Module):
         else:
             out = li_closed(cur, o, self.beta2, self.decay)
             o_new = out[-1]
-        return reduce_readout(out, self.readout), o_new
+        scores = reduce_readout(out, self.readout)
+        run = running_readout(out, self.readout)
+        cls, t_ms = decide_by_margin(
+            run, self.early_margin, self.dt, self.duration_ms, scores.argmax(1)
+        )
+        return scores, o_new, cls, t_ms
 
-    def forward(self, spikes: Tensor, h: Tensor, o: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def forward(self, spikes: Tensor, h: Tensor, o: Tensor):
+        """-> ``(scores, h_state, o_state, early class, decision_ms)``."""
         hid, h_new, _ = self.hidden_layer(spikes, h, torch.zeros_like(h))
-        scores, o_new = self.readout_scan(hid, o)
-        return scores, h_new, o_new
+        scores, o_new, cls, t_ms = self.readout_scan(hid, o)
+        return scores, h_new, o_new, cls, t_ms
 
 
 class _LSTMWeights(nn.Module):
@@ -445,9 +528,8 @@ class _LSTMWeights(nn.Module):
 class _RecurrentSNNGraph(_SNNGraph):
     """:class:`_SNNGraph` with a recurrent hidden layer: its last spikes are state too."""
 
-    def forward(  # type: ignore[override]
-        self, spikes: Tensor, h: Tensor, o: Tensor, hs: Tensor
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    def forward(self, spikes: Tensor, h: Tensor, o: Tensor, hs: Tensor):  # type: ignore[override]
+        """-> ``(scores, h_state, o_state, hs_state, early class, decision_ms)``."""
         hid, h_new, hs_new = self.hidden_layer(spikes, h, hs)
-        scores, o_new = self.readout_scan(hid, o)
-        return scores, h_new, o_new, hs_new
+        scores, o_new, cls, t_ms = self.readout_scan(hid, o)
+        return scores, h_new, o_new, hs_new, cls, t_ms

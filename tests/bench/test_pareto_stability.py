@@ -82,8 +82,10 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
     assert res["capacitive"]["identical"] and res["capacitive"]["speedup"] > 1
     assert res["teng"]["max_diff_V"] <= 1e-12 and res["teng"]["speedup"] > 1
-    e = res["early_decision"]
-    assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
+    assert set(res["early_decision"]) == {"tempotron", "snn"}
+    for e in res["early_decision"].values():
+        assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
+        assert 0 < e["mean_decision_ms"] < e["window_ms"]
     assert (tmp_path / "k" / "skip.json").is_file()
 
 

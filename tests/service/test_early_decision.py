@@ -79,6 +79,32 @@ def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     assert got and all("early_class" not in r for r in got)
 
 
+def test_the_exported_snn_decides_early_as_torch_does_and_streams_it(tasks, tmp_path):
+    """The SNN decides when its leading class leads by the margin fitted on the training
+    windows; the graph's decisions equal torch's, and a stateful stream reports them."""
+    pipe, test, report = _export(tasks, "snn", tmp_path / "s.onnx")
+    model = pipe.model
+    assert 0 < float(model.early_margin) < model.NEVER  # fitted by training
+    assert report["early_windows_differing"] == 0 and report["early_max_time_diff_ms"] == 0.0
+    sess = PipelineSession(str(tmp_path / "s.onnx"))
+    assert sess.decides_early and sess.stateful
+    x = test.X[:48]
+    out = sess.run_detail(x)
+    cls, t = model.early_decision(pipe.encode(x))
+    np.testing.assert_array_equal(out.early_class, cls.numpy())
+    np.testing.assert_array_equal(out.decision_ms, t.numpy())
+    # the end of a time step, or the window's end
+    tn = t.numpy()
+    assert np.all((tn % model.config.dt_ms == 0) | (tn == pipe.duration_ms))
+    assert float(t.mean()) < pipe.duration_ms  # some windows are decided before their end
+
+    stream = np.concatenate(list(x[:6]), axis=1)
+    got = sess.feed_stream(StreamState(), stream, hop=pipe.window)
+    assert len(got) == 6 and all(r["early_class"] in pipe.class_names for r in got)
+    assert all(0 < r["decision_ms"] <= pipe.duration_ms for r in got)
+    assert sess.info()["stats"]["stream_early_decisions"] == 6
+
+
 def test_grid_crossings_agree_with_a_fine_bisection():
     """The grid rounds (the exported form) against 60 bisection steps in float64."""
     from tactilesnn.models.tempotron import Tempotron
