@@ -291,6 +291,10 @@ class SNNConfig:
     readout: str = "max"
     recurrent: bool = False
     lr: float = 0.003
+    #: early decision: the margin is the smallest at which the early class is the full-window
+    #: class on at least this fraction of the training windows (1 = never earlier than needed
+    #: on any training window)
+    early_agreement: float = 0.99
     # steps simulated after the window ends; runs written before the component layer used
     # ceil(D / dt) + 1 steps, so they load with 1 (LEGACY) and score exactly as they were trained
     extra_steps: int = 0
@@ -303,6 +307,7 @@ class SNNConfig:
         "snn_readout": "readout",
         "snn_recurrent": "recurrent",
         "snn_lr": "lr",
+        "snn_early_agreement": "early_agreement",
     }
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"readout": READOUTS}
     HELP: ClassVar[dict[str, str]] = {
@@ -312,6 +317,8 @@ class SNNConfig:
         "readout": f"class score from the output layer ({', '.join(READOUTS)})",
         "recurrent": "recurrent hidden layer (W_rec s_{t-1} added to the input current)",
         "lr": "Adam learning rate",
+        "early_agreement": "early decision: fraction of training windows on which it must name "
+        "the full-window class (higher: later, safer decisions)",
         "extra_steps": "time steps simulated after the window end (1 in pre-0.2 runs)",
     }
 
@@ -323,6 +330,8 @@ class SNNConfig:
         if not isinstance(self.recurrent, bool):
             raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
         check_positive(self.lr, "lr")
+        if not 0 < self.early_agreement <= 1:
+            raise ValueError(f"early_agreement must be in (0, 1], got {self.early_agreement}")
         check_int(self.extra_steps, "extra_steps", 0)
 
 
@@ -341,9 +350,6 @@ class SNNModel(SpikeModel):
     decides_early = True
     #: runs saved before the early decision load with it off (decided at the window's end)
     optional_state = ("early_margin",)
-    #: the margin is the smallest at which the early class is the full-window class on at
-    #: least this fraction of the training windows
-    EARLY_AGREEMENT = 0.99
     #: training windows the margin is fitted on (evenly spaced; bounds the fit's memory)
     CALIBRATION_WINDOWS = 4096
     #: a margin no lead reaches: the decision waits for the window's end
@@ -382,7 +388,7 @@ class SNNModel(SpikeModel):
     @torch.no_grad()
     def calibrate_decision(self, spikes: Tensor) -> None:
         """The smallest margin (among 512 quantiles of the leads seen, and :attr:`NEVER`) at
-        which the early class agrees with the full-window class on :attr:`EARLY_AGREEMENT` of
+        which the early class agrees with the full-window class on ``early_agreement`` of
         the training windows; found by bisection (agreement grows with the margin, except for
         noise: every margin taken is one measured to agree)."""
         n = spikes.shape[0]
@@ -412,7 +418,7 @@ class SNNModel(SpikeModel):
         lo, hi = 0, len(cands) - 1  # the last always agrees
         while lo < hi:
             mid = (lo + hi) // 2
-            if agreement(cands[mid]) >= self.EARLY_AGREEMENT:
+            if agreement(cands[mid]) >= self.config.early_agreement:
                 hi = mid
             else:
                 lo = mid + 1

@@ -91,8 +91,30 @@ def test_the_fitted_margin_agrees_on_the_training_windows():
     assert 0 < m < SNNModel.NEVER
     cls, t_ms = model.early_decision(spikes)
     full = model.scores(spikes).argmax(1)
-    assert float((cls == full).float().mean()) >= SNNModel.EARLY_AGREEMENT
+    assert float((cls == full).float().mean()) >= model.config.early_agreement
     assert float(t_ms.mean()) < 100.0  # it decides before the window ends
+
+
+def test_a_stricter_agreement_decides_later_and_agrees_more():
+    spikes, y = _rate_spikes(400, 3)
+    times, agree = [], []
+    for a in (0.9, 1.0):
+        model = SNNModel(SNNConfig(hidden=16, dt_ms=2.0, early_agreement=a), 20, 1, 2, 100.0)
+        opt = torch.optim.Adam(model.parameters(), lr=0.01)
+        for _ in range(30):
+            loss = model.loss(spikes, y)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        model.eval()
+        model.calibrate_decision(spikes)
+        cls, t_ms = model.early_decision(spikes)
+        agree.append(float((cls == model.scores(spikes).argmax(1)).float().mean()))
+        times.append(float(t_ms.mean()))
+        assert agree[-1] >= a
+    assert agree[1] == 1.0 and times[0] <= times[1]
+    with pytest.raises(ValueError, match="early_agreement"):
+        SNNConfig(early_agreement=0.0)
 
 
 def test_a_run_saved_before_the_early_decision_loads_with_it_off():
