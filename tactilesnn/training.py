@@ -241,13 +241,14 @@ def fit_and_evaluate(
     }
     if early is not None:
         metrics["early_decision"] = early
-    skipped = pipe.encoder.skip_stats()
+    skipped = pipe.encoder.skip_stats()  # {mechanism: what it skipped}
     if skipped is not None:  # what the skipping changed: the test split encoded without it
         with pipe.encoder.skipping(False):
             full = pipe.scores(pipe.encode(test.X)).numpy().argmax(1)
-        metrics["activity_gate"] = {**skipped, "test_accuracy_without_skipping":
-                                    float((full == test.y).mean()),
-                                    "predictions_changed": float((full != pred).mean())}  # fmt: skip
+        change = {"test_accuracy_without_skipping": float((full == test.y).mean()),
+                  "predictions_changed": float((full != pred).mean())}  # fmt: skip
+        for mechanism, stats in skipped.items():  # the change is that of all of them together
+            metrics[mechanism] = {**stats, **change}
     per_rec = recording_accuracy(test_scores, test.y, test.scan)
     if per_rec is not None:
         metrics.update(per_rec)

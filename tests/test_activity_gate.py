@@ -46,7 +46,7 @@ def test_gate_skips_quiet_channels_and_keeps_active_ones_exact():
             # same code up to float32 rounding (a smaller FFT batch), same silent slots
             np.testing.assert_allclose(b[active[:, c], blk], a[active[:, c], blk], atol=0.05)
             assert np.isinf(b[~active[:, c], blk]).all()
-        st = gated.skip_stats()
+        st = gated.skip_stats()["activity_gate"]
         assert st["channel_windows"] == X.shape[0] * 3
         assert st["skipped_fraction"] == 1 - active.mean()
         with gated.skipping(False):

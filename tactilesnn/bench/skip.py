@@ -86,7 +86,7 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
             ref = plain.encode(X).numpy()
             gated.gate_counts = [0, 0]
             out = gated.encode(X).numpy()
-            skipped = gated.skip_stats()["skipped_fraction"]
+            skipped = gated.skip_stats()["activity_gate"]["skipped_fraction"]
             t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
             t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
             both = np.isfinite(ref) & np.isfinite(out)

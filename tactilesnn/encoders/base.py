@@ -106,8 +106,9 @@ class SpikeEncoder(nn.Module):
         return out
 
     def skip_stats(self) -> dict | None:
-        """What the encoder skipped since it was built (e.g. an activity gate: the fraction of
-        (window, channel) pairs not transformed), or None if it skips nothing."""
+        """What the encoder skips, per mechanism (e.g. ``{"activity_gate": {...}}``: the fraction
+        of (window, channel) pairs not transformed since it was built; ``"band_restriction"``:
+        the bands outside the sensor's passband), or None if it skips nothing."""
         return None
 
     @contextlib.contextmanager

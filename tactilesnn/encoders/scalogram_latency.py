@@ -24,6 +24,7 @@ from .export import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import MAPPINGS, STATS, LatencyCode
 from .stft import STFTScalogram
+from .stream import passband_mask
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,8 @@ class ScalogramLatencySettings:
     mapping: str = "log"
     dynamic_range_db: float = 30.0
     gate: float = 0.0
+    passband_lo_hz: float = 0.0
+    passband_hi_hz: float = 0.0
 
     FLAGS: ClassVar[dict[str, str]] = {
         "f_lo_hz": "f_lo_hz",
@@ -46,6 +49,8 @@ class ScalogramLatencySettings:
         "mapping": "mapping",
         "dynamic_range_db": "dynamic_range_db",
         "gate": "gate",
+        "passband_lo_hz": "passband_lo_hz",
+        "passband_hi_hz": "passband_hi_hz",
     }
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"stats": STATS, "mapping": MAPPINGS}
     HELP: ClassVar[dict[str, str]] = {
@@ -57,6 +62,10 @@ class ScalogramLatencySettings:
         "dynamic_range_db": "log mapping: dB below the strongest band that still spike",
         "gate": "activity gate: a window's channel whose RMS about its mean is below gate x the "
         "channel's median training RMS is not transformed and stays silent (0 = off)",
+        "passband_lo_hz": "band restriction: bands centred below the sensor's lower passband "
+        "edge (Hz) are not transformed and stay silent (0 = none)",
+        "passband_hi_hz": "band restriction: bands centred above the sensor's upper passband "
+        "edge (Hz) are not transformed and stay silent (0 = none)",
     }
 
     @classmethod
@@ -95,6 +104,22 @@ class ScalogramLatencySettings:
         check_positive(self.dynamic_range_db, "dynamic_range_db")
         if not (np.isfinite(self.gate) and self.gate >= 0):
             raise ValueError(f"gate must be a finite number >= 0, got {self.gate}")
+        for name in ("passband_lo_hz", "passband_hi_hz"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number of Hz >= 0, got {v}")
+        if 0 < self.passband_hi_hz <= self.passband_lo_hz:
+            raise ValueError(
+                f"passband_hi_hz ({self.passband_hi_hz}) must be above passband_lo_hz "
+                f"({self.passband_lo_hz})"
+            )
+
+    @property
+    def passband_hz(self) -> tuple[float, float] | None:
+        """The sensor's passband ``(lo, hi)`` in Hz, None if no edge is set."""
+        if not (self.passband_lo_hz or self.passband_hi_hz):
+            return None
+        return (self.passband_lo_hz, self.passband_hi_hz or math.inf)
 
 
 @dataclass(frozen=True)
@@ -148,7 +173,16 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         super().__init__(config, fs_hz, window, n_channels)
         f_hi = min(config.f_hi_hz, 0.45 * self.fs_hz)
         self.freqs_hz = log_bands(min(config.f_lo_hz, f_hi / 2), f_hi, config.n_bands)
-        self.scalogram = self.make_scalogram()
+        # band restriction: only the bands inside the sensor's passband are transformed; the
+        # others keep their afferents (same layout) and stay silent
+        keep = passband_mask(self.freqs_hz, self.fs_hz, config.passband_hz)
+        self.kept_bands = np.flatnonzero(keep)
+        self.restricted = not keep.all()
+        self.band_scatter = _BandScatter(self.kept_bands, config.n_bands, len(config.stats))
+        self.scalogram = self.make_scalogram(self.freqs_hz[keep])
+        # every band's scalogram, built on demand for skipping(False); in a list, so it is not
+        # a submodule (its buffers stay out of the saved weights)
+        self._all_bands: list[nn.Module] = []
         self.code = LatencyCode(
             duration_ms=self.duration_ms,
             mapping=config.mapping,
@@ -171,11 +205,21 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         return self
 
     def skip_stats(self) -> dict | None:
-        if self.config.gate <= 0:
-            return None
-        seen, skipped = self.gate_counts
-        return {"gate": self.config.gate, "channel_windows": seen,
-                "skipped_fraction": skipped / max(seen, 1)}  # fmt: skip
+        out = {}
+        if self.config.gate > 0:
+            seen, skipped = self.gate_counts
+            out["activity_gate"] = {"gate": self.config.gate, "channel_windows": seen,
+                                    "skipped_fraction": skipped / max(seen, 1)}  # fmt: skip
+        if self.restricted:
+            lo, hi = self.config.passband_hz
+            dropped = np.setdiff1d(np.arange(self.config.n_bands), self.kept_bands)
+            out["band_restriction"] = {
+                "passband_hz": [lo, hi if math.isfinite(hi) else None],
+                "bands": self.config.n_bands,
+                "bands_skipped": int(dropped.size),
+                "skipped_bands_hz": [round(float(self.freqs_hz[b]), 3) for b in dropped],
+            }
+        return out or None
 
     @contextlib.contextmanager
     def skipping(self, enabled: bool):
@@ -186,12 +230,17 @@ class ScalogramLatencyEncoder(SpikeEncoder):
             self.gate_enabled = old
 
     def export_metadata(self) -> dict[str, str]:
-        if self.config.gate <= 0:
-            return {}
-        return {"gate_rms": json.dumps([float(v) for v in self.gate_rms])}
+        out = {}
+        if self.config.gate > 0:
+            out["gate_rms"] = json.dumps([float(v) for v in self.gate_rms])
+        if self.restricted:
+            out["bands_hz"] = json.dumps([round(float(f), 4) for f in self.freqs_hz])
+            out["bands_transformed"] = json.dumps(self.kept_bands.tolist())
+        return out
 
-    def make_scalogram(self) -> nn.Module:
-        """The scalogram module of this encoder (each subclass provides its own)."""
+    def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
+        """The scalogram module of this encoder on bands centred at ``freqs_hz`` (each subclass
+        provides its own)."""
         raise NotImplementedError(f"{type(self).__name__} does not define its scalogram")
 
     @property
@@ -202,9 +251,20 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         # complex spectra of the padded window for every band, plus the magnitudes
         return 48 * self.n_channels * (self.config.n_bands + 1) * 3 * self.window
 
+    def _code_rows(self, x: Tensor) -> Tensor:
+        """``[n, c, samples]`` -> spike times ``[n, c * stats * bands]``: only the bands inside
+        the passband are transformed and coded (the others silent), unless skipping is off."""
+        if not self.restricted:
+            return self.code(self.scalogram(unit_peak(x)))
+        if not self.gate_enabled:
+            if not self._all_bands:
+                self._all_bands.append(self.make_scalogram(self.freqs_hz))
+            return self.code(self._all_bands[0](unit_peak(x)))
+        return self.band_scatter(self.code(self.scalogram(unit_peak(x))))
+
     def encode_batch(self, x: Tensor) -> Tensor:
         if self.config.gate <= 0 or not self.gate_enabled:
-            return self.code(self.scalogram(unit_peak(x))).unsqueeze(-1)
+            return self._code_rows(x).unsqueeze(-1)
         n, c = x.shape[0], x.shape[1]
         active = x.std(-1, unbiased=False) > self.gate_rms.to(x.dtype)  # [n, C]
         per = len(self.config.stats) * self.config.n_bands
@@ -212,18 +272,21 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         b, ch = active.nonzero(as_tuple=True)
         if b.numel():  # only the active (window, channel) pairs are transformed
             sub = x[b, ch].unsqueeze(1)
-            out[b, ch] = self.code(self.scalogram(unit_peak(sub))).to(torch.float32)
+            out[b, ch] = self._code_rows(sub).to(torch.float32)
         self.gate_counts[0] += n * c
         self.gate_counts[1] += n * c - int(b.numel())
         return out.reshape(n, c * per, 1)
 
     def onnx_module(self) -> nn.Module:
-        return self._gated(_WithSlot(WindowEncoder(self.scalogram, self.code, self.window)))
+        return self._gated(WindowEncoder(self.scalogram, self.code, self.window))
 
     def _gated(self, graph: nn.Module) -> nn.Module:
-        """The exported encoder with the activity gate: the graph encodes only the active
-        (window, channel) rows, as :meth:`encode_batch` does (the service also answers wholly
-        silent windows of a stateless model from a cache, see :mod:`tactilesnn.service.runtime`)."""
+        """The exported encoder (``graph``: window -> codes of the transformed bands) with the
+        band restriction (the other bands' afferents silent) and the activity gate: the graph
+        encodes only the active (window, channel) rows, as :meth:`encode_batch` does (the
+        service also answers wholly silent windows of a stateless model from a cache, see
+        :mod:`tactilesnn.service.runtime`)."""
+        graph = _WithSlot(nn.Sequential(graph, self.band_scatter) if self.restricted else graph)
         if self.config.gate <= 0:
             return graph
         return _GateMask(graph, self.gate_rms, len(self.config.stats) * self.config.n_bands)
@@ -232,7 +295,8 @@ class ScalogramLatencyEncoder(SpikeEncoder):
     def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scalogram magnitude of the window's channels, summed ``[bands, frames]``."""
         t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
-        return self.scalogram(unit_peak(t))[0].sum(0).numpy(), np.asarray(self.freqs_hz)
+        freqs = np.asarray(self.freqs_hz)[self.kept_bands]  # the bands transformed
+        return self.scalogram(unit_peak(t))[0].sum(0).numpy(), freqs
 
 
 @register_encoder("gwt", GWTConfig)
@@ -244,10 +308,10 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
     #: onnxruntime sessions while the export is verified, each with copies of the weights
     FACTORED_BUDGET_BYTES: ClassVar[int] = 32 << 20
 
-    def make_scalogram(self) -> nn.Module:
+    def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         if self.config.hop > self.window:
             raise ValueError(f"gwt hop ({self.config.hop}) exceeds the window ({self.window})")
-        return GaborScalogram(self.fs_hz, self.freqs_hz, hop=self.config.hop)
+        return GaborScalogram(self.fs_hz, freqs_hz, hop=self.config.hop)
 
     def onnx_module(self) -> nn.Module:
         # each band in its cheapest exact form (low rank, short FIR, dense); the FIR form of every
@@ -262,7 +326,7 @@ class GWTLatencyEncoder(ScalogramLatencyEncoder):
             size = np.inf
         if size > self.FACTORED_BUDGET_BYTES:
             graph = GaborConvEncoder(self.scalogram, self.code, self.window)
-        return self._gated(_WithSlot(graph))
+        return self._gated(graph)
 
 
 def unit_peak(x: Tensor) -> Tensor:
@@ -280,11 +344,11 @@ def unit_peak(x: Tensor) -> Tensor:
 class STFTLatencyEncoder(ScalogramLatencyEncoder):
     """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison)."""
 
-    def make_scalogram(self) -> nn.Module:
+    def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         frame = self.config.frame_samples or self.window
         if frame > self.window:
             raise ValueError(f"frame_samples ({frame}) exceeds the window ({self.window})")
-        return STFTScalogram(self.fs_hz, self.freqs_hz, nperseg=frame)
+        return STFTScalogram(self.fs_hz, freqs_hz, nperseg=frame)
 
 
 class _GateMask(nn.Module):
@@ -308,6 +372,26 @@ class _GateMask(nn.Module):
         t = self.inner(x.reshape(-1, 1, n).index_select(0, rows))  # [rows, per, 1]
         out = torch.full((b * c, self.per, 1), math.inf, dtype=t.dtype)
         return out.index_put((rows,), t).reshape(b, c * self.per, 1)
+
+
+class _BandScatter(nn.Module):
+    """Codes of the transformed bands ``[B, C * stats * kept]`` -> the full afferent layout
+    ``[B, C * stats * bands]``, the bands outside the passband silent (inf). One gather with a
+    constant index (an inf column appended), in torch and in the exported graph alike."""
+
+    def __init__(self, kept: np.ndarray, n_bands: int, n_stats: int) -> None:
+        super().__init__()
+        kept = np.asarray(kept, dtype=np.int64)
+        index = np.full(n_bands, kept.size)  # the appended inf column
+        index[kept] = np.arange(kept.size)
+        self.kept, self.n_bands = int(kept.size), int(n_bands)
+        self.register_buffer("index", torch.from_numpy(index), persistent=False)
+
+    def forward(self, t: Tensor) -> Tensor:
+        b = t.shape[0]
+        rows = t.reshape(b, -1, self.kept)
+        pad = torch.full_like(rows[..., :1], math.inf)
+        return torch.cat([rows, pad], -1).index_select(-1, self.index).reshape(b, -1)
 
 
 class _WithSlot(nn.Module):

@@ -140,6 +140,14 @@ class PipelineSession:
             "stream_channel_windows": 0,  # (window, encoder channel) pairs seen by the gate
             "stream_channel_windows_skipped": 0,  # of which silent: not encoded
         }
+        # band restriction: bands outside the sensor's passband are not transformed (static:
+        # the graph holds only the others)
+        bands = json.loads(meta.get("bands_hz", "null") or "null")
+        kept = json.loads(meta.get("bands_transformed", "null") or "null")
+        if bands is not None and kept is not None:
+            self.stats.update(
+                encoder_bands=len(bands), encoder_bands_skipped=len(bands) - len(kept)
+            )
         if self.decides_early:  # the first output neuron to fire vs the full-window answer
             self.stats.update(stream_early_decisions=0, stream_early_differs=0,
                               stream_early_mean_decision_ms=0.0)  # fmt: skip
