@@ -124,6 +124,12 @@ class PVDFParams:
     def highpass_hz(self) -> float:
         return 1.0 / (2 * np.pi * self.rf_Mohm * 1e6 * self.cf_pF * 1e-12)
 
+    @property
+    def passband_hz(self) -> tuple[float, float]:
+        """-3 dB band of the readout (Hz): the charge amplifier's R_f C_f high-pass (15.9 Hz)
+        to the anti-alias low-pass (1 kHz); what ``--passband-lo-hz/--passband-hi-hz`` take."""
+        return (self.highpass_hz, self.lowpass_hz)
+
 
 class PVDFTriangle:
     """Twelve PVDF taxels under a PDMS cover with a dual-range charge-amplifier readout."""

@@ -82,6 +82,9 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     assert res["pvdf"]["max_diff_pC"] < res["pvdf"]["noise_rms_pC"]
     assert res["capacitive"]["identical"] and res["capacitive"]["speedup"] > 1
     assert res["teng"]["max_diff_V"] <= 1e-12 and res["teng"]["speedup"] > 1
+    b = res["band_restriction"]
+    assert b["restricted"]["bands_skipped"] > 0 and "bands_skipped" not in b["all_bands"]
+    assert b["speedup"] > 0 and 0 <= b["restricted"]["predictions_changed"] <= 1
     assert set(res["early_decision"]) == {"tempotron", "snn"}
     for e in res["early_decision"].values():
         assert 0 < e["window_skipped_fraction"] < 1 and 0 <= e["agrees_with_full_window"] <= 1
