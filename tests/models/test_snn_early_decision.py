@@ -72,16 +72,21 @@ def _rate_spikes(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
     return torch.where(early, t * 0.3, t), y
 
 
-def test_the_fitted_margin_agrees_on_the_training_windows():
-    spikes, y = _rate_spikes(400, 0)
-    model = SNNModel(SNNConfig(hidden=16, dt_ms=2.0), 20, 1, 2, 100.0, seed=0)
+def _trained(spikes: torch.Tensor, y: torch.Tensor, **config: object) -> SNNModel:
+    """A 16-unit SNN after 30 full-batch Adam steps (its margin not fitted yet)."""
+    model = SNNModel(SNNConfig(hidden=16, dt_ms=2.0, **config), 20, 1, 2, 100.0, seed=0)
     opt = torch.optim.Adam(model.parameters(), lr=0.01)
     for _ in range(30):
         loss = model.loss(spikes, y)
         opt.zero_grad()
         loss.backward()
         opt.step()
-    model.eval()
+    return model.eval()
+
+
+def test_the_fitted_margin_agrees_on_the_training_windows():
+    spikes, y = _rate_spikes(400, 0)
+    model = _trained(spikes, y)
     assert float(model.early_margin) == SNNModel.NEVER  # before fitting: wait for the end
     cls, t_ms = model.early_decision(spikes)
     assert torch.equal(cls, model.scores(spikes).argmax(1)) and (t_ms == 100.0).all()
@@ -99,14 +104,7 @@ def test_a_stricter_agreement_decides_later_and_agrees_more():
     spikes, y = _rate_spikes(400, 3)
     times, agree = [], []
     for a in (0.9, 1.0):
-        model = SNNModel(SNNConfig(hidden=16, dt_ms=2.0, early_agreement=a), 20, 1, 2, 100.0)
-        opt = torch.optim.Adam(model.parameters(), lr=0.01)
-        for _ in range(30):
-            loss = model.loss(spikes, y)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        model.eval()
+        model = _trained(spikes, y, early_agreement=a)
         model.calibrate_decision(spikes)
         cls, t_ms = model.early_decision(spikes)
         agree.append(float((cls == model.scores(spikes).argmax(1)).float().mean()))
