@@ -230,6 +230,10 @@ def run(
                     "accuracy": m["test_accuracy"],
                     "accuracy_per_recording": m.get("test_accuracy_per_recording"),
                     "seconds": time.perf_counter() - t0,
+                    # a model that decides before the window ends: its accuracy then, and when
+                    "early_accuracy": m.get("early_decision", {}).get("accuracy"),
+                    "early_window_fraction": None if "early_decision" not in m else
+                    1.0 - m["early_decision"]["window_skipped_fraction"],
                 })  # fmt: skip
                 if enc is None and ref_pipe is None:
                     ref_pipe = res.pipeline
@@ -263,6 +267,7 @@ def summarise(rows: list[dict]) -> list[dict]:
             "mean": float(acc.mean()), "sd": float(acc.std(ddof=1)) if acc.size > 1 else 0.0,
             "per_recording_mean": float(np.mean(rec)) if rec else None,
             "seconds_mean": float(np.mean([r["seconds"] for r in sel])),
+            **_early_means(sel),
         })  # fmt: skip
     for ds in {s["dataset"] for s in out}:
         sel = [s for s in out if s["dataset"] == ds]
@@ -277,9 +282,18 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
+def _early_means(rows: list[dict]) -> dict:
+    """Mean early-decision accuracy and decision time (fraction of the window) over seeds."""
+    acc = [r["early_accuracy"] for r in rows if r.get("early_accuracy") is not None]
+    frac = [r["early_window_fraction"] for r in rows if r.get("early_window_fraction") is not None]
+    return {"early_accuracy_mean": float(np.mean(acc)) if acc else None,
+            "early_window_fraction_mean": float(np.mean(frac)) if frac else None}  # fmt: skip
+
+
 def table(summary: list[dict]) -> str:
     head = ("dataset", "method", "kind", "accuracy % (mean +- sd)", "per recording %",
-            "vs best reference (points; per recording where cut)", "s / run")  # fmt: skip
+            "vs best reference (points; per recording where cut)",
+            "early decision: accuracy % at % of the window", "s / run")  # fmt: skip
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for s in summary:
         rec = "-" if s["per_recording_mean"] is None else f"{100 * s['per_recording_mean']:.2f}"
@@ -287,9 +301,16 @@ def table(summary: list[dict]) -> str:
         lines.append(
             f"| {s['dataset']} | {s['method']} | {s['kind']} | {100 * s['mean']:.2f} +- "
             f"{100 * s['sd']:.2f} (n={s['seeds']}) | {rec} | "
-            f"{'-' if gap is None else f'{gap:+.2f}'} | {s['seconds_mean']:.1f} |"
+            f"{'-' if gap is None else f'{gap:+.2f}'} | {_early_cell(s)} | "
+            f"{s['seconds_mean']:.1f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _early_cell(s: dict) -> str:
+    if s.get("early_accuracy_mean") is None:
+        return "-"
+    return f"{100 * s['early_accuracy_mean']:.2f} at {100 * s['early_window_fraction_mean']:.0f}"
 
 
 def plot(summary: list[dict], path: Path) -> None:

@@ -74,11 +74,18 @@ def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
     monkeypatch.setattr(real, "_synthetic", lambda task: lambda root, seed:
                         HookLoopTask(seed=seed, **small).build())  # fmt: skip
     res = real.run(tmp_path / "out", data_root=tmp_path / "none", seeds=1,
-                   datasets=["synth:hook_loop"], pipelines=["default+readout"], epochs=2,
-                   progress=False)  # fmt: skip
+                   datasets=["synth:hook_loop"], pipelines=["default+readout", "default+snn"],
+                   epochs=2, progress=False)  # fmt: skip
     assert {r["dataset"] for r in res["rows"]} == {"synth:hook_loop"}
     wave = next(s for s in res["summary"] if s["method"] == "logreg_peaknorm_wave")
     assert 0.5 < wave["mean"] <= 1.0
+    # the SNN decides early: its accuracy then and when, next to its full-window accuracy
+    by = {s["method"]: s for s in res["summary"]}
+    snn = by["default+snn"]
+    assert 0 <= snn["early_accuracy_mean"] <= 1 and 0 < snn["early_window_fraction_mean"] <= 1
+    assert by["default+readout"]["early_accuracy_mean"] is None
+    row = next(ln for ln in real.table(res["summary"]).splitlines() if "default+snn" in ln)
+    assert f"{100 * snn['early_accuracy_mean']:.2f} at " in row
 
 
 def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monkeypatch):
