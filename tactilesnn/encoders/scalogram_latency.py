@@ -194,7 +194,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         self.register_buffer("gate_rms", torch.zeros(n_channels))
         if config.gate > 0:
             self.fitted.fill_(False)
-        self.gate_enabled = True
+        self.skip_enabled = True  # gate and band restriction; off within skipping(False)
         self.gate_counts = [0, 0]  # (window, channel) pairs seen, skipped
 
     def fit(self, X: np.ndarray) -> ScalogramLatencyEncoder:
@@ -223,11 +223,11 @@ class ScalogramLatencyEncoder(SpikeEncoder):
 
     @contextlib.contextmanager
     def skipping(self, enabled: bool):
-        old, self.gate_enabled = self.gate_enabled, enabled
+        old, self.skip_enabled = self.skip_enabled, enabled
         try:
             yield
         finally:
-            self.gate_enabled = old
+            self.skip_enabled = old
 
     def export_metadata(self) -> dict[str, str]:
         out = {}
@@ -256,14 +256,14 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         the passband are transformed and coded (the others silent), unless skipping is off."""
         if not self.restricted:
             return self.code(self.scalogram(unit_peak(x)))
-        if not self.gate_enabled:
+        if not self.skip_enabled:
             if not self._all_bands:
                 self._all_bands.append(self.make_scalogram(self.freqs_hz))
             return self.code(self._all_bands[0](unit_peak(x)))
         return self.band_scatter(self.code(self.scalogram(unit_peak(x))))
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        if self.config.gate <= 0 or not self.gate_enabled:
+        if self.config.gate <= 0 or not self.skip_enabled:
             return self._code_rows(x).unsqueeze(-1)
         n, c = x.shape[0], x.shape[1]
         active = x.std(-1, unbiased=False) > self.gate_rms.to(x.dtype)  # [n, C]

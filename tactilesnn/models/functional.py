@@ -208,6 +208,13 @@ def running_readout(out: Tensor, readout: str) -> Tensor:
     return total if readout == "count" else total / out.shape[0]
 
 
+def class_lead(running: Tensor) -> tuple[Tensor, Tensor]:
+    """Scores ``[..., classes]`` (two or more) -> ``(leading score - runner-up's, leading
+    class)``, both ``[...]``."""
+    top = running.topk(2, dim=-1).values
+    return top[..., 0] - top[..., 1], running.argmax(-1)
+
+
 def decide_by_margin(
     running: Tensor, margin: Tensor, dt_ms: float, duration_ms: float, final: Tensor
 ) -> tuple[Tensor, Tensor]:
@@ -217,11 +224,11 @@ def decide_by_margin(
     does gets its full-window class ``final [B]`` at ``duration_ms``."""
     if running.shape[-1] < 2:  # one class: nothing to wait for
         return final, torch.full(final.shape, min(dt_ms, duration_ms), dtype=running.dtype)
-    top = running.topk(2, dim=-1).values
-    hit = (top[..., 0] - top[..., 1] >= margin).to(torch.int32)  # [T, B]
+    lead, leaders = class_lead(running)
+    hit = (lead >= margin).to(torch.int32)  # [T, B]
     first = hit.argmax(0)  # the first hit (ties: the first index)
     decided = hit.amax(0) > 0
-    leader = running.argmax(-1).gather(0, first.unsqueeze(0)).squeeze(0)
+    leader = leaders.gather(0, first.unsqueeze(0)).squeeze(0)
     t_ms = torch.clamp((first + 1).to(running.dtype) * dt_ms, max=duration_ms)
     return (torch.where(decided, leader, final),
             torch.where(decided, t_ms, torch.full_like(t_ms, duration_ms)))  # fmt: skip

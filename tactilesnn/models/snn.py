@@ -32,6 +32,7 @@ from .._checks import check_choice, check_int, check_positive
 from ..spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model
 from .functional import (
+    class_lead,
     decay_factor,
     decide_by_margin,
     li_closed,
@@ -400,9 +401,9 @@ class SNNModel(SpikeModel):
         leads, same = [], []
         for i in range(0, len(sub), batch):
             run, scores = self.running_scores(sub[i : i + batch])
-            top = run.topk(2, dim=-1).values
-            leads.append((top[..., 0] - top[..., 1]).T)  # [b, steps]
-            same.append((run.argmax(-1) == scores.argmax(1)).T)
+            lead, leader = class_lead(run)
+            leads.append(lead.T)  # [b, steps]
+            same.append((leader == scores.argmax(1)).T)
         lead, same = torch.cat(leads), torch.cat(same)
 
         def agreement(m: float) -> float:
