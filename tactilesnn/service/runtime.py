@@ -90,6 +90,11 @@ def _with_spikes_output(path: str) -> bytes:
     return model.SerializeToString()
 
 
+def _optional_json(meta: dict[str, str], key: str):
+    """A JSON metadata entry the export writes only for some encoders (None when absent)."""
+    return json.loads(meta.get(key) or "null")
+
+
 class PipelineSession:
     """onnxruntime session over an exported ``model.onnx`` with validation and metadata."""
 
@@ -130,9 +135,9 @@ class PipelineSession:
         # threshold (the rest is silent); a window in which every channel is silent has the
         # same scores each time for a stateless model, so the stream path answers it from a
         # cache instead of running the graph
-        gate = json.loads(meta.get("gate_rms", "null") or "null")
+        gate = _optional_json(meta, "gate_rms")
         self.gate_rms = None if gate is None else np.asarray(gate, np.float64)
-        self.gate_channels = json.loads(meta.get("encoder_channels", "null") or "null")
+        self.gate_channels = _optional_json(meta, "encoder_channels")
         self._silent: Detail | None = None
         self.stats = {
             "stream_windows": 0,
@@ -142,8 +147,8 @@ class PipelineSession:
         }
         # band restriction: bands outside the sensor's passband are not transformed (static:
         # the graph holds only the others)
-        bands = json.loads(meta.get("bands_hz", "null") or "null")
-        kept = json.loads(meta.get("bands_transformed", "null") or "null")
+        bands = _optional_json(meta, "bands_hz")
+        kept = _optional_json(meta, "bands_transformed")
         if bands is not None and kept is not None:
             self.stats.update(
                 encoder_bands=len(bands), encoder_bands_skipped=len(bands) - len(kept)
