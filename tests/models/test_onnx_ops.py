@@ -116,3 +116,50 @@ def test_raster_current_scatter_equals_the_dense_raster_product():
     (got,) = _run_onnx(_Raster(fc, k, dt, steps).eval(), (spikes,), ["spikes"])
     assert got.shape == (steps, 5, 7)
     assert np.abs(got - ref.detach().numpy()).max() < 1e-5
+
+
+class _Rows(nn.Module):
+    def __init__(self, hidden, beta, subtract):
+        super().__init__()
+        from tactilesnn.models.snn import _LSTMWeights
+
+        self.lif = _LSTMWeights(hidden, beta, 1.0, subtract)
+        self.register_buffer("w_rec", torch.zeros(0, 0))
+
+    def forward(self, cur, u0, s0):
+        return self.lif(cur, u0, s0, self.w_rec)
+
+
+@pytest.mark.parametrize("subtract", [True, False])
+def test_feed_forward_lif_runs_as_rows_of_units_and_spikes_like_the_scan(subtract):
+    """64 independent units as 4 LSTM rows of 16 (a smaller per-step product): same spikes and
+    membranes as the scan, in torch and in onnxruntime (with another batch size than traced)."""
+    from tactilesnn.models.snn import _unit_rows
+
+    assert [_unit_rows(h, 16) for h in (64, 16, 8, 48, 100, 17)] == [4, 1, 1, 3, 5, 1]
+    g = torch.Generator().manual_seed(3)
+    steps, batch, hidden, beta = 120, 3, 64, 0.9048
+    cur = (0.35 * torch.randn(steps, batch, hidden, generator=g) + 0.12).float()
+    u0 = (0.5 * torch.rand(batch, hidden, generator=g)).float()
+    mod = _Rows(hidden, beta, subtract)
+    assert mod.lif.rows == 4 and mod.lif.W.shape == (1, 64, 16)
+    ref_s, ref_u = lif_scan(cur, u0, beta, 1.0, subtract)
+    got_s, got_u, _ = mod(cur, u0, torch.zeros_like(u0))
+    assert torch.equal(got_s, ref_s) and torch.allclose(got_u, ref_u, atol=1e-6)
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.onnx"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(mod, (cur, u0, torch.zeros_like(u0)), str(path), dynamo=False,
+                              input_names=["cur", "u0", "s0"], opset_version=17,
+                              dynamic_axes={"cur": {1: "b"}, "u0": {0: "b"}, "s0": {0: "b"}})  # fmt: skip
+        lstm = [n for n in onnx.load(str(path)).graph.node if n.op_type == "LSTM"]
+        assert [a.i for n in lstm for a in n.attribute if a.name == "hidden_size"] == [16]
+        sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        cur, u0 = cur[:, 1:], u0[1:]  # batch 2, traced with 3
+        ref_s, ref_u = lif_scan(cur, u0, beta, 1.0, subtract)
+        feeds = {"cur": cur.numpy(), "u0": u0.numpy(), "s0": np.zeros_like(u0.numpy())}
+        spikes, u_t, _ = sess.run(None, feeds)
+        assert ref_s.sum() > 300
+        assert np.array_equal(spikes, ref_s.numpy())
+        assert np.abs(u_t - ref_u.numpy()).max() < 1e-4
