@@ -133,8 +133,13 @@ class FactoredGaborEncoder(nn.Module):
     #: nor bands whose ``window x bins`` factor exceeds this (long windows: the QR's working
     #: arrays are a few times 16 bytes x this)
     MAX_FACTOR_ELEMENTS = 1_000_000
-    #: at most this many convolution kernels (each one Conv node) and low-rank groups
+    #: at most this many low-rank groups
     MAX_GROUPS = 3
+    #: the FIR bands share one Conv (their longest kernel): onnxruntime's Conv gains more from
+    #: output channels than it loses to the zero taps (12 windows x 7 bands at hop 10, 1 thread:
+    #: one Conv of 14 channels x 190 taps 119 us, three of 6/4/4 channels x 70/110/190 taps
+    #: 176 us)
+    MAX_CONV_GROUPS = 1
     #: onnxruntime's one-input-channel strided Conv does ~4x fewer multiply-adds per second
     #: than its MatMul (measured: 11 vs 44 G/s on 1,000-sample windows, 1 thread)
     CONV_PENALTY = 4.0
@@ -176,50 +181,69 @@ class FactoredGaborEncoder(nn.Module):
         # and one product batched over its bands with their Vh's (rows = windows x channels)
         first: list[np.ndarray] = []  # every window-side matrix, multiplied in one product
         lr_first: list[np.ndarray] = []  # the low-rank groups' U's, [window, columns] each
+        lr_second: list[np.ndarray] = []  # and their Vh's, [count, 2 r_max, 2 frames] each
         lr = sorted((b for b in range(f_total) if kind[b] == "low_rank"),
                     key=lambda b: factors[b][0].shape[1])  # fmt: skip
         rank = np.array([factors[b][0].shape[1] if b in factors else 0 for b in range(f_total)])
         self.lr_sizes: list[tuple[int, int]] = []
-        for gi, group in enumerate(_split_by_length(lr, rank, self.MAX_GROUPS)):
+        for group in _split_by_length(lr, rank, self.MAX_GROUPS):
             r_max = int(max(rank[b] for b in group))
             u1 = np.zeros((n, len(group), 2, r_max))
-            v2 = np.zeros((len(group), r_max, 2 * frames))  # [Vr | Vi]
+            # rows (a, b) = (Re, Im) of x U against [[Vr, Vi], [-Vi, Vr]]:
+            # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr), real and imaginary side by side
+            v2 = np.zeros((len(group), 2, r_max, 2, frames))
             for i, b in enumerate(group):
                 u, vh = factors[b]
                 r = u.shape[1]
                 u1[:, i, 0, :r], u1[:, i, 1, :r] = u.real, u.imag
-                v2[i, :r, :frames], v2[i, :r, frames:] = vh.real, vh.imag
+                v2[i, 0, :r, 0], v2[i, 0, :r, 1] = vh.real, vh.imag
+                v2[i, 1, :r, 0], v2[i, 1, :r, 1] = -vh.imag, vh.real
             lr_first.append(u1.reshape(n, -1))
-            self.register_buffer(f"lr_v{gi}", torch.from_numpy(v2).float())
+            lr_second.append(v2.reshape(len(group), 2 * r_max, 2 * frames))
             self.lr_sizes.append((len(group), r_max))
             order += group
         self.lr_cols = [a.shape[1] for a in lr_first]
         lead = [np.linalg.norm(factors[b][0], 2) for b in lr]  # each band's largest gain
         basis = _shared_basis(lr_first, self.RANK_TOL * min(lead)) if lr_first else None
         self.basis_rank = 0 if basis is None else basis[0].shape[1]
+        self.lr_direct = False
         if basis is None:
             first += lr_first
-            self.register_buffer("lr_coef", torch.empty(0))
         else:
             first.append(basis[0])
-            self.register_buffer("lr_coef", torch.from_numpy(basis[1]).float().contiguous())
+            coef = np.split(basis[1], np.cumsum(self.lr_cols)[:-1], axis=1)
+            # through the basis, either each group's U then its Vh's (two products), or every
+            # band's whole map from the basis (one product: fewer graph nodes, each ~1 us)
+            two_step = basis[1].size + sum(v.size for v in lr_second)
+            direct = self.basis_rank * len(lr) * 2 * frames
+            self.lr_direct = direct <= self.DIRECT_RATIO * two_step
+            if self.lr_direct:
+                maps = [np.einsum("rgk,gkf->rgf", c.reshape(len(c), len(v), -1), v)
+                        for c, v in zip(coef, lr_second, strict=True)]  # fmt: skip
+                lr_second = [np.concatenate(maps, axis=1).reshape(self.basis_rank, -1)]
+            else:
+                self.register_buffer("lr_coef", torch.from_numpy(basis[1]).float().contiguous())
+        for gi, v in enumerate(lr_second):
+            self.register_buffer(f"lr_v{gi}", torch.from_numpy(v).float().contiguous())
         # convolution bands, grouped into at most three kernel lengths
         conv = sorted((b for b in range(f_total) if kind[b] == "conv"), key=lambda b: taps[b])
         self.conv_half: list[int] = []
-        for gi, group in enumerate(_split_by_length(conv, taps, self.MAX_GROUPS)):
+        for gi, group in enumerate(_split_by_length(conv, taps, self.MAX_CONV_GROUPS)):
             half = int(max(taps[b] for b in group))
             centre = (kernels.shape[1] - 1) // 2
             k = kernels[group, centre - half : centre + half + 1]
-            # conv1d correlates: output t = sum_u in[t + u] w[u], so the kernel is flipped
-            w = torch.cat([k.real, k.imag]).flip(1).unsqueeze(1).float()
+            # output channels (Re, Im) per band; conv1d correlates (output t = sum_u in[t + u]
+            # w[u]), so the kernel is flipped
+            w = torch.stack([k.real, k.imag], 1).reshape(2 * len(group), -1)
+            w = w.flip(1).unsqueeze(1).float()
             self.register_buffer(f"conv{gi}", polyphase_weight(w, self.hop))
             self.conv_half.append(half)
             order += group
         dense = [b for b in range(f_total) if kind[b] == "dense"]
         self.n_dense = len(dense)
         if dense:
-            m = torch.cat([scalogram.band_map(n, b) for b in dense], 1)  # [n, bands * frames]
-            first.append(torch.cat([m.real, m.imag], 1).numpy())
+            m = torch.stack([scalogram.band_map(n, b) for b in dense], 1)  # [n, bands, frames]
+            first.append(torch.stack([m.real, m.imag], 2).reshape(n, -1).numpy())
             order += dense
         self.first_cols = [a.shape[1] for a in first]
         cat = np.concatenate(first, axis=1) if first else np.zeros((n, 0))
@@ -230,33 +254,43 @@ class FactoredGaborEncoder(nn.Module):
         self.register_buffer("perm", torch.from_numpy(perm).long())
         self.order = order
 
+    #: the one-product form of the low-rank bands is used up to this many times the two-product
+    #: form's multiply-adds (it saves ~20 graph nodes per group: ~1 us each in onnxruntime)
+    DIRECT_RATIO = 1.5
+
     def macs_per_channel(self) -> int:
         """Multiply-adds of the linear part per channel (what the choice of forms minimised)."""
         fr = self.frames
-        total = self.first.numel() + self.lr_coef.numel()
-        for gi in range(len(self.lr_sizes)):
-            total += 2 * getattr(self, f"lr_v{gi}").numel()  # rows a and b against [Vr | Vi]
+        total = self.first.numel()
+        if self.basis_rank and not self.lr_direct:
+            total += self.lr_coef.numel()
+        for gi in range(len(self.lr_sizes) if not self.lr_direct else 1):
+            total += getattr(self, f"lr_v{gi}").numel()
         for gi, half in enumerate(self.conv_half):
             total += getattr(self, f"conv{gi}").shape[0] * fr * (2 * half + 1)  # nonzero taps
         return int(total)
 
     def scalogram(self, x: Tensor) -> Tensor:
-        """``[B, C, window]`` -> magnitude ``[B, C, bands, frames]``, bands in ``self.order``."""
+        """``[B, C, window]`` -> magnitude ``[B, C, bands, frames]``, bands in ``self.order``.
+
+        Every form yields ``[rows, its bands, (Re, Im), frames]``; the reshapes keep the row
+        axis as ``-1`` (a constant shape in the exported graph, no run-time size arithmetic)."""
         b, c, n = x.shape
-        flat = x.reshape(b * c, n)
-        re, im = [], []
+        fr = self.frames
+        flat = x.reshape(-1, n)
         parts = torch.split(flat @ self.first, self.first_cols, dim=1) if self.first_cols else ()
-        lr_parts = parts[: len(self.lr_sizes)]
-        if self.basis_rank:  # window -> shared basis -> each group's U
-            lr_parts = torch.split(parts[0] @ self.lr_coef, self.lr_cols, dim=1)
-        for gi, (count, r_max) in enumerate(self.lr_sizes):
-            # rows a (real) and b (imaginary) of y against [Vr | Vi]:
-            # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr)
-            y = lr_parts[gi].reshape(b * c, count, 2, r_max).permute(1, 2, 0, 3)
-            z = torch.matmul(y.reshape(count, 2 * b * c, r_max), getattr(self, f"lr_v{gi}"))
-            z = z.reshape(count, 2, b * c, 2, self.frames)
-            re.append((z[:, 0, :, 0] - z[:, 1, :, 1]).transpose(0, 1))
-            im.append((z[:, 0, :, 1] + z[:, 1, :, 0]).transpose(0, 1))
+        z: list[Tensor] = []
+        if self.lr_direct:  # window -> shared basis -> every low-rank band at once
+            count = sum(k for k, _ in self.lr_sizes)
+            z.append((parts[0] @ self.lr_v0).reshape(-1, count, 2, fr))
+        elif self.lr_sizes:
+            lr_parts = parts[: len(self.lr_sizes)]
+            if self.basis_rank:  # window -> shared basis -> each group's U
+                lr_parts = torch.split(parts[0] @ self.lr_coef, self.lr_cols, dim=1)
+            for gi, (count, r_max) in enumerate(self.lr_sizes):
+                y = lr_parts[gi].reshape(-1, count, 2 * r_max).transpose(0, 1)
+                out = torch.matmul(y, getattr(self, f"lr_v{gi}"))  # [count, rows, 2 frames]
+                z.append(out.transpose(0, 1).reshape(-1, count, 2, fr))
         if self.conv_half:
             padded = flat.unsqueeze(1)
             if self.pad:
@@ -264,16 +298,12 @@ class FactoredGaborEncoder(nn.Module):
                 padded = nn.functional.pad(padded, (self.pad, self.pad), mode=mode)
             for gi, half in enumerate(self.conv_half):
                 seg = padded[..., self.pad - half : self.pad + n + half]
-                out = polyphase_conv(seg, getattr(self, f"conv{gi}"), self.frames)
-                k = out.shape[1] // 2
-                re.append(out[:, :k])
-                im.append(out[:, k:])
+                out = polyphase_conv(seg, getattr(self, f"conv{gi}"), fr)
+                z.append(out.reshape(-1, out.shape[1] // 2, 2, fr))
         if self.n_dense:
-            z = parts[-1].reshape(b * c, 2, self.n_dense, self.frames)
-            re.append(z[:, 0])
-            im.append(z[:, 1])
-        re_t, im_t = torch.cat(re, 1), torch.cat(im, 1)
-        return torch.sqrt(re_t * re_t + im_t * im_t).reshape(b, c, self.bands, self.frames)
+            z.append(parts[-1].reshape(-1, self.n_dense, 2, fr))
+        zz = torch.cat(z, 1) if len(z) > 1 else z[0]
+        return torch.sqrt((zz * zz).sum(2)).reshape(b, c, self.bands, fr)
 
     def forward(self, x: Tensor) -> Tensor:
         """The bands are coded in the order the forms produce them (the code's per-band
@@ -281,10 +311,9 @@ class FactoredGaborEncoder(nn.Module):
         times = self.code(self.scalogram(x))
         if not self.permute:
             return times
-        # explicit sizes, not -1: the activity gate can pass zero rows
-        b, a = times.shape
-        grouped = times.reshape(b, a // self.bands, self.bands)
-        return grouped.index_select(2, self.perm).reshape(b, a)
+        a = times.shape[1]
+        grouped = times.reshape(-1, a // self.bands, self.bands)
+        return grouped.index_select(2, self.perm).reshape(-1, a)
 
 
 def polyphase_weight(weight: Tensor, hop: int) -> Tensor:
