@@ -179,24 +179,27 @@ def realtime_factor_12_taxels(
     hop: int = 1,
     touched: int | None = None,
     int8: bool = False,
+    snn: tuple[int, float] = (64, 5.0),
 ) -> dict:
     """GWT + SNN on 12 taxels at 2 kHz, onnxruntime, 1 thread, batch 1: real-time factor of
     classifying a window every half window (random weights: cost does not depend on them);
     ``hop``: the GWT's frame hop. With ``touched``, the activity gate is on (0.5 x the training
     RMS) and only that many taxels carry signal (the others 1 % of it): the graph encodes only
     the touched ones. ``int8``: the graph's MatMuls dynamically quantised (:func:`quantize_int8`;
-    the Convs and the LSTM stay float32)."""
+    the Convs and the LSTM stay float32). ``snn``: its hidden units and time step (ms); the
+    default is the SNN's default."""
     from ..export import export_pipeline, quantize_int8
     from ..service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
     cfg = PipelineConfig.from_flat(model="snn", channels=("all",), f_hi_hz=800.0, f_lo_hz=5.0,
-                                   gwt_hop=hop, gate=0.0 if touched is None else 0.5)  # fmt: skip
+                                   gwt_hop=hop, gate=0.0 if touched is None else 0.5,
+                                   snn_hidden=snn[0], snn_dt_ms=snn[1])  # fmt: skip
     pipe = SpikePipeline(cfg, fs, window, channels, ("a", "b"))
     rng = np.random.default_rng(0)
     X = rng.standard_normal((8, 12, window)).astype(np.float32)
     pipe.calibrate(X)
-    path = tmp / f"rt{hop}_{touched}_{int(int8)}.onnx"
+    path = tmp / f"rt{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
         path = Path(quantize_int8(path, X, np.arange(len(X)) % 2)["path"])
@@ -208,13 +211,16 @@ def realtime_factor_12_taxels(
     cost = _cost_ms_per_s(t, pipe)
     return {"window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
             "precision": "int8" if int8 else "float32", "ms_per_window": 1000 * t, "ms_per_signal_s": cost,
-            "realtime_factor": 1000.0 / cost}  # fmt: skip
+            "realtime_factor": 1000.0 / cost, "snn_hidden": snn[0], "snn_dt_ms": snn[1]}  # fmt: skip
 
 
+#: the SNN of the default task's Pareto sweep that costs least (``gwt20+snn16 dt10``)
+SMALL_SNN = (16, 10.0)
 #: the real-time rows: (GWT hop, touched taxels with the activity gate on (None = gate off),
-#: int8 MatMuls)
-RT_ROWS = ((1, None, False), (10, None, False), (10, None, True), (10, 6, False), (10, 3, False),
-           (10, 1, False), (10, 1, True))  # fmt: skip
+#: int8 MatMuls, SNN (hidden units, step ms))
+RT_ROWS = ((1, None, False, (64, 5.0)), (10, None, False, (64, 5.0)), (10, None, True, (64, 5.0)),
+           (10, 6, False, (64, 5.0)), (10, 3, False, (64, 5.0)), (10, 1, False, (64, 5.0)),
+           (10, 1, True, (64, 5.0)), (10, None, True, SMALL_SNN), (10, 1, True, SMALL_SNN))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -241,8 +247,8 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
                     rows.append({"config": p.label, **r})
             rt = [realtime_factor_12_taxels(3 if quick else repeats, Path(tmp),
                                             window=400 if quick else 1000, hop=h, touched=k,
-                                            int8=q)
-                  for h, k, q in RT_ROWS]  # fmt: skip
+                                            int8=q, snn=n)
+                  for h, k, q, n in RT_ROWS]  # fmt: skip
         torch.set_num_threads(threads)
         pareto_front(rows)
         result = {"task": task, "epochs": 1 if quick else epochs, "rows": rows,
@@ -267,7 +273,8 @@ def format_rt(rt: dict) -> str:
     scene = "" if k is None else f", activity gate on, {k} touched"
     if rt.get("precision") == "int8":
         scene += ", int8 MatMuls"
-    return (f"GWT (hop {rt['gwt_hop']}) + SNN, 12 taxels @ 2 kHz{scene}, "
+    snn = f"SNN ({rt.get('snn_hidden', 64)} units, {rt.get('snn_dt_ms', 5.0):g} ms step)"
+    return (f"GWT (hop {rt['gwt_hop']}) + {snn}, 12 taxels @ 2 kHz{scene}, "
             f"{rt['window_samples']}-sample windows every half "
             f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
             f"{rt['ms_per_signal_s']:.2f} ms per second of signal = "
