@@ -342,7 +342,8 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     root.setLevel(logging.ERROR)
     try:
         quantize_dynamic(str(path), str(tmp), weight_type=QuantType.QInt8,
-                         op_types_to_quantize=["MatMul"])  # fmt: skip
+                         op_types_to_quantize=["MatMul"],
+                         nodes_to_exclude=_not_window_side(path))  # fmt: skip
         os.replace(tmp, out)
     finally:
         root.setLevel(level)
@@ -359,6 +360,20 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
         "float_bytes": path.stat().st_size,
         "int8_bytes": out.stat().st_size,
     }
+
+
+def _not_window_side(path: Path) -> list[str]:
+    """The MatMul nodes whose weight does not take the raw window (first axis != the window's
+    samples): int8 keeps them float32. The window-side products hold nearly all multiply-adds;
+    the products after them (the GWT's shared-basis coefficients -> bands, the SNN's readout)
+    are small and, quantised per tensor, cost accuracy: the stability suite's small GWT run went
+    99.36 -> 98.73 % with the basis product quantised, 99.36 % without."""
+    model = onnx.load(str(path))
+    meta = {p.key: p.value for p in model.metadata_props}
+    window = int(meta.get("window_samples", -1))
+    shapes = {i.name: tuple(i.dims) for i in model.graph.initializer}
+    return [n.name for n in model.graph.node if n.op_type == "MatMul"
+            and shapes.get(n.input[1], (window,))[0] != window]  # fmt: skip
 
 
 def data_hash(cfg: dict) -> str:
