@@ -99,7 +99,17 @@ def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
     pipe, _ = load_run(run)
     export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
     q = quantize_int8(tmp_path / "m.onnx", test_windows.X, test_windows.y)
-    assert q["int8_bytes"] < 0.5 * q["float_bytes"]
+    # the window-side product (the bulk of the weights) is int8; the GWT's shared-basis
+    # product after it stays float32 (quantised per tensor it cost accuracy)
+    assert q["int8_bytes"] < 0.75 * q["float_bytes"]
+    graph = onnx.load(q["path"]).graph
+    weights = {i.name: i for i in graph.initializer}
+    window = pipe.window
+    by_rows = {}
+    for n in graph.node:
+        if n.op_type in ("MatMul", "MatMulInteger") and n.input[1] in weights:
+            by_rows.setdefault(weights[n.input[1]].dims[0] == window, set()).add(n.op_type)
+    assert by_rows[True] == {"MatMulInteger"} and by_rows.get(False, {"MatMul"}) == {"MatMul"}
     assert abs(q["accuracy_change"]) <= 0.05
     assert q["float_accuracy"] == pytest.approx(pipe.score(test_windows.X, test_windows.y))
 
