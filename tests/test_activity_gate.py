@@ -118,6 +118,28 @@ def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():
         assert np.isinf(sess.run(None, {"window": silent})[0][:, :n_aff]).all()
 
 
+def test_exported_gate_with_every_gwt_form_passes_zero_one_and_all_rows(tmp_path):
+    """2 kHz windows whose GWT uses all three exported forms (shared-basis low rank, polyphase
+    Conv, dense): the gated graph gives torch's scores with no active row, one, and all."""
+    from tactilesnn.pipeline import SpikePipeline
+    from tactilesnn.service.runtime import PipelineSession
+
+    cfg = PipelineConfig.from_flat(model="readout", channels=("all",), f_lo_hz=5.0,
+                                   f_hi_hz=800.0, gwt_hop=10, gate=0.5)  # fmt: skip
+    pipe = SpikePipeline(cfg, 2000.0, 1000, ("t0", "t1", "t2"), ("a", "b"))
+    X = np.random.default_rng(0).standard_normal((8, 3, 1000)).astype(np.float32)
+    pipe.calibrate(X)
+    graph = pipe.encoder.onnx_module().inner.inner  # gate -> spike slot -> scalogram graph
+    assert set(graph.kinds) == {"low_rank", "conv", "dense"} and graph.basis_rank > 0
+    export_pipeline(pipe, tmp_path / "m.onnx", X)
+    sess = PipelineSession(str(tmp_path / "m.onnx"), threads=1)
+    one = X[:3].copy()
+    one[:, 1:] = 1e-6
+    for batch in (np.full_like(X[:3], 1e-6), one, X[:3]):
+        want = pipe.scores(pipe.encode(batch)).numpy()
+        np.testing.assert_allclose(sess.run(batch), want, atol=1e-4)
+
+
 def test_a_stateful_snn_stream_counts_gated_channels_but_never_skips_windows(tmp_path):
     """An SNN carries its state from window to window, so no window is answered from the
     silent cache; the graph still encodes only the active taxels, and the stream's scores are
