@@ -108,8 +108,9 @@ def li_closed(cur: Tensor, v0: Tensor, beta: float, decay: Tensor) -> Tensor:
     final state is its last step). One matrix product instead of ``T`` steps; equal to the scan
     up to float rounding (the terms are summed in another order).
     """
-    steps = cur.shape[0]
-    out = torch.matmul(decay, cur.reshape(steps, -1)).reshape(cur.shape)
+    steps, units = cur.shape[0], cur.shape[-1]
+    # constant shapes ([T, -1, H]): no run-time size arithmetic in the exported graph
+    out = torch.matmul(decay, cur.reshape(steps, -1)).reshape(steps, -1, units)
     # beta^(t+1) v0 = L[t, 0] (beta v0): the membrane left of v0 one step later, scaled
     return out + decay[:, :1].unsqueeze(-1) * li_step(v0, torch.zeros_like(v0), beta)
 
@@ -190,7 +191,11 @@ def prefix_max(x: Tensor) -> Tensor:
     """Running maximum over the leading (time) axis: ``out[t] = max(x[0..t])``.
 
     Hillis-Steele doubling, ``ceil(log2 T)`` elementwise maxima, because ONNX has no running
-    maximum (a max is exact, so this equals ``torch.cummax`` bit for bit)."""
+    maximum (a max is exact, so this equals ``torch.cummax`` bit for bit). A masked maximum
+    over a ``[T, T]`` grid (3 nodes instead of ~5 per doubling) measured no faster in
+    onnxruntime on 100 steps of 2 classes (228 vs 214 us for the whole SNN graph), and its
+    ``Where`` / short-span ``Add`` broadcasts were slower still (299 / 115 us for the grid).
+    """
     k = 1
     while k < x.shape[0]:
         x = torch.cat([x[:k], torch.maximum(x[k:], x[:-k])], 0)
