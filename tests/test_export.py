@@ -199,3 +199,15 @@ def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, test_windows,
     assert "Loop" not in ops
     assert ops.count("LSTM") == (2 if readout == "count" else 1)
     assert rep["max_score_diff"] <= 1e-4 and rep["prediction_agreement"] == 1.0
+
+
+def test_export_refuses_an_empty_verification_batch(tmp_path):
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
+    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    X = np.random.default_rng(0).standard_normal((4, 2, 100)).astype(np.float32)
+    pipe.calibrate(X)
+    with pytest.raises(ValueError, match="no window"):
+        export_pipeline(pipe, tmp_path / "m.onnx", X[:0])
+    assert not (tmp_path / "m.onnx").exists()

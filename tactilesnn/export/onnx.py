@@ -112,6 +112,8 @@ def export_pipeline(
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
     if out.exists() and not out.is_file():
         raise FileExistsError(f"{out} exists and is not a file")
+    if len(X_check) == 0:
+        raise ValueError("X_check holds no window: the export is verified against torch on it")
     enc, mod = build_parts(pipe)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     meta = {

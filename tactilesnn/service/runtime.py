@@ -211,6 +211,8 @@ class PipelineSession:
     ) -> Detail:
         """:meth:`run`, plus (``detail``) the encoder's spike times when the session exposes
         them (``expose_spikes``) and the model's early decision when it makes one."""
+        if len(x) == 0:  # onnxruntime's LSTM (the SNN) aborts the whole process on zero rows
+            raise InputError("empty batch: no windows to classify")
         feeds = {"window": x}
         names = list(self.state_units)
         for name, units in self.state_units.items():

@@ -10,7 +10,7 @@ import torch
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
-from tactilesnn.service.runtime import PipelineSession, StreamState
+from tactilesnn.service.runtime import InputError, PipelineSession, StreamState
 from tactilesnn.training import fit_and_evaluate
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
@@ -103,6 +103,9 @@ def test_the_exported_snn_decides_early_as_torch_does_and_streams_it(tasks, tmp_
     assert len(got) == 6 and all(r["early_class"] in pipe.class_names for r in got)
     assert all(0 < r["decision_ms"] <= pipe.duration_ms for r in got)
     assert sess.info()["stats"]["stream_early_decisions"] == 6
+    # an empty batch is refused before onnxruntime, whose LSTM would abort the process
+    with pytest.raises(InputError, match="empty batch"):
+        sess.run(x[:0])
 
 
 def test_grid_crossings_agree_with_a_fine_bisection():
