@@ -211,3 +211,25 @@ def test_export_refuses_an_empty_verification_batch(tmp_path):
     with pytest.raises(ValueError, match="no window"):
         export_pipeline(pipe, tmp_path / "m.onnx", X[:0])
     assert not (tmp_path / "m.onnx").exists()
+
+
+def test_session_runs_batches_over_its_budget_in_slices_with_the_same_results(tmp_path):
+    """One call when the batch fits the memory budget, slices joined when it does not: same
+    scores and SNN state either way."""
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
+    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    X = np.random.default_rng(0).standard_normal((10, 2, 100)).astype(np.float32)
+    pipe.calibrate(X)
+    export_pipeline(pipe, tmp_path / "m.onnx", X)
+    sess = PipelineSession(str(tmp_path / "m.onnx"))
+    assert sess.batch >= len(X)
+    sliced, whole = StreamState(), StreamState()
+    ref = sess.run(X, whole)
+    sess.batch = 3  # 4 slices
+    got = sess.run(X, sliced)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-5)  # GEMM blocking may round apart
+    assert whole.values and set(sliced.values) == set(whole.values)
+    for k, v in whole.values.items():
+        np.testing.assert_allclose(sliced.values[k], v, rtol=0, atol=1e-5)

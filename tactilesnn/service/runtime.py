@@ -67,7 +67,9 @@ def run_batched(
     """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated;
     with ``desc`` a progress bar of that name (over two slices or more)."""
     n = len(next(iter(feeds.values())))
-    starts = range(0, max(n, 1), batch)  # an empty batch still runs once (empty answer)
+    if n <= batch:  # one slice: no views to pass, no copies to join (16 us of a 0.27 ms call)
+        return sess.run(outputs, feeds)
+    starts = range(0, n, batch)
     if desc is not None and len(starts) > 1:
         from tqdm.auto import tqdm  # not needed by the service itself
 
