@@ -321,7 +321,8 @@ def compare_spike_times(
 
 
 def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = False) -> dict:
-    """Dynamic int8 quantisation of the MatMul weights (Conv and LSTM stay float32); reports the
+    """Dynamic int8 quantisation of the window-side MatMul weights (the products after them, the
+    Convs and the LSTM stay float32); reports the
     accuracy change on (X, y)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
@@ -331,9 +332,10 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     out = path.with_name(path.stem + ".int8.onnx")
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-    # only the MatMul weights. The SNN's LSTM node is the exact LIF recurrence
-    # (models.functional.lif_lstm_parameters), which quantised gate weights would no longer be.
-    # The scalogram's strided Convs stay float32: onnxruntime's ConvInteger is 2.3x slower than
+    # only the window-side MatMul weights (see _not_window_side). The SNN's LSTM node is the
+    # exact LIF recurrence (models.functional.lif_lstm_parameters), which quantised gate weights
+    # would no longer be.
+    # The scalogram's Convs stay float32: onnxruntime's ConvInteger is 2.3x slower than
     # its float Conv there (0.56 vs 0.24 ms, 12 taxels, hop 10) and errs by 1 % of the peak,
     # while DynamicQuantizeMatMul is 2.7x faster than the float MatMul (0.19 vs 0.50 ms)
     # written beside the target, then renamed (atomic); the quantiser's per-tensor INFO lines
