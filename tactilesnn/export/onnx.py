@@ -322,8 +322,7 @@ def compare_spike_times(
 
 def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = False) -> dict:
     """Dynamic int8 quantisation of the window-side MatMul weights (the products after them, the
-    Convs and the LSTM stay float32); reports the
-    accuracy change on (X, y)."""
+    Convs and the LSTM stay float32); reports the accuracy change on (X, y)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
     from ..service.runtime import PipelineSession
