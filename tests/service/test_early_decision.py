@@ -54,16 +54,19 @@ def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
     assert stats["stream_early_differs"] == int((cls[:10].numpy() != full).sum())
     assert stats["stream_early_mean_decision_ms"] == pytest.approx(float(t[:10].mean()), abs=1e-3)
 
-    # plain classification asks onnxruntime for the scores alone (so it skips the decision
-    # nodes) and gets the same scores
+    # plain classification runs the graph pruned to the scores (onnxruntime would run the
+    # decision nodes for any output asked) and gets the same scores
+    plain = sess.plain_session
+    assert plain is not sess.session
+    assert [o.name for o in plain.get_outputs()] == ["scores"]
     asked = []
-    real_run = sess.session.run
+    real_run = plain.run
 
     def spy(names, feeds):
         asked.append(list(names))
         return real_run(names, feeds)
 
-    sess.session.run = spy
+    sess.plain_session.run = spy
     np.testing.assert_array_equal(sess.run(x), out.scores)
     assert asked == [["scores"]]
 
@@ -73,6 +76,7 @@ def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     assert "early_class_agreement" not in report
     sess = PipelineSession(str(tmp_path / "r.onnx"))
     assert not sess.decides_early and "stream_early_decisions" not in sess.info()["stats"]
+    assert sess.plain_session is sess.session  # nothing to prune
     out = sess.run_detail(test.X[:4])
     assert out.early_class is None and out.decision_ms is None
     got = sess.feed_stream(StreamState(), np.concatenate(list(test.X[:2]), axis=1))
@@ -103,6 +107,21 @@ def test_the_exported_snn_decides_early_as_torch_does_and_streams_it(tasks, tmp_
     assert len(got) == 6 and all(r["early_class"] in pipe.class_names for r in got)
     assert all(0 < r["decision_ms"] <= pipe.duration_ms for r in got)
     assert sess.info()["stats"]["stream_early_decisions"] == 6
+    # plain classification: the pruned graph, same scores and carried state as the full one
+    import onnx
+
+    from tactilesnn.service.runtime import pruned_graph
+
+    full_graph = onnx.load(str(tmp_path / "s.onnx")).graph
+    pruned = onnx.load_from_string(pruned_graph(str(tmp_path / "s.onnx"), sess.plain_outputs))
+    assert len(pruned.graph.node) < len(full_graph.node)
+    assert not {"early_class", "decision_ms"} & {o for n in pruned.graph.node for o in n.output}
+    st_plain, st_full = StreamState(), StreamState()
+    for _ in range(2):  # the second call starts from the carried state
+        np.testing.assert_array_equal(sess.run(x, st_plain), sess.run_detail(x, st_full).scores)
+    assert st_full.values and st_plain.values.keys() == st_full.values.keys()
+    for k, v in st_full.values.items():
+        np.testing.assert_array_equal(st_plain.values[k], v)
     # an empty batch is refused before onnxruntime, whose LSTM would abort the process
     with pytest.raises(InputError, match="empty batch"):
         sess.run(x[:0])
@@ -139,3 +158,15 @@ def test_grid_crossings_agree_with_a_fine_bisection():
         up = v >= m.theta + m.v_rest
         hi, lo = torch.where(up, mid, hi), torch.where(up, lo, mid)
     np.testing.assert_allclose(got[fin].numpy(), hi[fin].numpy(), atol=200 * 64.0**-3)
+
+
+def test_without_the_onnx_package_plain_classification_runs_the_full_graph(
+    tasks, tmp_path, monkeypatch
+):
+    import sys
+
+    _, test, _ = _export(tasks, "tempotron", tmp_path / "t.onnx")
+    monkeypatch.setitem(sys.modules, "onnx", None)  # import onnx raises ImportError
+    sess = PipelineSession(str(tmp_path / "t.onnx"))
+    assert sess.decides_early and sess.plain_session is sess.session
+    np.testing.assert_array_equal(sess.run(test.X[:8]), sess.run_detail(test.X[:8]).scores)
