@@ -108,10 +108,7 @@ def pruned_graph(path: str, outputs: list[str]) -> bytes | None:
     for node in reversed(model.graph.node):
         if any(o in needed for o in node.output):
             kept.append(node)
-            needed.update(i for i in node.input if i)
-            for attr in node.attribute:  # a subgraph's body reads names of the outer graph
-                for g in [attr.g] if attr.HasField("g") else list(attr.graphs):
-                    needed.update(i for n in g.node for i in n.input if i)
+            needed.update(_names_read(node))
     if len(kept) == len(model.graph.node):
         return None
     graph = model.graph
@@ -125,6 +122,18 @@ def pruned_graph(path: str, outputs: list[str]) -> bytes | None:
     del graph.initializer[:]
     graph.initializer.extend(inits)
     return model.SerializeToString()
+
+
+def _names_read(node) -> set[str]:
+    """The value names ``node`` reads: its inputs and, for a node with subgraphs (``Loop``,
+    ``If``, ``Scan``), every name their nodes read, at any depth (a body may read the outer
+    graph's values)."""
+    names = {i for i in node.input if i}
+    for attr in node.attribute:
+        for g in [attr.g] if attr.HasField("g") else list(attr.graphs):
+            for inner in g.node:
+                names |= _names_read(inner)
+    return names
 
 
 def _optional_json(meta: dict[str, str], key: str):

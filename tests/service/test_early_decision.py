@@ -3,6 +3,8 @@ when, as the torch model does; the stream reports it per window and counts it in
 
 from __future__ import annotations
 
+import tempfile
+
 import numpy as np
 import pytest
 import torch
@@ -170,3 +172,46 @@ def test_without_the_onnx_package_plain_classification_runs_the_full_graph(
     sess = PipelineSession(str(tmp_path / "t.onnx"))
     assert sess.decides_early and sess.plain_session is sess.session
     np.testing.assert_array_equal(sess.run(test.X[:8]), sess.run_detail(test.X[:8]).scores)
+
+
+def test_pruning_keeps_the_outer_values_a_loop_body_reads():
+    """A ``Loop`` whose body reads an outer-graph value keeps that value's producer; the node
+    that feeds only the dropped output goes; the pruned graph runs and gives the same answer."""
+    import onnx
+    import onnxruntime as ort
+    from onnx import TensorProto, helper
+
+    from tactilesnn.service.runtime import pruned_graph
+
+    f = TensorProto.FLOAT
+    body = helper.make_graph(
+        [helper.make_node("Identity", ["cond_in"], ["cond_out"]),
+         helper.make_node("Add", ["acc_in", "step"], ["acc_out"])],  # "step": the outer value
+        "body",
+        [helper.make_tensor_value_info("i", TensorProto.INT64, []),
+         helper.make_tensor_value_info("cond_in", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("acc_in", f, [2])],
+        [helper.make_tensor_value_info("cond_out", TensorProto.BOOL, []),
+         helper.make_tensor_value_info("acc_out", f, [2])],
+    )  # fmt: skip
+    trips = helper.make_tensor("trips", TensorProto.INT64, [], [3])
+    yes = helper.make_tensor("yes", TensorProto.BOOL, [], [True])
+    graph = helper.make_graph(
+        [helper.make_node("Mul", ["x", "x"], ["step"]),
+         helper.make_node("Loop", ["trips", "yes", "x"], ["scores"], body=body),
+         helper.make_node("Neg", ["x"], ["early_class"])],
+        "g", [helper.make_tensor_value_info("x", f, [2])],
+        [helper.make_tensor_value_info("scores", f, [2]),
+         helper.make_tensor_value_info("early_class", f, [2])],
+        [trips, yes],
+    )  # fmt: skip
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    with tempfile.TemporaryDirectory() as d:
+        path = f"{d}/m.onnx"
+        onnx.save(model, path)
+        pruned = onnx.load_from_string(pruned_graph(path, ["scores"]))
+    assert [n.op_type for n in pruned.graph.node] == ["Mul", "Loop"]
+    assert [o.name for o in pruned.graph.output] == ["scores"]
+    x = np.array([1.0, 2.0], np.float32)
+    got = ort.InferenceSession(pruned.SerializeToString()).run(None, {"x": x})[0]
+    np.testing.assert_array_equal(got, x + 3 * x * x)
