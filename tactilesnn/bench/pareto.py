@@ -7,8 +7,10 @@ and onnxruntime dynamic int8. For each (configuration, precision):
 
 * test error with its 95 % interval (Wilson-free normal interval on the test windows);
 * compute per second of signal: one window every ``window / 2`` samples (the service's stream
-  hop), measured with 1 thread at batch 1 (latency) and batch 64 (throughput), median of
-  ``repeats``; the real-time factor is 1 s divided by that;
+  hop), measured with 1 thread at batch 1 (latency) and batch 64 (throughput): every
+  configuration is trained and exported first, then all are timed in 3 interleaved rounds of
+  ``repeats`` calls (median of the round medians, :func:`time_rows`); the real-time factor is
+  1 s divided by that;
 * the encoder's error against its float64 run (max spike-time difference in ms where both spike,
   and the number of slots that spike in one only);
 * model size (ONNX bytes; torch parameter bytes for the torch rows).
@@ -101,33 +103,31 @@ def encoder_error(s32: torch.Tensor, s64: torch.Tensor) -> tuple[float, int]:
     return dt, int((np.isfinite(t32) != np.isfinite(t64)).sum())
 
 
-def _cost_ms_per_s(seconds_per_window: float, pipe: SpikePipeline) -> float:
-    """Compute (ms) per second of signal when a window is classified every half window."""
-    windows_per_s = pipe.fs_hz / max(1, pipe.window // 2)
-    return 1000.0 * seconds_per_window * windows_per_s
+#: a row of :func:`prepare_point` with the calls to time: ``(row, {"t1": call on 1 window,
+#: "t64": call on up to 64 windows, "n64": that batch's size} or None)``
+Prepared = tuple[dict, dict | None]
 
 
-def measure_point(pipe: SpikePipeline, test, repeats: int, tmp: Path) -> list[dict]:
-    """The precision rows of one trained pipeline (see the module docstring); its graphs are
-    written into the empty folder ``tmp``."""
+def prepare_point(pipe: SpikePipeline, test, tmp: Path) -> list[Prepared]:
+    """The precision rows of one trained pipeline (see the module docstring), untimed, each with
+    the calls :func:`time_rows` times; its graphs are written into the empty folder ``tmp``."""
     from ..export import export_pipeline, quantize_int8
     from ..service.runtime import PipelineSession
 
     X, y = test.X, test.y
     x1, x64 = X[:1], X[: min(64, len(X))]
-    rows = []
-    torch.set_num_threads(1)
+    out: list[Prepared] = []
     spikes = pipe.encode(X)
     pred = pipe.scores(spikes).argmax(1).numpy()
-    t1 = _median_s(lambda: pipe.scores(pipe.encode(x1)), repeats)
-    t64 = _median_s(lambda: pipe.scores(pipe.encode(x64)), repeats) / len(x64)
     params = sum(v.size * v.itemsize for v in pipe.weights().values())
     s64 = encode_float64(pipe, X)
     enc_dt, enc_flips = encoder_error(spikes, s64)
-    rows.append(_row("torch float32", pred, y, t1, t64, pipe, params, enc_dt, enc_flips))
+    calls = {"t1": lambda: pipe.scores(pipe.encode(x1)),
+             "t64": lambda: pipe.scores(pipe.encode(x64)), "n64": len(x64)}  # fmt: skip
+    out.append((_row("torch float32", pred, y, pipe, params, enc_dt, enc_flips), calls))
     # the float64 encoder the float32 code is judged against, same model: is the rounding costly?
     pred64 = pipe.scores(s64.float()).argmax(1).numpy()
-    rows.append(_row("torch, float64 encoder", pred64, y, None, None, pipe, params, 0.0, 0))
+    out.append((_row("torch, float64 encoder", pred64, y, pipe, params, 0.0, 0), None))
     # onnxruntime float32 and int8 (1 intra-op thread)
     path = tmp / "m.onnx"
     export_pipeline(pipe, path, X[: min(256, len(X))])
@@ -136,27 +136,56 @@ def measure_point(pipe: SpikePipeline, test, repeats: int, tmp: Path) -> list[di
             file = Path(quantize_int8(path, X[:64], y[:64])["path"])
         sess = PipelineSession(str(file), threads=1)
         got = sess.run(sess.validate(X)).argmax(1)
-        o1 = _median_s(lambda s=sess: s.run(x1), repeats)
-        o64 = _median_s(lambda s=sess: s.run(x64), repeats) / len(x64)
-        rows.append(_row(name, got, y, o1, o64, pipe, file.stat().st_size, enc_dt, enc_flips))
+        calls = {"t1": lambda s=sess: s.run(x1), "t64": lambda s=sess: s.run(x64),
+                 "n64": len(x64)}  # fmt: skip
+        row = _row(name, got, y, pipe, file.stat().st_size, enc_dt, enc_flips)
+        out.append((row, calls))
+    return out
+
+
+def time_rows(prepared: list[Prepared], repeats: int, rounds: int = 3) -> list[dict]:
+    """Time every prepared row with 1 thread: ``rounds`` rounds over all rows (each a median of
+    ``repeats`` calls at batch 1 and at batch 64), the figure the median over rounds, so a
+    burst of load on a noisy machine hits every configuration alike instead of one; fills the
+    cost fields of each row and returns the rows."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        timed = [(r, c, [], []) for r, c in prepared if c is not None]
+        for _ in range(rounds):
+            for _unused, calls, t1s, t64s in timed:
+                t1s.append(_median_s(calls["t1"], repeats))
+                t64s.append(_median_s(calls["t64"], repeats) / calls["n64"])
+    finally:
+        torch.set_num_threads(threads)
+    for row, _, t1s, t64s in timed:
+        t1, t64 = statistics.median(t1s), statistics.median(t64s)
+        cost1 = 1000.0 * t1 * row["windows_per_s"]
+        row.update(ms_per_window_batch1=1000 * t1, ms_per_window_batch64=1000 * t64,
+                   ms_per_signal_s_batch1=cost1,
+                   ms_per_signal_s_batch64=1000.0 * t64 * row["windows_per_s"],
+                   realtime_factor_batch1=1000.0 / cost1)  # fmt: skip
+    rows = [r for r, _ in prepared]
+    for r in rows:
+        r.pop("windows_per_s")
     return rows
 
 
-def _row(precision, pred, y, t1, t64, pipe, size, enc_dt, enc_flips) -> dict:
+def _row(precision, pred, y, pipe, size, enc_dt, enc_flips) -> dict:
     acc = float((np.asarray(pred) == np.asarray(y)).mean())
-    cost1 = _cost_ms_per_s(t1, pipe) if t1 is not None else None
     return {
         "precision": precision,
         "test_error": 1.0 - acc,
         "test_error_ci95": accuracy_ci95(acc, len(y)),
-        "ms_per_window_batch1": None if t1 is None else 1000 * t1,
-        "ms_per_window_batch64": None if t64 is None else 1000 * t64,
-        "ms_per_signal_s_batch1": cost1,
-        "ms_per_signal_s_batch64": _cost_ms_per_s(t64, pipe) if t64 is not None else None,
-        "realtime_factor_batch1": None if cost1 is None else 1000.0 / cost1,
+        "ms_per_window_batch1": None,
+        "ms_per_window_batch64": None,
+        "ms_per_signal_s_batch1": None,
+        "ms_per_signal_s_batch64": None,
+        "realtime_factor_batch1": None,
         "encoder_max_time_err_ms": enc_dt,
         "encoder_flipped_slots": enc_flips,
         "size_bytes": int(size),
+        "windows_per_s": pipe.fs_hz / max(1, pipe.window // 2),  # one every half window
     }
 
 
@@ -251,7 +280,7 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
         points = QUICK if quick else FULL
         kw = QUICK_TASK if quick and task == "hook_loop" else {}
         train, test = get_task(task, **kw).build()
-        rows: list[dict] = []
+        prepared: list[Prepared] = []
         threads = torch.get_num_threads()
         with tempfile.TemporaryDirectory() as tmp:
             for p in tqdm(points, desc="bench pareto", unit="config", disable=not progress):
@@ -260,10 +289,11 @@ def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 
                 if task != "hook_loop":
                     flat.setdefault("channels", ("all",))
                 res = fit_and_evaluate(PipelineConfig.from_flat(**flat), train, test)
-                folder = Path(tmp) / f"p{len(rows)}"
+                folder = Path(tmp) / f"p{len(prepared)}"
                 folder.mkdir()
-                for r in measure_point(res.pipeline, test, 3 if quick else repeats, folder):
-                    rows.append({"config": p.label, **r})
+                for r, calls in prepare_point(res.pipeline, test, folder):
+                    prepared.append(({"config": p.label, **r}, calls))
+            rows = time_rows(prepared, 3 if quick else repeats, rounds=1 if quick else 3)
             rt = realtime_rows(
                 RT_ROWS,
                 3 if quick else 4 * repeats,
