@@ -225,7 +225,7 @@ class FactoredGaborEncoder(nn.Module):
                 self.register_buffer("lr_coef", torch.from_numpy(basis[1]).float().contiguous())
         for gi, v in enumerate(lr_second):
             self.register_buffer(f"lr_v{gi}", torch.from_numpy(v).float().contiguous())
-        # convolution bands, grouped into at most three kernel lengths
+        # convolution bands, in at most MAX_CONV_GROUPS kernel lengths (one: see there)
         conv = sorted((b for b in range(f_total) if kind[b] == "conv"), key=lambda b: taps[b])
         self.conv_half: list[int] = []
         for gi, group in enumerate(_split_by_length(conv, taps, self.MAX_CONV_GROUPS)):
