@@ -104,8 +104,32 @@ def encoder_error(s32: torch.Tensor, s64: torch.Tensor) -> tuple[float, int]:
     return dt, int((np.isfinite(t32) != np.isfinite(t64)).sum())
 
 
+def _windows_per_s(pipe: SpikePipeline) -> float:
+    """Windows classified per second of signal: one every half window (the stream's hop)."""
+    return pipe.fs_hz / max(1, pipe.window // 2)
+
+
+def _cost_ms_per_s(seconds_per_window: float, windows_per_s: float) -> float:
+    """Compute (ms) per second of signal."""
+    return 1000.0 * seconds_per_window * windows_per_s
+
+
+def _interleaved_medians(
+    calls: list[Callable[[], object]], repeats: int, rounds: int
+) -> list[float]:
+    """Each call's time (s): ``rounds`` rounds over all calls, each a median of ``repeats``
+    calls, then the median over rounds, so a burst of load on a noisy machine falls on every
+    call alike instead of on one."""
+    times: list[list[float]] = [[] for _ in calls]
+    for _ in range(rounds):
+        for call, ts in zip(calls, times, strict=True):
+            ts.append(_median_s(call, repeats))
+    return [statistics.median(ts) for ts in times]
+
+
 #: a row of :func:`prepare_point` with the calls to time: ``(row, {"t1": call on 1 window,
-#: "t64": call on up to 64 windows, "n64": that batch's size} or None)``
+#: "t64": call on up to 64 windows, "n64": that batch's size, "windows_per_s": windows per
+#: second of signal} or None)``
 Prepared = tuple[dict, dict | None]
 
 
@@ -124,11 +148,12 @@ def prepare_point(pipe: SpikePipeline, test, tmp: Path) -> list[Prepared]:
     s64 = encode_float64(pipe, X)
     enc_dt, enc_flips = encoder_error(spikes, s64)
     calls = {"t1": lambda: pipe.scores(pipe.encode(x1)),
-             "t64": lambda: pipe.scores(pipe.encode(x64)), "n64": len(x64)}  # fmt: skip
-    out.append((_row("torch float32", pred, y, pipe, params, enc_dt, enc_flips), calls))
+             "t64": lambda: pipe.scores(pipe.encode(x64)), "n64": len(x64),
+             "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
+    out.append((_row("torch float32", pred, y, params, enc_dt, enc_flips), calls))
     # the float64 encoder the float32 code is judged against, same model: is the rounding costly?
     pred64 = pipe.scores(s64.float()).argmax(1).numpy()
-    out.append((_row("torch, float64 encoder", pred64, y, pipe, params, 0.0, 0), None))
+    out.append((_row("torch, float64 encoder", pred64, y, params, 0.0, 0), None))
     # onnxruntime float32 and int8 (1 intra-op thread)
     path = tmp / "m.onnx"
     export_pipeline(pipe, path, X[: min(256, len(X))])
@@ -143,41 +168,34 @@ def prepare_point(pipe: SpikePipeline, test, tmp: Path) -> list[Prepared]:
         del full
         sess = PipelineSession(str(file), threads=1)
         calls = {"t1": lambda s=sess: s.run(x1), "t64": lambda s=sess: s.run(x64),
-                 "n64": len(x64)}  # fmt: skip
-        row = _row(name, got, y, pipe, file.stat().st_size, enc_dt, enc_flips)
+                 "n64": len(x64), "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
+        row = _row(name, got, y, file.stat().st_size, enc_dt, enc_flips)
         out.append((row, calls))
     return out
 
 
 def time_rows(prepared: list[Prepared], repeats: int, rounds: int = 3) -> list[dict]:
-    """Time every prepared row with 1 thread: ``rounds`` rounds over all rows (each a median of
-    ``repeats`` calls at batch 1 and at batch 64), the figure the median over rounds, so a
-    burst of load on a noisy machine hits every configuration alike instead of one; fills the
-    cost fields of each row and returns the rows."""
+    """Time every prepared row with 1 thread at batch 1 and at batch 64, all rows interleaved
+    (:func:`_interleaved_medians`); fills the cost fields of each row and returns the rows."""
+    timed = [(r, c) for r, c in prepared if c is not None]
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        timed = [(r, c, [], []) for r, c in prepared if c is not None]
-        for _ in range(rounds):
-            for _unused, calls, t1s, t64s in timed:
-                t1s.append(_median_s(calls["t1"], repeats))
-                t64s.append(_median_s(calls["t64"], repeats) / calls["n64"])
+        secs = _interleaved_medians([c[k] for _, c in timed for k in ("t1", "t64")], repeats,
+                                    rounds)  # fmt: skip
     finally:
         torch.set_num_threads(threads)
-    for row, _, t1s, t64s in timed:
-        t1, t64 = statistics.median(t1s), statistics.median(t64s)
-        cost1 = 1000.0 * t1 * row["windows_per_s"]
+    for (row, calls), t1, t64n in zip(timed, secs[0::2], secs[1::2], strict=True):
+        t64 = t64n / calls["n64"]
+        cost1 = _cost_ms_per_s(t1, calls["windows_per_s"])
         row.update(ms_per_window_batch1=1000 * t1, ms_per_window_batch64=1000 * t64,
                    ms_per_signal_s_batch1=cost1,
-                   ms_per_signal_s_batch64=1000.0 * t64 * row["windows_per_s"],
+                   ms_per_signal_s_batch64=_cost_ms_per_s(t64, calls["windows_per_s"]),
                    realtime_factor_batch1=1000.0 / cost1)  # fmt: skip
-    rows = [r for r, _ in prepared]
-    for r in rows:
-        r.pop("windows_per_s")
-    return rows
+    return [r for r, _ in prepared]
 
 
-def _row(precision, pred, y, pipe, size, enc_dt, enc_flips) -> dict:
+def _row(precision, pred, y, size, enc_dt, enc_flips) -> dict:
     acc = float((np.asarray(pred) == np.asarray(y)).mean())
     return {
         "precision": precision,
@@ -191,7 +209,6 @@ def _row(precision, pred, y, pipe, size, enc_dt, enc_flips) -> dict:
         "encoder_max_time_err_ms": enc_dt,
         "encoder_flipped_slots": enc_flips,
         "size_bytes": int(size),
-        "windows_per_s": pipe.fs_hz / max(1, pipe.window // 2),  # one every half window
     }
 
 
@@ -244,25 +261,26 @@ def realtime_session(
         x[:, touched:] *= 0.01
     info = {"window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
             "precision": "int8" if int8 else "float32", "snn_hidden": snn[0],
-            "snn_dt_ms": snn[1], "windows_per_s": pipe.fs_hz / max(1, pipe.window // 2)}  # fmt: skip
+            "snn_dt_ms": snn[1], "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
     return (lambda: sess.run(x)), info
 
 
-def realtime_rows(rows, repeats: int, tmp: Path, window: int = 1000, rounds: int = 5) -> list[dict]:
+def realtime_rows(
+    rows: tuple[tuple[int, int | None, bool, tuple[int, float]], ...],
+    repeats: int,
+    tmp: Path,
+    window: int = 1000,
+    rounds: int = 5,
+) -> list[dict]:
     """The real-time factor of each row of :data:`RT_ROWS` (``(hop, touched, int8, snn)``):
-    every row's session is built first, then timed in ``rounds`` interleaved rounds of
-    ``repeats`` calls; the figure is the median over rounds of each round's median, so a burst
-    of load on a noisy machine falls on every row alike instead of on one."""
-    calls = [realtime_session(tmp, window, hop=h, touched=k, int8=q, snn=n)
+    every row's session is built first, then all are timed interleaved
+    (:func:`_interleaved_medians`)."""
+    built = [realtime_session(tmp, window, hop=h, touched=k, int8=q, snn=n)
              for h, k, q, n in rows]  # fmt: skip
-    times: list[list[float]] = [[] for _ in calls]
-    for _ in range(rounds):
-        for i, (call, _) in enumerate(calls):
-            times[i].append(_median_s(call, repeats))
+    secs = _interleaved_medians([call for call, _ in built], repeats, rounds)
     out = []
-    for (_, info), ts in zip(calls, times, strict=True):
-        t = statistics.median(ts)
-        cost = 1000.0 * t * info.pop("windows_per_s")
+    for (_, info), t in zip(built, secs, strict=True):
+        cost = _cost_ms_per_s(t, info.pop("windows_per_s"))
         out.append({**info, "ms_per_window": 1000 * t, "ms_per_signal_s": cost,
                     "realtime_factor": 1000.0 / cost})  # fmt: skip
     return out

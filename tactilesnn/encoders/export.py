@@ -110,7 +110,7 @@ class FactoredGaborEncoder(nn.Module):
 
     * low rank (low bands, whose response spans few FFT bins): ``x @ U_b`` then ``@ Vh_b``
       (:meth:`~.gwt.GaborScalogram.band_factors`, rank ~ the band's time-bandwidth product);
-    * a short strided FIR convolution (high bands; at most three kernel lengths);
+    * a short FIR convolution, strided by the hop (high bands; one Conv in polyphase form);
     * a dense matrix (what is left, e.g. a band whose Nyquist roll-off gives it a long kernel).
 
     The low-rank bands' window-side factors ``U_b`` lie in one small subspace (the signals
@@ -143,6 +143,9 @@ class FactoredGaborEncoder(nn.Module):
     #: onnxruntime's one-input-channel strided Conv does ~4x fewer multiply-adds per second
     #: than its MatMul (measured: 11 vs 44 G/s on 1,000-sample windows, 1 thread)
     CONV_PENALTY = 4.0
+    #: the one-product form of the low-rank bands is used up to this many times the two-product
+    #: form's multiply-adds (it saves ~20 graph nodes per group: ~1 us each in onnxruntime)
+    DIRECT_RATIO = 1.5
 
     def __init__(
         self, scalogram: nn.Module, code: LatencyCode, window: int, budget_bytes: int = 64 << 20
@@ -223,6 +226,7 @@ class FactoredGaborEncoder(nn.Module):
                 lr_second = [np.concatenate(maps, axis=1).reshape(self.basis_rank, -1)]
             else:
                 self.register_buffer("lr_coef", torch.from_numpy(basis[1]).float().contiguous())
+        self.n_second = len(lr_second)
         for gi, v in enumerate(lr_second):
             self.register_buffer(f"lr_v{gi}", torch.from_numpy(v).float().contiguous())
         # convolution bands, in at most MAX_CONV_GROUPS kernel lengths (one: see there)
@@ -254,17 +258,13 @@ class FactoredGaborEncoder(nn.Module):
         self.register_buffer("perm", torch.from_numpy(perm).long())
         self.order = order
 
-    #: the one-product form of the low-rank bands is used up to this many times the two-product
-    #: form's multiply-adds (it saves ~20 graph nodes per group: ~1 us each in onnxruntime)
-    DIRECT_RATIO = 1.5
-
     def macs_per_channel(self) -> int:
         """Multiply-adds of the linear part per channel (what the choice of forms minimised)."""
         fr = self.frames
         total = self.first.numel()
         if self.basis_rank and not self.lr_direct:
             total += self.lr_coef.numel()
-        for gi in range(len(self.lr_sizes) if not self.lr_direct else 1):
+        for gi in range(self.n_second):
             total += getattr(self, f"lr_v{gi}").numel()
         for gi, half in enumerate(self.conv_half):
             total += getattr(self, f"conv{gi}").shape[0] * fr * (2 * half + 1)  # nonzero taps
