@@ -10,6 +10,8 @@ import onnx
 import torch
 from torch import nn
 
+from .shapes import fold_static_shapes
+
 OPSET = 17
 
 
@@ -24,7 +26,8 @@ def torch_to_onnx(
 ) -> onnx.ModelProto:
     """Export ``module`` (scripted first if ``scripted``: time loops become ONNX ``Loop``s) with
     a dynamic batch axis on every input and output; returns the graph as written to ``path``,
-    its run-time-sized reshapes made literal (:func:`literal_zero_reshapes`)."""
+    its static sizes folded into constants (:func:`~.shapes.fold_static_shapes`) and the
+    reshapes still sized at run time made literal (:func:`literal_zero_reshapes`)."""
     if scripted:
         module = torch.jit.script(module)
     with warnings.catch_warnings():
@@ -40,7 +43,7 @@ def torch_to_onnx(
             dynamo=False,
         )
     model = onnx.load(str(path))
-    if literal_zero_reshapes(model):
+    if fold_static_shapes(model) + literal_zero_reshapes(model):
         onnx.save(model, str(path))
     return model
 
