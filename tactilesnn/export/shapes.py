@@ -21,6 +21,8 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from ..onnx_prune import prune_to_outputs
+
 #: fixpoint rounds: each makes more shapes static for the next inference
 MAX_ROUNDS = 4
 
@@ -56,7 +58,7 @@ def fold_static_shapes(model: onnx.ModelProto) -> int:
                     consts[name] = target
                     node.input[1] = name
                     changed += 1
-        _drop_dead_nodes(model.graph)
+        prune_to_outputs(model.graph)  # drop what nothing reads any more
         total += changed
         if not changed:
             break
@@ -217,30 +219,3 @@ def _make_constant(node: onnx.NodeProto, value: np.ndarray) -> None:
     node.op_type, node.domain = "Constant", ""
     node.output.append(out)
     node.attribute.append(helper.make_attribute("value", numpy_helper.from_array(value)))
-
-
-def _drop_dead_nodes(graph: onnx.GraphProto) -> None:
-    """Remove nodes none of whose outputs is read (by a node, a subgraph or the graph)."""
-    needed = {o.name for o in graph.output}
-    kept: list[onnx.NodeProto] = []
-    for node in reversed(graph.node):
-        if any(o in needed for o in node.output if o):
-            kept.append(node)
-            needed.update(_reads(node))
-    if len(kept) == len(graph.node):
-        return
-    kept.reverse()
-    del graph.node[:]
-    graph.node.extend(kept)
-    inits = [i for i in graph.initializer if i.name in needed]
-    del graph.initializer[:]
-    graph.initializer.extend(inits)
-
-
-def _reads(node: onnx.NodeProto) -> set[str]:
-    names = set(node.input)
-    for a in node.attribute:
-        for g in [a.g] if a.HasField("g") else list(a.graphs):
-            for n in g.node:
-                names |= _reads(n)
-    return names

@@ -8,6 +8,7 @@ errors, runs the graph and returns class names, indices and scores. SNN graphs c
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -99,41 +100,27 @@ def pruned_graph(path: str, outputs: list[str]) -> bytes | None:
     onnxruntime runs every node of a graph whatever outputs a call asks for (measured: a graph
     whose second output costs 10 ms took 10 ms when only its cheap first output was asked for),
     so plain classification runs its own copy without the early decision's nodes."""
+    found = _plain_graph(path, outputs)
+    return None if found is None else found[1]
+
+
+def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str], bytes] | None:
+    """``(every output of the graph at path, the graph pruned to outputs)``, None when nothing
+    would be pruned or ``onnx`` is not installed. ``outputs`` defaults to the plain ones:
+    ``scores`` and each ``<state input>_out``."""
     try:
         import onnx  # optional here: plain inference needs onnxruntime alone
     except ImportError:
         return None
+    from ..onnx_prune import prune_to_outputs
+
     model = onnx.load(str(path))
-    needed, kept = set(outputs), []
-    for node in reversed(model.graph.node):
-        if any(o in needed for o in node.output):
-            kept.append(node)
-            needed.update(_names_read(node))
-    if len(kept) == len(model.graph.node):
+    every = [o.name for o in model.graph.output]
+    if outputs is None:
+        outputs = ["scores", *(f"{i.name}_out" for i in model.graph.input if i.name != "window")]
+    if not prune_to_outputs(model.graph, outputs):
         return None
-    graph = model.graph
-    nodes = list(reversed(kept))
-    del graph.node[:]
-    graph.node.extend(nodes)
-    outs = [o for o in graph.output if o.name in set(outputs)]
-    del graph.output[:]
-    graph.output.extend(outs)
-    inits = [i for i in graph.initializer if i.name in needed]
-    del graph.initializer[:]
-    graph.initializer.extend(inits)
-    return model.SerializeToString()
-
-
-def _names_read(node) -> set[str]:
-    """The value names ``node`` reads: its inputs and, for a node with subgraphs (``Loop``,
-    ``If``, ``Scan``), every name their nodes read, at any depth (a body may read the outer
-    graph's values)."""
-    names = {i for i in node.input if i}
-    for attr in node.attribute:
-        for g in [attr.g] if attr.HasField("g") else list(attr.graphs):
-            for inner in g.node:
-                names |= _names_read(inner)
-    return names
+    return every, model.SerializeToString()
 
 
 def _optional_json(meta: dict[str, str], key: str):
@@ -153,15 +140,26 @@ class PipelineSession:
             opts.intra_op_num_threads = threads
         if not Path(path).is_file():
             raise FileNotFoundError(f"model file {path} does not exist")
+        self._opts, self._full, self._lock = opts, None, threading.Lock()
         try:
-            source = _with_spikes_output(path) if expose_spikes else str(path)
-            self.session = ort.InferenceSession(source, opts, providers=["CPUExecutionProvider"])
+            self._source = _with_spikes_output(path) if expose_spikes else str(path)
+            # plain classification (scores and state only) runs a copy of the graph without
+            # the nodes only the early decision (or the exposed spikes) need, when there are
+            # such nodes; the whole graph is loaded when a call first asks for those
+            plain = None if expose_spikes else _plain_graph(path)
+            if plain is None:
+                self.plain_session = self.session
+                outs = {o.name for o in self.session.get_outputs()}
+            else:
+                outs = set(plain[0])
+                self.plain_session = ort.InferenceSession(
+                    plain[1], opts, providers=["CPUExecutionProvider"]
+                )
         except Exception as e:  # onnxruntime / protobuf raise their own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
-        outs = {o.name for o in self.session.get_outputs()}
         self.has_spikes = "spikes" in outs
         self.decides_early = set(EARLY_OUTPUTS) <= outs
-        meta = self.session.get_modelmeta().custom_metadata_map
+        meta = self.plain_session.get_modelmeta().custom_metadata_map
         try:
             self.fs_hz = float(meta["fs_hz"])
             self.window = int(meta["window_samples"])
@@ -173,7 +171,7 @@ class PipelineSession:
         # windows per onnxruntime call, so a large batch never needs more than the budget
         per_window = int(meta.get("bytes_per_window", "0") or 0)
         self.batch = max(1, self.RUN_BUDGET_BYTES // per_window) if per_window > 0 else 1 << 30
-        self.inputs = {i.name: i for i in self.session.get_inputs()}
+        self.inputs = {i.name: i for i in self.plain_session.get_inputs()}
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
         self.stateful = bool(self.state_units)
@@ -202,17 +200,18 @@ class PipelineSession:
         if self.decides_early:  # the first output neuron to fire vs the full-window answer
             self.stats.update(stream_early_decisions=0, stream_early_differs=0,
                               stream_early_mean_decision_ms=0.0)  # fmt: skip
-        # plain classification (scores and state only) runs a copy of the graph without the
-        # nodes only the early decision (or the exposed spikes) need, when there are such nodes
         self.plain_outputs = ["scores", *(f"{k}_out" for k in self.state_units)]
-        self.plain_session = self.session
-        plain = (
-            pruned_graph(path, self.plain_outputs) if len(outs) > len(self.plain_outputs) else None
-        )
-        if plain is not None:
-            self.plain_session = ort.InferenceSession(
-                plain, opts, providers=["CPUExecutionProvider"]
-            )
+
+    @property
+    def session(self) -> ort.InferenceSession:
+        """The whole graph (early decision, exposed spikes), loaded on first use: a service
+        that only classifies holds the pruned copy alone (one copy of the weights)."""
+        with self._lock:
+            if self._full is None:
+                self._full = ort.InferenceSession(
+                    self._source, self._opts, providers=["CPUExecutionProvider"]
+                )
+            return self._full
 
     def info(self) -> dict:
         return {

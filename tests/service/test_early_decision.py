@@ -72,6 +72,16 @@ def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
     np.testing.assert_array_equal(sess.run(x), out.scores)
     assert asked == [["scores"]]
 
+    # a session that only classifies holds the pruned graph alone (one copy of the weights);
+    # the whole graph is loaded by the first call that asks for the early decision
+    fresh = PipelineSession(str(tmp_path / "t.onnx"))
+    assert fresh.decides_early
+    np.testing.assert_array_equal(fresh.run(x), out.scores)
+    assert fresh._full is None
+    again = fresh.run_detail(x)
+    assert fresh._full is not None
+    np.testing.assert_array_equal(again.early_class, out.early_class)
+
 
 def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     _, test, report = _export(tasks, "readout", tmp_path / "r.onnx")
