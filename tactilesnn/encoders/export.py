@@ -275,8 +275,8 @@ class FactoredGaborEncoder(nn.Module):
 
         Every form yields ``[rows, its bands, (Re, Im), frames]``; the reshapes keep the row
         axis as ``-1`` (a constant shape in the exported graph, no run-time size arithmetic)."""
-        b, c, n = x.shape
-        fr = self.frames
+        b, c = x.shape[:2]
+        n, fr = self.window, self.frames  # static sizes: constants in the exported graph
         flat = x.reshape(-1, n)
         parts = torch.split(flat @ self.first, self.first_cols, dim=1) if self.first_cols else ()
         z: list[Tensor] = []
@@ -296,10 +296,18 @@ class FactoredGaborEncoder(nn.Module):
             if self.pad:
                 mode = "reflect" if self.reflect else "constant"
                 padded = nn.functional.pad(padded, (self.pad, self.pad), mode=mode)
+            length = self.window + 2 * self.pad
             for gi, half in enumerate(self.conv_half):
-                seg = padded[..., self.pad - half : self.pad + n + half]
-                out = polyphase_conv(seg, getattr(self, f"conv{gi}"), fr)
-                z.append(out.reshape(-1, out.shape[1] // 2, 2, fr))
+                weight = getattr(self, f"conv{gi}")
+                # the samples the polyphase Conv reads, in one slice: from half before the window
+                # on; past half after it they meet zero taps only (padded with zeros if short)
+                start = self.pad - half
+                stop = start + (fr + weight.shape[-1] - 1) * self.hop
+                seg = padded[..., start : min(stop, length)]
+                if stop > length:
+                    seg = nn.functional.pad(seg, (0, stop - length))
+                out = polyphase_conv(seg, weight, fr)
+                z.append(out.reshape(-1, weight.shape[0] // 2, 2, fr))
         if self.n_dense:
             z.append(parts[-1].reshape(-1, self.n_dense, 2, fr))
         zz = torch.cat(z, 1) if len(z) > 1 else z[0]
@@ -338,7 +346,7 @@ def polyphase_conv(seg: Tensor, weight: Tensor, frames: int) -> Tensor:
     length = seg.shape[-1]
     if blocks * hop > length:  # the extra samples meet zero taps only
         seg = nn.functional.pad(seg, (0, blocks * hop - length))
-    else:
+    elif blocks * hop < length:
         seg = seg[..., : blocks * hop]
     phases = seg.reshape(seg.shape[0], blocks, hop).transpose(1, 2)  # [N, hop, blocks]
     return nn.functional.conv1d(phases, weight)

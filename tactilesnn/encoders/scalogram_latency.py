@@ -337,7 +337,9 @@ def unit_peak(x: Tensor) -> Tensor:
     (1e-30 farads and 1e30 pascals alike; the squared modulus would overflow above ~1e19).
     """
     peak = x.abs().amax(-1, keepdim=True)
-    return x / torch.where(peak > 0, peak, torch.ones_like(peak))
+    # an all-zero row stays zero (0 / tiny); a row whose peak is subnormal is scaled by
+    # 1 / tiny instead of 1 / peak (the code is scale-free): one Clip instead of a where
+    return x / peak.clamp_min(torch.finfo(x.dtype).tiny)
 
 
 @register_encoder("stft", STFTConfig)

@@ -57,7 +57,8 @@ class PipelineEncoderGraph(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         s = self.encoder(torch.index_select(x, 1, self.channel_idx))
         if self.with_clock:
-            s = torch.cat([s, self.clock.unsqueeze(0).expand(s.shape[0], -1, -1)], dim=1)
+            n, k = self.clock.shape  # sizes spelled out: expand(-1) traces to 5 more nodes
+            s = torch.cat([s, self.clock.unsqueeze(0).expand(s.shape[0], n, k)], dim=1)
         return s
 
 

@@ -111,8 +111,8 @@ def li_closed(cur: Tensor, v0: Tensor, beta: float, decay: Tensor) -> Tensor:
     steps, units = cur.shape[0], cur.shape[-1]
     # constant shapes ([T, -1, H]): no run-time size arithmetic in the exported graph
     out = torch.matmul(decay, cur.reshape(steps, -1)).reshape(steps, -1, units)
-    # beta^(t+1) v0 = L[t, 0] (beta v0): the membrane left of v0 one step later, scaled
-    return out + decay[:, :1].unsqueeze(-1) * li_step(v0, torch.zeros_like(v0), beta)
+    # beta^(t+1) v0 = (beta L[t, 0]) v0: v0 one step later (li_step with no input), decayed
+    return out + (beta * decay[:, :1]).unsqueeze(-1) * v0
 
 
 #: an LSTM gate held fully open: sigmoid(30) rounds to exactly 1.0 in float32

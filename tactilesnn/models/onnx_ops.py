@@ -78,6 +78,8 @@ class LIFAsLSTM(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, cur, u0, s0, w_rec, w, r, b, beta: float, theta: float, subtract: bool):  # type: ignore[override]
+        if s0 is None:  # no spike before the first step (a feed-forward layer's state is u alone)
+            s0 = torch.zeros_like(u0)
         if w_rec.shape[0] == cur.shape[-1]:
             return lif_rec_scan(cur, u0, s0, w_rec, beta, theta, subtract)
         spikes, u = lif_scan(cur, u0, beta, theta, subtract)
@@ -92,7 +94,12 @@ class LIFAsLSTM(torch.autograd.Function):
         axis0 = _const(g, [0])
         # c holds the membrane before reset: after a spike that is u + theta (subtract); with a
         # reset to zero, u0 is already the post-reset value and the forget gate handles s0
-        c0 = g.op("Add", u0, g.op("Mul", s0, _const(g, float(theta)))) if subtract else u0
+        # s0 None: h_0 omitted (the LSTM's default is zeros) and c_0 = u0
+        if s0 is None:
+            c0, h0 = u0, unused(g)
+        else:
+            c0 = g.op("Add", u0, g.op("Mul", s0, _const(g, float(theta)))) if subtract else u0
+            h0 = g.op("Unsqueeze", s0, axis0)
         y, yh, yc = g.op(
             "LSTM",
             cur,
@@ -100,7 +107,7 @@ class LIFAsLSTM(torch.autograd.Function):
             r,
             b,
             unused(g),
-            g.op("Unsqueeze", s0, axis0),
+            h0,
             g.op("Unsqueeze", c0, axis0),
             hidden_size_i=hidden,
             activations_s=attrs["activations"],

@@ -487,7 +487,9 @@ class _SNNGraph(nn.Module):
         self.duration_ms = float(model.duration_ms)
         self.register_buffer("early_margin", model.early_margin.detach().clone())
 
-    def hidden_layer(self, spikes: Tensor, h: Tensor, hs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def hidden_layer(
+        self, spikes: Tensor, h: Tensor, hs: Tensor | None
+    ) -> tuple[Tensor, Tensor, Tensor]:
         cur = RasterCurrent.apply(
             spikes, self.fc1.weight, self.fc1.bias, self.updates, self.dt, self.steps
         )
@@ -498,7 +500,7 @@ class _SNNGraph(nn.Module):
         cur = self.fc2(hid)
         if self.spiking_out:
             no_rec = self.w_rec[:0, :0]  # an empty W_rec: a feed-forward layer
-            out, o_new, _ = self.lstm2(cur, o, torch.zeros_like(o), no_rec)
+            out, o_new, _ = self.lstm2(cur, o, None, no_rec)
         else:
             out = li_closed(cur, o, self.beta2, self.decay)
             o_new = out[-1]
@@ -511,7 +513,7 @@ class _SNNGraph(nn.Module):
 
     def forward(self, spikes: Tensor, h: Tensor, o: Tensor):
         """-> ``(scores, h_state, o_state, early class, decision_ms)``."""
-        hid, h_new, _ = self.hidden_layer(spikes, h, torch.zeros_like(h))
+        hid, h_new, _ = self.hidden_layer(spikes, h, None)
         scores, o_new, cls, t_ms = self.readout_scan(hid, o)
         return scores, h_new, o_new, cls, t_ms
 
@@ -538,12 +540,14 @@ class _LSTMWeights(nn.Module):
             self.register_buffer(name, value)
         self.beta, self.theta, self.subtract = beta, theta, subtract
 
-    def forward(self, cur: Tensor, u0: Tensor, s0: Tensor, w_rec: Tensor):
+    def forward(self, cur: Tensor, u0: Tensor, s0: Tensor | None, w_rec: Tensor):
+        """``s0`` None: no spike before the first step (a feed-forward layer's state is ``u``)."""
         g = self.rows
         if g > 1:
             t, b, width = cur.shape[0], u0.shape[0], self.hidden // g
             cur = cur.reshape(t, b * g, width)
-            u0, s0 = u0.reshape(b * g, width), s0.reshape(b * g, width)
+            u0 = u0.reshape(b * g, width)
+            s0 = None if s0 is None else s0.reshape(b * g, width)
         spikes, u, s = LIFAsLSTM.apply(
             cur, u0, s0, w_rec, self.W, self.R, self.B, self.beta, self.theta, self.subtract
         )
