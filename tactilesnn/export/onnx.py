@@ -49,16 +49,25 @@ class PipelineEncoderGraph(nn.Module):
     def __init__(self, pipe: SpikePipeline) -> None:
         super().__init__()
         self.register_buffer("channel_idx", torch.as_tensor(pipe.channel_idx, dtype=torch.long))
+        # every channel of the window, in order: no selection node (a copy of the window)
+        self.select = list(pipe.channel_idx) != list(range(len(pipe.channel_names)))
         self.encoder = pipe.encoder.onnx_module()
         clock = clock_times(pipe.n_clock, pipe.max_spikes, pipe.duration_ms)
         self.register_buffer("clock", clock)
         self.with_clock = pipe.n_clock > 0
+        self.clock_like_slice = pipe.encoder.n_afferents >= pipe.n_clock
 
     def forward(self, x: Tensor) -> Tensor:
-        s = self.encoder(torch.index_select(x, 1, self.channel_idx))
+        s = self.encoder(torch.index_select(x, 1, self.channel_idx) if self.select else x)
         if self.with_clock:
-            n, k = self.clock.shape  # sizes spelled out: expand(-1) traces to 5 more nodes
-            s = torch.cat([s, self.clock.unsqueeze(0).expand(s.shape[0], n, k)], dim=1)
+            # expand_as a slice of the same size: one Expand (expand(b, -1, -1) traces to 8 nodes)
+            n, k = self.clock.shape
+            clock = self.clock.unsqueeze(0)
+            if self.clock_like_slice:
+                clock = clock.expand_as(s[:, :n])
+            else:
+                clock = clock.expand(s.shape[0], n, k)
+            s = torch.cat([s, clock], dim=1)
         return s
 
 

@@ -46,15 +46,18 @@ class RasterCurrent(torch.autograd.Function):
         t = int(steps)
         ak, h = updates.type().sizes()
         q = g.op("Floor", g.op("Div", spikes, _const(g, float(dt_ms))))
-        # the spike_raster convention: a spike at exactly the window end is in the last step
-        q = g.op("Where", g.op("Equal", q, _const(g, float(t))), _const(g, float(t - 1)), q)
-        ok = g.op(
-            "And", g.op("GreaterOrEqual", q, _const(g, 0.0)), g.op("Less", q, _const(g, float(t)))
-        )
-        q = g.op("Where", ok, q, _const(g, float(t)))  # silent / outside: a discarded row t
-        step = g.op("Reshape", g.op("Cast", q, to_i=_I64), _const(g, [-1, ak, 1]))
+        # step -> scatter row by a table (one Gather instead of five elementwise nodes on every
+        # spike slot): steps 0..T-1 stay, T (a spike at exactly the window end) is the last
+        # step (the spike_raster convention), below 0 and above T (silent: inf) the discarded
+        # row T; the clip maps those to -1 and T + 1, the table's last entry, and so does the
+        # where a NaN (dropped, as in torch)
+        table = torch.cat([torch.arange(t), torch.tensor([t - 1, t])])
+        q = g.op("Clip", q, _const(g, -1.0), _const(g, float(t + 1)))
+        q = g.op("Where", g.op("IsNaN", q), _const(g, -1.0), q)
+        q = g.op("Cast", q, to_i=_I64)
+        step = g.op("Reshape", g.op("Gather", _const(g, table), q), _const(g, [-1, ak, 1]))
         ones = g.op("ConstantOfShape", g.op("Shape", step), value_t=torch.ones(1, dtype=torch.long))
-        sample = g.op("Sub", g.op("CumSum", ones, _const(g, 0)), _const(g, 1))
+        sample = g.op("CumSum", ones, _const(g, 0), exclusive_i=1)  # 0, 1, ... per window
         index = g.op("Concat", sample, step, axis_i=2)  # [B, A k, 2]: (window, step)
         batch = g.op("Shape", spikes, start_i=0, end_i=1)
         upd = g.op("Expand", updates, g.op("Concat", batch, _const(g, [ak, h]), axis_i=0))
