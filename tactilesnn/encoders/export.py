@@ -190,6 +190,7 @@ class FactoredGaborEncoder(nn.Module):
         rank = np.array([factors[b][0].shape[1] if b in factors else 0 for b in range(f_total)])
         self.lr_sizes: list[tuple[int, int]] = []
         for group in _split_by_length(lr, rank, self.MAX_GROUPS):
+            group = sorted(group)  # band order within a group: often no permutation at the end
             r_max = int(max(rank[b] for b in group))
             u1 = np.zeros((n, len(group), 2, r_max))
             # rows (a, b) = (Re, Im) of x U against [[Vr, Vi], [-Vi, Vr]]:
@@ -233,6 +234,7 @@ class FactoredGaborEncoder(nn.Module):
         conv = sorted((b for b in range(f_total) if kind[b] == "conv"), key=lambda b: taps[b])
         self.conv_half: list[int] = []
         for gi, group in enumerate(_split_by_length(conv, taps, self.MAX_CONV_GROUPS)):
+            group = sorted(group)
             half = int(max(taps[b] for b in group))
             centre = (kernels.shape[1] - 1) // 2
             k = kernels[group, centre - half : centre + half + 1]
