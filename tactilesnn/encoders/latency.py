@@ -60,8 +60,8 @@ class LatencyCode:
         self.reference = check_positive(reference, "reference")
         self.eps = float(eps)
 
-    def amplitudes(self, scalogram: torch.Tensor) -> torch.Tensor:
-        """Normalised amplitudes ``[batch, channels, stats, bands]`` in [0, 1]."""
+    def amplitudes(self, scalogram: torch.Tensor, lowest: float = 0.0) -> torch.Tensor:
+        """Normalised amplitudes ``[batch, channels, stats, bands]`` in [lowest, 1]."""
         if scalogram.ndim != 4:
             raise ValueError(
                 "expected a scalogram [batch, channels, bands, frames], "
@@ -86,21 +86,24 @@ class LatencyCode:
             amp = torch.where(peak > self.eps, amp / peak.clamp_min(self.eps), 0.0)
         else:
             amp = amp / self.reference
-        return amp.clamp(0.0, 1.0)
+        return amp.clamp(lowest, 1.0)
 
     def __call__(self, scalogram: torch.Tensor) -> torch.Tensor:
         """Scalogram ``[B, C, F, T]`` -> spike times ``[B, C*S*F]`` in ms (``inf`` = no spike)."""
-        a = self.amplitudes(scalogram)
         if self.mapping == "log":
             # t = duration * dB below the peak / dynamic range, one product of ln a; beyond the
             # range (t > duration) silent, which includes a = 0 (clamped to 1e-30: 600 dB) unless
             # the range is wider than that
             scale = -20.0 / np.log(10.0) * self.duration_ms / self.dynamic_range_db
-            t = scale * torch.log(a.clamp_min(1e-30))
-            silent = t > self.duration_ms
-            if self.dynamic_range_db >= 600.0:
-                silent = silent | (a <= 0)
+            if self.dynamic_range_db < 600.0:
+                t = scale * torch.log(self.amplitudes(scalogram, lowest=1e-30))
+                silent = t > self.duration_ms
+            else:
+                a = self.amplitudes(scalogram)
+                t = scale * torch.log(a.clamp_min(1e-30))
+                silent = (t > self.duration_ms) | (a <= 0)
         else:
+            a = self.amplitudes(scalogram)
             t = self.duration_ms * (1.0 - a)
             silent = a < max(self.floor, 1e-30)
         t = torch.where(silent, float("inf"), t).flatten(1)

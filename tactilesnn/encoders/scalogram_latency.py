@@ -368,12 +368,13 @@ class _GateMask(nn.Module):
         self.register_buffer("gate_rms", gate_rms.clone().float())
 
     def forward(self, x: Tensor) -> Tensor:
-        b, c, n = x.shape
+        c, n = x.shape[1:]
         active = (x.std(-1, unbiased=False) > self.gate_rms).reshape(-1)  # [B * C]
         rows = torch.nonzero(active).reshape(-1)
-        t = self.inner(x.reshape(-1, 1, n).index_select(0, rows))  # [rows, per, 1]
-        out = torch.full((b * c, self.per, 1), math.inf, dtype=t.dtype)
-        return out.index_put((rows,), t).reshape(b, c * self.per, 1)
+        flat = x.reshape(-1, 1, n)
+        t = self.inner(flat.index_select(0, rows))  # [rows, per, 1]
+        out = torch.full((flat.shape[0], self.per, 1), math.inf, dtype=t.dtype)
+        return out.index_put((rows,), t).reshape(-1, c * self.per, 1)
 
 
 class _BandScatter(nn.Module):
