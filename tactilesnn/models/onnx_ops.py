@@ -58,17 +58,18 @@ class RasterCurrent(torch.autograd.Function):
         step = g.op("Reshape", g.op("Gather", _const(g, table), q), _const(g, [-1, ak, 1]))
         ones = g.op("ConstantOfShape", g.op("Shape", step), value_t=torch.ones(1, dtype=torch.long))
         sample = g.op("CumSum", ones, _const(g, 0), exclusive_i=1)  # 0, 1, ... per window
-        index = g.op("Concat", sample, step, axis_i=2)  # [B, A k, 2]: (window, step)
+        # scattered time-major, [T + 1, B, H], so no transpose follows
+        index = g.op("Concat", step, sample, axis_i=2)  # [B, A k, 2]: (step, window)
         batch = g.op("Shape", spikes, start_i=0, end_i=1)
         upd = g.op("Expand", updates, g.op("Concat", batch, _const(g, [ak, h]), axis_i=0))
         zeros = g.op(
             "ConstantOfShape",
-            g.op("Concat", batch, _const(g, [t + 1, h]), axis_i=0),
+            g.op("Concat", _const(g, [t + 1]), batch, _const(g, [h]), axis_i=0),
             value_t=torch.zeros(1),
         )
-        cur = g.op("ScatterND", zeros, index, upd, reduction_s="add")  # [B, T + 1, H]
-        cur = g.op("Slice", cur, _const(g, [0]), _const(g, [t]), _const(g, [1]))
-        return g.op("Add", g.op("Transpose", cur, perm_i=[1, 0, 2]), bias)
+        cur = g.op("ScatterND", zeros, index, upd, reduction_s="add")  # [T + 1, B, H]
+        cur = g.op("Slice", cur, _const(g, [0]), _const(g, [t]), _const(g, [0]))
+        return g.op("Add", cur, bias)
 
 
 class LIFAsLSTM(torch.autograd.Function):
