@@ -233,3 +233,25 @@ def test_session_runs_batches_over_its_budget_in_slices_with_the_same_results(tm
     assert whole.values and set(sliced.values) == set(whole.values)
     for k, v in whole.values.items():
         np.testing.assert_allclose(sliced.values[k], v, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize(("channels", "bands"), [(("b",), 2), (("a", "b"), 20)])
+def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, bands):
+    """A channel subset (a selection node) with fewer encoder afferents than clock afferents
+    (the clock expanded by size), and every channel in order (no selection node, the clock
+    expanded like a slice of the spikes): the graph's scores equal torch's."""
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(channels=channels, n_bands=bands, stats=("mean",),
+                                   clock_afferents=5)  # fmt: skip
+    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    assert (pipe.encoder.n_afferents < pipe.n_clock) == (len(channels) == 1)
+    X = np.random.default_rng(1).standard_normal((6, 2, 100)).astype(np.float32)
+    pipe.calibrate(X)
+    export_pipeline(pipe, tmp_path / "m.onnx", X)
+    gathers = [n for n in onnx.load(str(tmp_path / "m.onnx")).graph.node
+               if n.op_type == "Gather" and "window" in n.input]  # fmt: skip
+    assert len(gathers) == (len(channels) == 1)
+    got = PipelineSession(str(tmp_path / "m.onnx")).run(X)
+    ref = pipe.scores(pipe.encode(X)).numpy()
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-4)
