@@ -127,7 +127,7 @@ class GWTConfig(ScalogramLatencySettings):
     """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code; the statistics are taken
     over the scalogram's frames, one every ``hop`` samples (exact decimation; 1 = every sample).
     The exported graph's scalogram matrices shrink by ``hop`` (``bench pareto``, GWT + SNN on
-    1,000-sample windows of 12 taxels: 5.5 ms per window at hop 1, 0.71 ms at hop 10); the torch
+    1,000-sample windows of 12 taxels: 5.2 ms per window at hop 1, 0.58 ms at hop 10); the torch
     training path still transforms at full rate and decimates."""
 
     hop: int = 1
