@@ -6,7 +6,8 @@ each such chain runs on every call (~0.35 us a node on one thread; the gated GWT
 ~130 of them). With ONNX shape inference (symbolic batch, value propagation):
 
 * ``Shape``, and ``Gather`` / ``Slice`` of a ``Shape``, that select static axes only become
-  constants (onnxruntime then folds what is computed from them);
+  constants, and so do small nodes whose inputs are all constant (evaluated by
+  ``onnx.reference``): the size arithmetic between a static size and the node using it;
 * a ``Reshape`` whose output has at most one non-static axis gets a constant target, ``-1``
   on that axis (the same result: the element count fixes it; every static axis is > 0, so
   ``-1`` is never ambiguous, also for zero rows);
@@ -156,11 +157,8 @@ def _folded_shape_value(
             sel = _slice_1d(dims, [consts.get(i) if i else None for i in node.input[1:]])
     else:
         return None
-    if sel is None:
-        return None
-    if isinstance(sel, list):
-        return np.asarray(sel, dtype=np.int64) if all(d is not None for d in sel) else None
-    return np.asarray(sel, dtype=np.int64) if sel is not None else None
+    known = sel is not None and all(d is not None for d in np.atleast_1d(np.asarray(sel, object)))
+    return np.asarray(sel, dtype=np.int64) if known else None
 
 
 def _slice_1d(dims: list[int | None], args: list[np.ndarray | None]) -> list[int | None] | None:
@@ -171,6 +169,8 @@ def _slice_1d(dims: list[int | None], args: list[np.ndarray | None]) -> list[int
     if starts is None or ends is None or starts.size != 1 or ends.size != 1:
         return None
     step = 1 if steps is None else int(steps.reshape(-1)[0])
+    if step < 1:  # ONNX clamps reversed slices differently from Python: left to run
+        return None
     end = int(ends.reshape(-1)[0])
     end = min(end, len(dims)) if end >= 0 else end
     return dims[int(starts.reshape(-1)[0]) : end : step]
