@@ -294,12 +294,13 @@ class PipelineSession:
         """Zero streaming state for ``batch`` windows, kept for the last batch size (read-only:
         onnxruntime only reads its inputs; a call on one window is ~0.25 ms, two fresh arrays
         and their lists ~2 us of it)."""
-        if self._zeros is None or self._zeros[0] != batch:
+        cached = self._zeros  # read once: service threads may replace it meanwhile
+        if cached is None or cached[0] != batch:
             arrays = {k: np.zeros((batch, u), np.float32) for k, u in self.state_units.items()}
             for a in arrays.values():
                 a.flags.writeable = False
-            self._zeros = (batch, arrays)
-        return self._zeros[1]
+            cached = self._zeros = (batch, arrays)
+        return cached[1]
 
     def classify(self, x: object, fs_hz: float | None = None) -> dict:
         arr = self.validate(x, fs_hz)
