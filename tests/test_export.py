@@ -255,3 +255,27 @@ def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, 
     got = PipelineSession(str(tmp_path / "m.onnx")).run(X)
     ref = pipe.scores(pipe.encode(X)).numpy()
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-4)
+
+
+def test_session_zero_state_is_kept_per_batch_size_and_never_written(tmp_path):
+    """Stateless calls on a stateful graph start from zeros: the arrays are reused while the
+    batch size stays, rebuilt when it changes, and read-only (onnxruntime only reads them)."""
+    from tactilesnn.pipeline import SpikePipeline
+
+    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
+    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    X = np.random.default_rng(2).standard_normal((4, 2, 100)).astype(np.float32)
+    pipe.calibrate(X)
+    export_pipeline(pipe, tmp_path / "m.onnx", X)
+    sess = PipelineSession(str(tmp_path / "m.onnx"))
+    three = sess.run(X[:3])
+    kept = sess._zeros
+    np.testing.assert_array_equal(sess.run(X[:3]), three)
+    assert sess._zeros is kept  # same batch size: the same arrays
+    one = sess.run(X[:1])
+    assert sess._zeros[0] == 1 and sess._zeros is not kept
+    np.testing.assert_allclose(one, three[:1], rtol=0, atol=1e-5)
+    ref = pipe.scores(pipe.encode(X[:3])).numpy()
+    np.testing.assert_allclose(three, ref, rtol=0, atol=1e-4)
+    for a in sess._zeros[1].values():
+        assert not a.flags.writeable and not a.any()
