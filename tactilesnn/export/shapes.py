@@ -79,7 +79,10 @@ def _static_dims(graph: onnx.GraphProto) -> dict[str, list[int | None]]:
 
 
 def _constants(graph: onnx.GraphProto) -> dict[str, np.ndarray]:
-    out = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    """Initializers (not those also listed as graph inputs: a caller may override them) and
+    ``Constant`` nodes' values, by name."""
+    inputs = {i.name for i in graph.input}
+    out = {i.name: numpy_helper.to_array(i) for i in graph.initializer if i.name not in inputs}
     for node in graph.node:
         if node.op_type == "Constant":
             for a in node.attribute:

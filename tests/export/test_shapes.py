@@ -107,3 +107,27 @@ def test_sizes_from_an_unknown_op_are_left_to_run_time():
     before = model.SerializeToString()
     assert fold_static_shapes(model) == 0
     assert model.SerializeToString() == before
+
+
+def test_an_initializer_a_caller_may_override_is_not_folded():
+    """An initializer also listed as a graph input is a default, not a constant."""
+    nodes = [
+        helper.make_node("Mul", ["k", "two"], ["k2"]),
+        helper.make_node("Add", ["x", "k2"], ["y"]),
+    ]
+    graph = helper.make_graph(
+        nodes, "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [2]),
+         helper.make_tensor_value_info("k", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
+        [helper.make_tensor("k", TensorProto.FLOAT, [1], [1.0]),
+         helper.make_tensor("two", TensorProto.FLOAT, [1], [2.0])],
+    )  # fmt: skip
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    fold_static_shapes(model)
+    assert any(n.op_type == "Mul" for n in model.graph.node)
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    x = np.zeros(2, np.float32)
+    np.testing.assert_array_equal(
+        sess.run(None, {"x": x, "k": np.array([5.0], np.float32)})[0], 10.0
+    )
