@@ -7,7 +7,7 @@ def prune_to_outputs(graph, outputs: list[str] | None = None) -> int:
     """Keep only the nodes and initializers that ``outputs`` (default: the graph's own outputs)
     need, and only those graph outputs; ``graph`` is an ``onnx.GraphProto``, changed in place.
     Returns how many nodes were removed."""
-    wanted = [o.name for o in graph.output] if outputs is None else list(outputs)
+    wanted = {o.name for o in graph.output} if outputs is None else set(outputs)
     needed, kept = set(wanted), []
     for node in reversed(graph.node):
         if any(o in needed for o in node.output if o):
@@ -18,7 +18,7 @@ def prune_to_outputs(graph, outputs: list[str] | None = None) -> int:
         kept.reverse()
         del graph.node[:]
         graph.node.extend(kept)
-    outs = [o for o in graph.output if o.name in set(wanted)]
+    outs = [o for o in graph.output if o.name in wanted]
     if len(outs) != len(graph.output):
         del graph.output[:]
         graph.output.extend(outs)

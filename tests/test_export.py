@@ -10,10 +10,24 @@ from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
+from tactilesnn.pipeline import SpikePipeline
 from tactilesnn.service.runtime import PipelineSession, StreamState
 from tactilesnn.training import load_run, train_run
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+
+
+#: an untrained SNN on two channels of 100 samples at 200 Hz (calibrated, not fitted)
+SMALL_SNN = {"model": "snn", "channels": ("all",), "snn_hidden": 8}
+
+
+def _calibrated(cfg: PipelineConfig, windows: int, seed: int):
+    """An untrained pipeline on ``windows`` random 2 x 100 windows at 200 Hz, calibrated on
+    them -> ``(pipe, X)``."""
+    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    X = np.random.default_rng(seed).standard_normal((windows, 2, 100)).astype(np.float32)
+    pipe.calibrate(X)
+    return pipe, X
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +132,6 @@ def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path
     """A 2 kHz window whose high GWT bands are strided Convs: those stay float32 (onnxruntime's
     ConvInteger is slower and ~1 % of peak off); the MatMuls are quantised."""
     from tactilesnn.export import quantize_int8
-    from tactilesnn.pipeline import SpikePipeline
 
     cfg = PipelineConfig.from_flat(
         model="readout", channels=("all",), f_lo_hz=5.0, f_hi_hz=800.0, gwt_hop=10
@@ -202,12 +215,7 @@ def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, test_windows,
 
 
 def test_export_refuses_an_empty_verification_batch(tmp_path):
-    from tactilesnn.pipeline import SpikePipeline
-
-    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
-    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
-    X = np.random.default_rng(0).standard_normal((4, 2, 100)).astype(np.float32)
-    pipe.calibrate(X)
+    pipe, X = _calibrated(PipelineConfig.from_flat(**SMALL_SNN), 4, seed=0)
     with pytest.raises(ValueError, match="no window"):
         export_pipeline(pipe, tmp_path / "m.onnx", X[:0])
     assert not (tmp_path / "m.onnx").exists()
@@ -216,12 +224,7 @@ def test_export_refuses_an_empty_verification_batch(tmp_path):
 def test_session_runs_batches_over_its_budget_in_slices_with_the_same_results(tmp_path):
     """One call when the batch fits the memory budget, slices joined when it does not: same
     scores and SNN state either way."""
-    from tactilesnn.pipeline import SpikePipeline
-
-    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
-    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
-    X = np.random.default_rng(0).standard_normal((10, 2, 100)).astype(np.float32)
-    pipe.calibrate(X)
+    pipe, X = _calibrated(PipelineConfig.from_flat(**SMALL_SNN), 10, seed=0)
     export_pipeline(pipe, tmp_path / "m.onnx", X)
     sess = PipelineSession(str(tmp_path / "m.onnx"))
     assert sess.batch >= len(X)
@@ -240,14 +243,10 @@ def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, 
     """A channel subset (a selection node) with fewer encoder afferents than clock afferents
     (the clock expanded by size), and every channel in order (no selection node, the clock
     expanded like a slice of the spikes): the graph's scores equal torch's."""
-    from tactilesnn.pipeline import SpikePipeline
-
     cfg = PipelineConfig.from_flat(channels=channels, n_bands=bands, stats=("mean",),
                                    clock_afferents=5)  # fmt: skip
-    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
+    pipe, X = _calibrated(cfg, 6, seed=1)
     assert (pipe.encoder.n_afferents < pipe.n_clock) == (len(channels) == 1)
-    X = np.random.default_rng(1).standard_normal((6, 2, 100)).astype(np.float32)
-    pipe.calibrate(X)
     export_pipeline(pipe, tmp_path / "m.onnx", X)
     gathers = [n for n in onnx.load(str(tmp_path / "m.onnx")).graph.node
                if n.op_type == "Gather" and "window" in n.input]  # fmt: skip
@@ -260,12 +259,7 @@ def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, 
 def test_session_zero_state_is_kept_per_batch_size_and_never_written(tmp_path):
     """Stateless calls on a stateful graph start from zeros: the arrays are reused while the
     batch size stays, rebuilt when it changes, and read-only (onnxruntime only reads them)."""
-    from tactilesnn.pipeline import SpikePipeline
-
-    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), snn_hidden=8)
-    pipe = SpikePipeline(cfg, 200.0, 100, ("a", "b"), ("x", "y"))
-    X = np.random.default_rng(2).standard_normal((4, 2, 100)).astype(np.float32)
-    pipe.calibrate(X)
+    pipe, X = _calibrated(PipelineConfig.from_flat(**SMALL_SNN), 4, seed=2)
     export_pipeline(pipe, tmp_path / "m.onnx", X)
     sess = PipelineSession(str(tmp_path / "m.onnx"))
     three = sess.run(X[:3])

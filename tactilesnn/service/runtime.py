@@ -104,10 +104,15 @@ def pruned_graph(path: str, outputs: list[str]) -> bytes | None:
     return None if found is None else found[1]
 
 
+def _plain_outputs(state_inputs) -> list[str]:
+    """What plain classification asks for: ``scores`` and each state input's ``<name>_out``."""
+    return ["scores", *(f"{name}_out" for name in state_inputs)]
+
+
 def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str], bytes] | None:
     """``(every output of the graph at path, the graph pruned to outputs)``, None when nothing
-    would be pruned or ``onnx`` is not installed. ``outputs`` defaults to the plain ones:
-    ``scores`` and each ``<state input>_out``."""
+    would be pruned or ``onnx`` is not installed. ``outputs`` defaults to
+    :func:`_plain_outputs` of the graph's state inputs (every input but the window)."""
     try:
         import onnx  # optional here: plain inference needs onnxruntime alone
     except ImportError:
@@ -117,7 +122,7 @@ def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str]
     model = onnx.load(str(path))
     every = [o.name for o in model.graph.output]
     if outputs is None:
-        outputs = ["scores", *(f"{i.name}_out" for i in model.graph.input if i.name != "window")]
+        outputs = _plain_outputs(i.name for i in model.graph.input if i.name != "window")
     if not prune_to_outputs(model.graph, outputs):
         return None
     return every, model.SerializeToString()
@@ -200,7 +205,7 @@ class PipelineSession:
         if self.decides_early:  # the first output neuron to fire vs the full-window answer
             self.stats.update(stream_early_decisions=0, stream_early_differs=0,
                               stream_early_mean_decision_ms=0.0)  # fmt: skip
-        self.plain_outputs = ["scores", *(f"{k}_out" for k in self.state_units)]
+        self.plain_outputs = _plain_outputs(self.state_units)
         self._zeros: tuple[int, dict[str, np.ndarray]] | None = None
 
     @property
