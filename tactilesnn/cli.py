@@ -512,7 +512,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if not (args.stream_ttl_s > 0 and np.isfinite(args.stream_ttl_s)):
         raise ValueError(f"--stream-ttl-s must be a positive number, got {args.stream_ttl_s}")
     serve(args.model, host=args.host, port=args.port, threads=args.threads,
-          stream_ttl_s=args.stream_ttl_s)  # fmt: skip
+          stream_ttl_s=args.stream_ttl_s, allowed_hosts=args.allowed_hosts)  # fmt: skip
     return 0
 
 
@@ -724,6 +724,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
     p.add_argument("--stream-ttl-s", type=float, default=300.0,
                    help="drop a stream after this many seconds without a chunk")  # fmt: skip
+    p.add_argument("--allowed-hosts", nargs="+", default=[], metavar="NAME",
+                   help="extra host names browsers may use to reach the service (DNS-rebinding "
+                        "guard; loopback names are always allowed; '*' turns the check off)")  # fmt: skip
     p.set_defaults(func=cmd_serve)
 
     p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")

@@ -310,7 +310,9 @@ def client(tmp_path_factory):
     pipe, _ = load_run(run)
     test = HookLoopTask(**small).build()[1]
     export_pipeline(pipe, tmp / "m.onnx", test.X[:8])
-    with TestClient(create_app(str(tmp / "m.onnx"), max_body_bytes=100_000)) as c:
+    with TestClient(
+        create_app(str(tmp / "m.onnx"), max_body_bytes=100_000), base_url="http://127.0.0.1"
+    ) as c:
         yield c, test
 
 

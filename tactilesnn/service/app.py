@@ -27,16 +27,19 @@ import json
 import math
 import time
 from collections import OrderedDict
+from collections.abc import Iterable
 from contextlib import asynccontextmanager
 
 import numpy as np
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, JSONResponse, StreamingResponse
+from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingResponse
 from starlette.routing import Route
 
-from .live import LiveHub, page_html, window_event
+from .live import LiveHub, page_html, page_script_js, window_event
 from .runtime import InputError, PipelineSession, StreamState
+from .security import BrowserGuard, default_allowed_hosts
 
 MAX_BODY_BYTES = 8 << 20
 MAX_STREAMS = 256
@@ -119,14 +122,34 @@ async def _read_body(request: Request, limit: int) -> bytes:
     return bytes(body)
 
 
+NPY_TYPES = frozenset({"application/x-npy", "application/octet-stream"})
+MAX_STREAM_ID = 128
+
+
+def _media_type(ctype: str) -> str:
+    """``application/json; charset=utf-8`` -> ``application/json``."""
+    return ctype.split(";", 1)[0].strip().lower()
+
+
+def _check_stream_id(sid: str) -> str:
+    if len(sid) > MAX_STREAM_ID:
+        raise HTTPError(422, f"stream id longer than {MAX_STREAM_ID} characters")
+    if not sid.isprintable():
+        raise HTTPError(422, "stream id contains control characters")
+    return sid
+
+
 def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
-    if ctype.startswith("application/x-npy") or ctype.startswith("application/octet-stream"):
+    """Body -> (array-like, fs_hz or None). Only content types a browser cannot send across
+    sites without a CORS preflight are accepted (see :mod:`tactilesnn.service.security`)."""
+    media = _media_type(ctype)
+    if media in NPY_TYPES:
         try:
             arr = np.load(io.BytesIO(body), allow_pickle=False)
         except Exception as e:
             raise HTTPError(400, f"body is not a valid .npy array: {e}") from e
         return arr, None
-    if ctype.startswith("application/json") or not ctype:
+    if media == "application/json":
         try:
             doc = json.loads(body)
         except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -144,7 +167,12 @@ def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
         ):
             raise HTTPError(422, "fs_hz must be a finite number")
         return doc[keys[0]], fs
-    raise HTTPError(415, f"unsupported content type {ctype!r}; use application/json or .npy")
+    shown = repr(ctype[:100]) if ctype else "none"
+    raise HTTPError(
+        415,
+        f"unsupported content type {shown}; send Content-Type: application/json or "
+        "application/x-npy",
+    )
 
 
 def create_app(
@@ -154,10 +182,13 @@ def create_app(
     batch_window_ms: float = 2.0,
     max_streams: int = MAX_STREAMS,
     stream_ttl_s: float = STREAM_TTL_S,
+    allowed_hosts: Iterable[str] | None = None,
 ) -> Starlette:
     """The HTTP app. Streams idle for ``stream_ttl_s`` are dropped (so abandoned ids never lock
     new streams out); each stream is fed under its own lock, off the event loop, so a large
-    chunk on one stream does not hold up the others."""
+    chunk on one stream does not hold up the others. ``allowed_hosts``: the names a request's
+    ``Host`` may carry (default: the loopback names; see :mod:`tactilesnn.service.security`)."""
+    hosts = default_allowed_hosts("127.0.0.1") if allowed_hosts is None else set(allowed_hosts)
     session = PipelineSession(model_path, threads=threads, expose_spikes=True)
     batcher = MicroBatcher(session, batch_window_ms)
     hub = LiveHub()
@@ -191,7 +222,7 @@ def create_app(
         )
 
     async def stream(request: Request):
-        sid = request.path_params["sid"]
+        sid = _check_stream_id(request.path_params["sid"])
         if request.method == "DELETE":
             async with stream_lock:
                 existed = streams.pop(sid, None) is not None
@@ -232,6 +263,9 @@ def create_app(
 
     async def page(request: Request):
         return HTMLResponse(page_html())
+
+    async def page_script(request: Request):
+        return Response(page_script_js(), media_type="text/javascript; charset=utf-8")
 
     async def live(request: Request):
         queue = hub.subscribe()
@@ -280,10 +314,12 @@ def create_app(
             Route("/v1/model", model, methods=["GET"]),
             Route("/healthz", health, methods=["GET"]),
             Route("/", page, methods=["GET"]),
+            Route("/live.js", page_script, methods=["GET"]),
             Route("/v1/live", live, methods=["GET"]),
         ],
         exception_handlers={HTTPError: on_error, InputError: on_error, Exception: on_error},
         lifespan=lifespan,
+        middleware=[Middleware(BrowserGuard, allowed_hosts=hosts)],
     )
     app.state.session = session
     app.state.batcher = batcher
@@ -297,11 +333,16 @@ def serve(
     port: int = 8000,
     threads: int = 0,
     stream_ttl_s: float = STREAM_TTL_S,
+    allowed_hosts: Iterable[str] = (),
 ) -> None:
+    """Run the app on ``host:port``; browsers may reach it under the names
+    :func:`~tactilesnn.service.security.default_allowed_hosts` gives for ``host`` plus
+    ``allowed_hosts``."""
     import uvicorn
 
+    hosts = default_allowed_hosts(host) | set(allowed_hosts)
     uvicorn.run(
-        create_app(model_path, threads=threads, stream_ttl_s=stream_ttl_s),
+        create_app(model_path, threads=threads, stream_ttl_s=stream_ttl_s, allowed_hosts=hosts),
         host=host,
         port=port,
         log_level="info",

@@ -6,7 +6,8 @@ relative to ``signal_scale``), a
 display spectrogram (log magnitude of a Hann-windowed short-time FFT of the channels' sum,
 ``[bands, frames]``, computed here, not by the model's encoder), the spike raster the exported
 encoder produced (``[afferent, time ms]`` pairs, at most ``MAX_SPIKES``), and the class scores.
-``GET /`` serves ``live.html``: plain JavaScript drawing those on canvases, no build step.
+``GET /`` serves ``live.html`` and ``GET /live.js`` its script: plain JavaScript drawing those on
+canvases, no build step; every string of an event is inserted as text.
 
 A slow page never holds up classification: each subscriber has a bounded queue and the oldest
 event is dropped when it is full.
@@ -28,6 +29,11 @@ QUEUE_EVENTS = 32
 
 def page_html() -> str:
     return resources.files(__package__).joinpath("live.html").read_text(encoding="utf-8")
+
+
+def page_script_js() -> str:
+    """The page's script, a file of its own so the page's policy can forbid inline script."""
+    return resources.files(__package__).joinpath("live.js").read_text(encoding="utf-8")
 
 
 def spectrogram(x: np.ndarray, fs_hz: float, frame: int = 32) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ def served(tmp_path_factory):
     test = HookLoopTask(**SMALL).build()[1]
     export_pipeline(pipe, tmp / "m.onnx", test.X[:32])
     app = create_app(str(tmp / "m.onnx"), max_body_bytes=200_000)
-    with TestClient(app) as client:
+    with TestClient(app, base_url="http://127.0.0.1") as client:
         yield client, pipe, test
 
 
@@ -123,7 +123,7 @@ def test_idle_streams_expire_and_ids_are_url_encoded(tmp_path, served):
     export_pipeline(pipe, model, test.X[:8])
     app = create_app(str(model), max_streams=3, stream_ttl_s=0.3)
     chunk = npy(test.X[0][:, :10])
-    with TestClient(app) as c:
+    with TestClient(app, base_url="http://127.0.0.1") as c:
         for i in range(3):
             assert c.post(f"/v1/stream/s{i}", content=chunk,
                           headers={"content-type": "application/x-npy"}).status_code == 200  # fmt: skip
@@ -155,7 +155,7 @@ def test_soak_thousands_of_abandoned_streams_never_lock_out(tmp_path, served):
     chunk = npy(test.X[0][:, :60])  # under one window: each abandoned stream keeps a buffer
     hdr = {"content-type": "application/x-npy"}
     codes: dict[int, int] = {}
-    with TestClient(app) as c:
+    with TestClient(app, base_url="http://127.0.0.1") as c:
         tracemalloc.start()
         for wave in range(20):
             for i in range(100):

@@ -24,6 +24,7 @@ from tactilesnn.service.runtime import PipelineSession, StreamState
 from tactilesnn.training import load_run, train_run
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
+HOSTILE_ID = '<img src=x onerror="document.body.dataset.pwned=1">'
 
 
 @pytest.fixture(scope="module")
@@ -133,11 +134,18 @@ def test_live_page_updates_in_a_real_browser(exported, tmp_path):
                      "--disable-background-networking", "--disable-component-update",
                      "--disable-sync"]  # fmt: skip
             browser = p.chromium.launch(executable_path=exe, args=flags)
-            page = browser.new_page(viewport={"width": 1100, "height": 620})
+            # the page's CSP forbids eval, which Playwright's wait_for_function needs; bypassing
+            # it also shows the page itself inserts the hostile stream id as text
+            page = browser.new_page(viewport={"width": 1100, "height": 620}, bypass_csp=True)
             page.goto(url + "/")
+            strict = browser.new_page()  # the page as users get it, its CSP enforced
+            violations: list[str] = []
+            strict.on("console", lambda m: violations.append(m.text) if "Policy" in m.text else 0)
+            strict.goto(url + "/")
             assert "waiting for a stream" in page.inner_text("#status")
             feeder = threading.Thread(target=subprocess.run, args=(
-                [str(cli), "demo-stream", "--url", url, "--seconds", "20", "--speed", "4"],),
+                [str(cli), "demo-stream", "--url", url, "--seconds", "20", "--speed", "4",
+                 "--stream", HOSTILE_ID],),
                 kwargs={"capture_output": True})  # fmt: skip
             feeder.start()
             page.wait_for_function("Number(document.body.dataset.updates) >= 2", timeout=60_000)
@@ -152,6 +160,12 @@ def test_live_page_updates_in_a_real_browser(exported, tmp_path):
             assert later["raster"] != first["raster"] and later["scores"] != first["scores"]
             assert later["signal"] != first["signal"]
             assert page.inner_text("#cls") in ("hook", "loop")
+            # the stream id is shown as text: no element made of it, no script run
+            assert page.inner_text("#info code") == HOSTILE_ID
+            assert page.query_selector("#info img") is None
+            assert page.evaluate("document.body.dataset.pwned") is None
+            assert int(strict.evaluate("document.body.dataset.updates")) > 0, violations
+            assert not violations and strict.inner_text("#info code") == HOSTILE_ID
             shot = tmp_path / "live_page.png"
             page.screenshot(path=str(shot))
             assert shot.stat().st_size > 10_000

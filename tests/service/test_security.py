@@ -1,0 +1,157 @@
+"""What a page in the user's browser can do to the service: content types a browser can send
+without a preflight, foreign Origins, rebound host names, and markup in stream ids."""
+
+from __future__ import annotations
+
+import io
+import re
+
+import numpy as np
+import pytest
+from starlette.testclient import TestClient
+
+from tactilesnn.config import PipelineConfig
+from tactilesnn.datasets_synth import HookLoopTask
+from tactilesnn.export import export_pipeline
+from tactilesnn.service.app import create_app
+from tactilesnn.service.live import page_html, page_script_js
+from tactilesnn.service.security import default_allowed_hosts
+from tactilesnn.training import load_run, train_run
+
+SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("sec")
+    run, _ = train_run("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp / "r",
+                       progress=False)  # fmt: skip
+    pipe, _ = load_run(run)
+    test = HookLoopTask(**SMALL).build()[1]
+    export_pipeline(pipe, tmp / "m.onnx", test.X[:8])
+    return str(tmp / "m.onnx"), test
+
+
+@pytest.fixture(scope="module")
+def client(model):
+    with TestClient(create_app(model[0]), base_url="http://127.0.0.1:8000") as c:
+        yield c, model[1]
+
+
+def _body(test) -> bytes:
+    import json
+
+    return json.dumps({"window": test.X[0].tolist()}).encode()
+
+
+# every content type a page may send cross-site without a CORS preflight, and none at all
+@pytest.mark.parametrize(
+    "ctype",
+    [None, "text/plain", "text/plain;charset=UTF-8", "application/x-www-form-urlencoded",
+     "multipart/form-data; boundary=x", "application/jsonx", "text/json"],
+)  # fmt: skip
+@pytest.mark.parametrize("route", ["/v1/classify", "/v1/stream/s"])
+def test_simple_request_content_types_are_refused(client, ctype, route):
+    c, test = client
+    headers = {} if ctype is None else {"content-type": ctype}
+    r = c.post(route, content=_body(test), headers=headers)
+    assert r.status_code == 415, r.text
+    assert "application/json" in r.json()["error"]
+
+
+def test_json_with_parameters_is_accepted(client):
+    c, test = client
+    r = c.post("/v1/classify", content=_body(test),
+               headers={"content-type": "Application/JSON; charset=utf-8"})  # fmt: skip
+    assert r.status_code == 200, r.text
+
+
+@pytest.mark.parametrize("origin", ["http://evil.example", "null", "http://127.0.0.1:9999",
+                                    "http://localhost:8000"])  # fmt: skip
+@pytest.mark.parametrize("method", ["POST", "DELETE"])
+def test_cross_origin_state_changes_are_refused(client, origin, method):
+    c, test = client
+    hdr = {"content-type": "application/json", "origin": origin}
+    if method == "POST":
+        r = c.post("/v1/stream/x", content=_body(test), headers=hdr)
+    else:
+        r = c.delete("/v1/stream/x", headers=hdr)
+    assert r.status_code == 403 and "cross-origin" in r.json()["error"]
+
+
+def test_same_origin_and_originless_requests_pass(client):
+    c, test = client
+    hdr = {"content-type": "application/json"}
+    assert c.post("/v1/classify", content=_body(test), headers=hdr).status_code == 200
+    hdr["origin"] = "http://127.0.0.1:8000"
+    assert c.post("/v1/classify", content=_body(test), headers=hdr).status_code == 200
+    # a GET cannot change state; a foreign Origin on it is left to the browser's own policy
+    assert c.get("/v1/model", headers={"origin": "http://evil.example"}).status_code == 200
+
+
+@pytest.mark.parametrize("host", ["evil.example", "evil.example:8000", "127.0.0.1.nip.io",
+                                  "localhost.evil.example", ""])  # fmt: skip
+def test_rebound_host_names_are_refused(client, host):
+    c, _ = client
+    for path in ("/", "/v1/model", "/healthz", "/live.js"):
+        r = c.get(path, headers={"host": host})
+        assert r.status_code == 400, (path, host)
+        assert "Host" in r.json()["error"] or "host" in r.json()["error"]
+
+
+@pytest.mark.parametrize("host", ["localhost:8000", "127.0.0.1", "[::1]:8000", "LOCALHOST"])
+def test_loopback_names_pass(client, host):
+    c, _ = client
+    assert c.get("/healthz", headers={"host": host}).status_code == 200
+
+
+def test_allowed_hosts_follow_the_bind_address():
+    assert default_allowed_hosts("127.0.0.1") == {"localhost", "127.0.0.1", "::1"}
+    assert "192.168.1.5" in default_allowed_hosts("192.168.1.5")
+    assert "evil.example" not in default_allowed_hosts("0.0.0.0")
+
+
+def test_extra_and_wildcard_hosts(model):
+    with TestClient(create_app(model[0], allowed_hosts=["sensor-pc"]),
+                    base_url="http://sensor-pc:8000") as c:  # fmt: skip
+        assert c.get("/healthz").status_code == 200
+        assert c.get("/healthz", headers={"host": "127.0.0.1"}).status_code == 400
+    with TestClient(create_app(model[0], allowed_hosts=["*"]), base_url="http://any") as c:
+        assert c.get("/healthz").status_code == 200
+
+
+def test_page_headers_forbid_inline_script_and_framing(client):
+    c, _ = client
+    r = c.get("/")
+    csp = r.headers["content-security-policy"]
+    assert (
+        "script-src 'self'" in csp
+        and "unsafe-inline" not in csp.split("script-src")[1].split(";")[0]
+    )
+    assert "frame-ancestors 'none'" in csp and r.headers["x-frame-options"] == "DENY"
+    assert r.headers["x-content-type-options"] == "nosniff"
+    assert "<script>" not in r.text and '<script src="/live.js">' in r.text
+    js = c.get("/live.js")
+    assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
+    # error answers carry the headers too
+    assert c.post("/v1/classify", content=b"x").headers["x-content-type-options"] == "nosniff"
+
+
+def test_page_script_never_parses_event_text_as_html():
+    js = page_script_js()
+    for sink in ("innerHTML", "outerHTML", "insertAdjacentHTML", "document.write", "eval(",
+                 "new Function", "setTimeout(\""):  # fmt: skip
+        assert sink not in js, sink
+    assert not re.search(r"<script(?![^>]*\bsrc=)", page_html())
+
+
+@pytest.mark.parametrize("sid", ["a" * 129, "bad\nid", "tab\there", "nul\x00"])
+def test_stream_ids_are_bounded_and_printable(client, sid):
+    c, test = client
+    buf = io.BytesIO()
+    np.save(buf, test.X[0], allow_pickle=False)
+    from tactilesnn.service.client import stream_path
+
+    r = c.post(stream_path(sid), content=buf.getvalue(),
+               headers={"content-type": "application/x-npy"})  # fmt: skip
+    assert r.status_code == 422 and "stream id" in r.json()["error"]
