@@ -10,15 +10,20 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from .core.version import __version__
 
 _LAZY = {
     "PipelineConfig": "tactilesnn.config",
     "TrainConfig": "tactilesnn.config",
     "SpikePipeline": "tactilesnn.pipeline",
-    "Trainer": "tactilesnn.training",
-    "train_run": "tactilesnn.training",
-    "load_run": "tactilesnn.training",
+    "SpikeClassifier": "tactilesnn.estimator",
+    "WindowDataset": "tactilesnn.core.data",
+    "Trainer": "tactilesnn.trainer",
+    "RunSpec": "tactilesnn.app.run",
+    "TaskSource": "tactilesnn.app.run",
+    "FileSource": "tactilesnn.app.run",
+    "train_run": "tactilesnn.app.run",
+    "load_run": "tactilesnn.app.run",
     "load_data_file": "tactilesnn.recordings",
     "export_pipeline": "tactilesnn.export",
     "ENCODERS": "tactilesnn.encoders",
@@ -34,3 +39,7 @@ def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'tactilesnn' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

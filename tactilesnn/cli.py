@@ -1,6 +1,7 @@
-"""Command-line interface: ``tactilesnn train | evaluate | bench``.
+"""Command-line interface: parse, call the application layer, print.
 
-``python train.py ...`` is the same as ``tactilesnn train ...``.
+``tactilesnn train | evaluate | export | generate | sweep | serve | demo-stream | bench``;
+``python train.py ...`` is the same as ``tactilesnn ...``.
 """
 
 from __future__ import annotations
@@ -14,19 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import (
-    DATA_ENCODER_CANDIDATES,
-    DEFAULT_ENCODER,
-    DEFAULT_MODEL,
-    TOP_FLAGS,
-    PipelineConfig,
-    TrainConfig,
-    apply_flat,
-    data_file_defaults,
-    encoder_settings_given,
-    flat_settings,
-    registries,
-)
+from .app.options import Option, pipeline_options, run_options, train_options
 from .datasets_synth import TASKS
 
 log = logging.getLogger("tactilesnn")
@@ -35,11 +24,6 @@ log = logging.getLogger("tactilesnn")
 SCHEDULER_HELP = (
     "Dask scheduler address (tcp://HOST:PORT) to run on a cluster instead of local processes; "
     "needs the 'distributed' extra, and --out on a file system the workers share"
-)
-TASK_KW_HELP = "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)"
-FAULTS_FLAG = "--faults"
-FAULTS_HELP = (
-    'sensor faults for trial tasks, e.g. "dead=3;short=0-1@1e5;gain_sd=0.1;drift_per_s=0.01"'
 )
 
 
@@ -56,250 +40,72 @@ class _HelpFormatter(argparse.HelpFormatter):
 
 
 def _command(sub: argparse._SubParsersAction, name: str, text: str) -> argparse.ArgumentParser:
-    return sub.add_parser(name, formatter_class=_HelpFormatter, help=text)
+    return sub.add_parser(name, formatter_class=_HelpFormatter, help=text, description=text)
 
 
-def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
-    """Run options, then one flag per pipeline setting (the flat names of every registered
-    component's config, :func:`tactilesnn.config.flat_settings`); each is also a TOML key."""
+def _add_option(p: argparse.ArgumentParser | argparse._ArgumentGroup, o: Option) -> None:
+    """One setting of :mod:`tactilesnn.app.options` as a flag (pipeline settings default to
+    unset, so only those given override a ``--config`` file and the data's defaults)."""
+    kw: dict = {"help": o.help, "default": argparse.SUPPRESS if o.pipeline else o.default}
+    if o.choices:
+        kw["choices"] = o.choices
+    if o.kind is bool:
+        kw["action"] = argparse.BooleanOptionalAction
+    elif o.repeated:
+        kw.update(action="append", metavar="KEY=VALUE")
+    elif o.kind is tuple:
+        kw["nargs"] = "+"
+    else:
+        kw["type"] = o.kind
+    p.add_argument(o.flag, **kw)
+
+
+def _add_train_args(p: argparse.ArgumentParser) -> None:
+    """``--config``, the run options, then one flag per pipeline setting."""
     p.add_argument(
         "--config", help="TOML file of settings (nested sections or flat keys); flags win"
     )
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
-                   help="synthetic task to generate and train on (ignored with --data)")  # fmt: skip
-    p.add_argument(
-        "--data",
-        help="recordings .npz (X [N,C,S], y, fs, class_names; see README) or a folder written "
-        "by tactilesnn generate",
-    )
-    p.add_argument(
-        "--data-window-s",
-        type=float,
-        help="with --data: cut each recording into windows of this many seconds (scores are "
-        "then also summed per recording); 0: one window per recording; default: rows of >= 2 s "
-        "and 256 samples without recording ids are cut into 7 windows (a quarter of the row, "
-        "every eighth), shorter rows are kept whole",
-    )
-    p.add_argument(
-        "--data-hop-s",
-        type=float,
-        help="with --data-window-s: seconds between window starts (default: half a window)",
-    )
-    p.add_argument(
-        "--difficulty",
-        type=float,
-        default=1.0,
-        help="multiplier of noise, speed variation, Z ripple and texture irregularity",
-    )
-    p.add_argument(
-        "--amplitude-spread",
-        type=float,
-        default=1.0,
-        help="multiplier of the force set-point range and coupling-gain spread",
-    )
-    p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
-    p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
-    p.add_argument(
-        "--val-fraction",
-        type=float,
-        default=0.0,
-        help="fraction of training scans held out for early stopping / best weights",
-    )
+    for o in run_options():
+        _add_option(p, o)
     g = p.add_argument_group("pipeline settings (unset flags keep the component's default)")
-    for kind, reg in registries().items():
-        g.add_argument(
-            f"--{kind}",
-            choices=reg.names(),
-            default=argparse.SUPPRESS,
-            help=f"{kind} component (default {DEFAULT_ENCODER if kind == 'encoder' else DEFAULT_MODEL}"
-            "; with --data chosen from the file, see README)",
-        )
-    for name, (owner, default, text, choices) in flat_settings().items():
-        kw: dict = {"default": argparse.SUPPRESS, "help": f"{text} [{owner}; default {default!r}]"}
-        if choices:
-            kw["choices"] = choices
-        if isinstance(default, bool):
-            kw["action"] = argparse.BooleanOptionalAction
-        elif isinstance(default, tuple):
-            kw["nargs"] = "+"
-        else:
-            kw["type"] = type(default)
-        g.add_argument("--" + name.replace("_", "-"), **kw)
+    for o in pipeline_options():
+        _add_option(g, o)
 
 
-def _given_settings(args: argparse.Namespace) -> set[str]:
-    """Pipeline settings the user gave: flags on the command line and the TOML's keys."""
-    flags = {k for k in [*registries(), *flat_settings()] if hasattr(args, k)}
-    return flags | set(getattr(args, "_pipeline_toml", None) or {})
+def _settings(args: argparse.Namespace) -> dict:
+    """The train settings of parsed ``args``: every run option, the pipeline settings given."""
+    return {k: getattr(args, k) for k in train_options() if hasattr(args, k)}
 
 
-def _config(args: argparse.Namespace) -> PipelineConfig:
-    """TOML settings (if any) overridden by the flags given on the command line.
+def _task_option_values(args: argparse.Namespace) -> dict:
+    """The task parameters of ``generate``'s flags (the same options as ``train``'s)."""
+    from .app.defaults import task_params
 
-    With ``--data`` the defaults follow the file: every channel, the ``readout`` model, and the
-    ``events`` encoder for event files (``X [N, taxels, polarity, bins]``), unless the settings
-    say otherwise.
-    """
-    flat = {k: getattr(args, k) for k in [*registries(), *flat_settings()] if hasattr(args, k)}
-    base = getattr(args, "_pipeline_toml", None) or {}
-    if not getattr(args, "data", None) and "channels" not in {*flat, *base}:
-        from .datasets_synth import get_task
-
-        # the default channel ('dynamic', hook_loop's) where the task has it, else all of them
-        names = get_task(args.task, **_task_kwargs(args)).channel_names
-        if not set(PipelineConfig().channels) <= set(names):
-            flat["channels"] = ("all",)
-    if getattr(args, "data", None):
-        from .recordings import event_grid, is_event_file
-
-        given = _given_settings(args)
-        events = is_event_file(Path(args.data))
-        grid = event_grid(Path(args.data)) if events else None
-        owners = flat_settings()
-        for key, value in data_file_defaults(events, grid).items():
-            # a default setting of the default model (or encoder) only goes with that component
-            part = owners[key][0].split()[0] if key in owners else None
-            if key not in given and part not in given:
-                flat[key] = value
-    return apply_flat(base, flat)
-
-
-def _apply_toml(sub: argparse.ArgumentParser, argv: list[str]) -> tuple[str | None, dict]:
-    """Load ``--config``: run options become the parser's defaults; returns the file's text and
-    its pipeline settings (nested sections, or the flat form of earlier versions)."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--config")
-    known, _ = pre.parse_known_args(argv)
-    if not known.config:
-        return None, {}
-    import tomllib
-
-    path = Path(known.config)
-    if not path.is_file():
-        raise ValueError(f"config file {path} does not exist")
-    text = path.read_text()
-    try:
-        table = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"{path}: not valid TOML: {e}") from e
-    nested = isinstance(table.get("encoder"), dict) or isinstance(table.get("model"), dict)
-    if not nested and isinstance(table.get("train"), dict):  # the flat form under [train]
-        table = {**{k: v for k, v in table.items() if k != "train"}, **table["train"]}
-    dests = {a.dest for a in sub._actions} - {"help", "config"}
-    pipeline_keys = {*registries(), *flat_settings()}
-    settings: dict = {}
-    defaults = {}
-    for key, value in table.items():
-        dest = key.replace("-", "_")
-        if nested and key in ("encoder", "model", "train", *TOP_FLAGS):
-            settings[key] = value
-        elif not nested and dest in pipeline_keys:
-            settings[dest] = value
-        elif dest in dests and dest not in pipeline_keys:
-            defaults[dest] = tuple(value) if isinstance(value, list) else value
-        else:
-            raise ValueError(f"{path}: unknown setting {key!r}")
-    try:
-        if nested:
-            PipelineConfig.from_dict(settings)
-        else:
-            PipelineConfig.from_flat(settings, strict=True)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{path}: {e}") from e
-    sub.set_defaults(**defaults)
-    return text, settings
-
-
-def _parse_task_kw(items: Sequence[str] | None) -> dict:
-    """``["layout_name=mia14", "n_samples=2000"]`` -> kwargs (values parsed as JSON if possible)."""
-    out: dict = {}
-    for item in items or []:
-        key, sep, val = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--task-kw expects key=value, got {item!r}")
-        try:
-            value = json.loads(val)
-        except json.JSONDecodeError:
-            value = val
-        out[key.strip()] = tuple(value) if isinstance(value, list) else value
-    return out
-
-
-def _task_kwargs(args: argparse.Namespace) -> dict:
-    kw = {"difficulty": args.difficulty, "amplitude_spread": args.amplitude_spread}
-    kw.update(_parse_task_kw(getattr(args, "task_kw", None)))
-    if getattr(args, "faults", None):
-        from .datasets_synth import parse_faults
-        from .datasets_synth.base import task_parameters
-
-        if "faults" not in task_parameters(args.task):
-            raise ValueError(
-                f"--faults applies to tasks with a sensor-fault model, not {args.task}"
-            )
-
-        parse_faults(args.faults)  # fail early on a typo
-        kw["faults"] = args.faults
-    return kw
+    return task_params(args.task, {"difficulty": args.difficulty, "faults": args.faults,
+                                   "amplitude_spread": args.amplitude_spread,
+                                   "task_kw": args.task_kw})  # fmt: skip
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .runs import default_run_dir
-    from .training import train_run
+    from .app.defaults import run_spec
+    from .app.run import train_run
 
-    config = _config(args)
-    source = Path(args.data).stem if args.data else args.task
-    out = (
-        Path(args.out)
-        if args.out
-        else default_run_dir(Path("runs"), source, config.encoder_type, config.model_type)
-    )
     if args.resume and not args.out:
         raise ValueError("--resume needs the --out folder of the interrupted run")
-    if (args.data_window_s or args.data_hop_s) and not args.data:
-        raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
-    task_kwargs = dict(_task_kwargs(args), seed=config.seed)
-    select = None
-    window_s, hop_s = args.data_window_s, args.data_hop_s
-    if args.data:
-        from .recordings import auto_window, is_event_file
-
-        if window_s is None and hop_s is None:
-            window_s, hop_s = auto_window(Path(args.data)) or (None, None)
-            if window_s is not None:
-                log.info("recordings of %s cut into %.3g s windows every %.3g s (--data-window-s 0 "
-                         "keeps them whole)", args.data, window_s, hop_s)  # fmt: skip
-        elif window_s == 0:
-            if hop_s is not None:
-                raise ValueError("--data-hop-s needs a window length (--data-window-s > 0)")
-            window_s = None
-
-        if not is_event_file(Path(args.data)) and not encoder_settings_given(_given_settings(args)):
-            select = DATA_ENCODER_CANDIDATES
-    path, m = train_run(
-        args.task,
-        task_kwargs,
-        config,
-        out,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
-        data=Path(args.data) if args.data else None,
-        data_window_s=window_s,
-        data_hop_s=hop_s,
-        select_encoders=select,
-        resume=args.resume,
-        val_fraction=args.val_fraction,
-        config_text=getattr(args, "_config_text", None),
-        export=args.export,
-    )
-    encoder = config.encoder_type
+    file = args.train_file
+    spec = run_spec(_settings(args), Path(args.out) if args.out else None,
+                    toml=file.pipeline if file else None, overwrite=args.overwrite,
+                    resume=args.resume, progress=not args.quiet,
+                    config_text=file.text if file else None)  # fmt: skip
+    result = train_run(spec)
+    m, encoder = result.metrics, result.config.encoder_type
     if "encoder_selection_val_accuracy" in m:
-        encoder = json.loads((path / "config.json").read_text())["pipeline"]["encoder"]["type"]
         held = ", ".join(
             f"{k} {100 * v:.1f} %" for k, v in m["encoder_selection_val_accuracy"].items()
         )
         print(f"encoder chosen on held-out training recordings: {encoder} ({held})")
     print(
-        f"{source} {encoder}+{config.model_type}: test accuracy "
+        f"{spec.source.label} {encoder}+{result.config.model_type}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "
         f"{m['n_test_windows']} windows); "
         f"amplitude-only linear baseline {100 * m['trivial_amplitude_baseline_accuracy']:.2f} %"
@@ -307,6 +113,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if "test_accuracy_per_recording" in m:
         print(f"per recording (scores summed over its windows): "
               f"{100 * m['test_accuracy_per_recording']:.2f} % on {m['n_test_recordings']}")  # fmt: skip
+    path = result.path
     if "error" in m.get("onnx", {}):
         print(f"run folder {path} is complete, but the ONNX export failed: {m['onnx']['error']}")
         print(f"retry with: tactilesnn export {path} --out {path / 'model.onnx'}")
@@ -333,9 +140,10 @@ def _parity(rep: dict) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .app.run import load_run, run_data
     from .datasets_synth import get_task
     from .recordings import load_data_file
-    from .training import load_run, recording_accuracy, run_data
+    from .training import recording_accuracy
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.data:  # cut as the run's own data was
@@ -397,9 +205,9 @@ def _match_channels(data, want: Sequence[str]):
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from .app.run import load_run, run_data
     from .datasets_synth import get_task
     from .export import data_hash, export_pipeline
-    from .training import load_run, run_data
 
     pipe, cfg = load_run(Path(args.run_dir))
     if args.format == "nir":
@@ -462,7 +270,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         resume=args.resume,
         progress=not args.quiet,
-        task_kwargs=_task_kwargs(args),
+        task_kwargs=_task_option_values(args),
         scheduler=args.scheduler,
     )
     print(
@@ -473,7 +281,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from .sweep import run_sweep
+    from .app.sweep import run_sweep
 
     rows = run_sweep(Path(args.config), Path(args.out), workers=args.workers,
                      scheduler=args.scheduler, progress=not args.quiet)  # fmt: skip
@@ -516,109 +324,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BENCHMARKS = (
-    "gwt-vs-stft",
-    "encoders",
-    "snn",
-    "serve",
-    "tasks",
-    "real",
-    "pareto",
-    "stability",
-    "skip",
-)
-
-
 def cmd_bench(args: argparse.Namespace) -> int:
-    if args.name in ("pareto", "stability") and args.out is None:
-        raise ValueError(f"bench {args.name} needs --out DIR")
-    if args.name == "skip":
-        from .bench import skip
+    from .app.bench import benchmark
 
-        skip.run(Path(args.out) if args.out else None, quick=args.quick, overwrite=args.overwrite)
-        return 0
-    if args.name == "stability":
-        from .bench import stability
-
-        _, ok = stability.run(Path(args.out), quick=args.quick, progress=not args.quiet,
-                              overwrite=args.overwrite)  # fmt: skip
-        return 0 if ok else 1
-    if args.name == "pareto":
-        from .bench import pareto
-
-        pareto.run(Path(args.out), task=args.task, quick=args.quick, epochs=args.bench_epochs or 10,
-                   overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
-        return 0
-    if args.name == "serve":
-        from .bench import serve as bench_serve
-
-        if not args.model:
-            raise ValueError("bench serve needs --model model.onnx")
-        res = bench_serve.run(args.model, clients=args.clients, seconds=args.seconds)
-        if args.out:
-            _write_json(Path(args.out) / "serve.json", res)
-        return 0
-    if args.name == "real":
-        from .bench import real
-
-        if args.out is None:
-            raise ValueError("bench real needs --out DIR")
-        real.run(Path(args.out), data_root=Path(args.data_root), seeds=args.seeds or 3,
-                 datasets=args.datasets, pipelines=args.pipelines,
-                 epochs=args.bench_epochs, progress=not args.quiet)  # fmt: skip
-        return 0
-    if args.name == "tasks":
-        from .bench import tasks
-
-        res = tasks.run(workers=args.workers, progress=not args.quiet)
-        if args.out:
-            _write_json(Path(args.out) / "tasks.json", res)
-        if args.references:  # each task as a user's file: spike pipeline vs strong references
-            from .bench import real
-
-            if args.out is None:
-                raise ValueError("bench tasks --references needs --out DIR")
-            names = list(real.synthetic_datasets())
-            real.run(Path(args.out) / "references", datasets=names, seeds=args.seeds or 1,
-                     pipelines=args.pipelines or ["default+readout"], epochs=args.bench_epochs,
-                     progress=not args.quiet)  # fmt: skip
-        return 0
-    if args.name == "snn":
-        from .bench import snn
-
-        res = snn.run(repeats=args.repeats)
-        if args.out:
-            _write_json(Path(args.out) / "snn.json", res)
-        return 0
-    if args.name == "encoders":
-        from .bench import encoders
-
-        out = Path(args.out) / "encoders.json" if args.out else None
-        encoders.run(out, repeats=args.repeats, sparse=args.sparse)
-        return 0
-    from .bench import gwt_vs_stft
-
-    if args.out is None:
-        raise ValueError("gwt-vs-stft needs --out DIR")
-    gwt_vs_stft.run(
-        seeds=args.seeds or 5,
-        out=Path(args.out),
-        overwrite=args.overwrite,
-        epochs=args.epochs,
-        difficulty=args.difficulty,
-        progress=not args.quiet,
-    )
-    return 0
-
-
-def _write_json(path: Path, obj: dict) -> None:
-    import os
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
-    print(f"results: {path}")
+    return benchmark(args.name).main(Path(args.out) if args.out else None, args)
 
 
 def _port(text: str) -> int:
@@ -650,18 +359,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = _command(sub, "train", "train a pipeline and write a run folder")
-    _add_pipeline_args(p)
-    p.add_argument("--out", help="run folder (default runs/<task>-<encoder>-<model>-<time>)")
+    _add_train_args(p)
+    p.add_argument("--out", help="run folder (default runs/<source>-<encoder>-<model>-<time>, "
+                   "named after the encoder trained)")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace an existing run folder")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
-    p.add_argument(
-        "--export",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="write model.onnx (window -> scores) into the run folder",
-    )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=cmd_train)
+    p.set_defaults(func=cmd_train, train_file=None)
+    parser.train_parser = p  # type: ignore[attr-defined]  # (--config sets its defaults)
 
     p = _command(sub, "evaluate", "evaluate a run folder on its test split or --data")
     p.add_argument("run_dir", help="run folder written by train")
@@ -699,8 +404,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="multiplier of the task's noise and nuisance spread")  # fmt: skip
     p.add_argument("--amplitude-spread", type=float, default=1.0,
                    help="multiplier of the task's amplitude nuisances")  # fmt: skip
-    p.add_argument(FAULTS_FLAG, help=FAULTS_HELP)
-    p.add_argument("--task-kw", action="append", metavar="KEY=VALUE", help=TASK_KW_HELP)
+    for o in run_options():
+        if o.name in ("faults", "task_kw"):
+            _add_option(p, o)
     p.add_argument("--overwrite", action="store_true", help="replace a dataset in --out")
     p.add_argument("--resume", action="store_true", help="finish an interrupted generation")
     p.add_argument("--scheduler", help=SCHEDULER_HELP)
@@ -741,72 +447,47 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="task seed (which scans are rendered)")
     p.set_defaults(func=cmd_demo_stream)
 
-    p = _command(sub, "bench", "benchmarks")
-    p.add_argument("name", choices=BENCHMARKS, help="which benchmark (see README)")
-    p.add_argument(
-        "--seeds",
-        type=int,
-        default=None,
-        help="gwt-vs-stft (default 5) / real (default 3): dataset and training seeds",
-    )
-    p.add_argument("--out", help="output folder")
-    p.add_argument("--repeats", type=int, default=7, help="encoders: timed runs per case")
-    p.add_argument("--sparse", action="store_true", help="encoders: activity-gate benchmark")
-    p.add_argument("--model", help="serve: model.onnx to load-test")
-    p.add_argument("--clients", type=int, default=8, help="serve: concurrent clients")
-    p.add_argument("--seconds", type=float, default=10.0, help="serve: duration per case")
-    p.add_argument("--workers", type=int, default=2, help="tasks: generation processes")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
-    p.add_argument("--epochs", type=int, default=TrainConfig().epochs,
-                   help="gwt-vs-stft / tasks: training epochs")  # fmt: skip
-    p.add_argument("--difficulty", type=float, default=1.0,
-                   help="gwt-vs-stft / tasks: task difficulty multiplier")  # fmt: skip
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument(
-        "--data-root",
-        default="../shared/data",
-        help="real: folder holding the real datasets (never copied into the repo)",
-    )
-    p.add_argument("--datasets", nargs="+", help="real: subset of datasets (default: the real ones "
-                   "found); synth:<task> runs the same check on a synthetic task")  # fmt: skip
-    p.add_argument("--pipelines", nargs="+", help="real: subset of spike pipelines")
-    p.add_argument(
-        "--bench-epochs",
-        type=int,
-        default=None,
-        help="real: epochs (default: each model's own default, as train --data); pareto: "
-        "epochs per configuration (default 10)",
-    )
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
-                   help="pareto: the task whose pipelines are compared")  # fmt: skip
-    p.add_argument("--references", action="store_true",
-                   help="tasks: also each task's spike pipeline (--data defaults) against the "
-                   "non-spiking references of bench real")  # fmt: skip
-    p.add_argument("--quick", action="store_true",
-                   help="pareto / stability / skip: a few small cases (as the test suite runs)")  # fmt: skip
-    p.set_defaults(func=cmd_bench)
+    p = _command(sub, "bench", "benchmarks (each has its own flags: tactilesnn bench NAME --help)")
+    names = p.add_subparsers(dest="name", required=True, metavar="NAME", help="which benchmark")
+    from .app.bench import BENCHMARKS, benchmark
+
+    for name in BENCHMARKS:
+        module = benchmark(name)
+        b = _command(names, name, module.HELP)
+        b.add_argument("--out", help="output folder")
+        b.add_argument("--quiet", action="store_true", help="no progress bars")
+        module.add_arguments(b)
+        b.set_defaults(func=cmd_bench)
     return parser
+
+
+def _read_config(parser: argparse.ArgumentParser, argv: list[str]):
+    """``train --config FILE``: the file's run options become the train flags' defaults (flags
+    given still win); returns the :class:`~tactilesnn.app.config_file.TrainFile` or None."""
+    if not argv or argv[0] != "train":
+        return None
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--config")
+    known, _ = pre.parse_known_args(argv[1:])
+    if not known.config:
+        return None
+    from .app.config_file import read_train_file
+
+    file = read_train_file(Path(known.config))
+    parser.train_parser.set_defaults(train_file=file, **file.run)
+    return file
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    config_text, pipeline_toml = None, {}
-    if argv and argv[0] == "train":
-        sub = next(
-            a
-            for a in parser._subparsers._group_actions
-            if isinstance(a, argparse._SubParsersAction)
-        ).choices["train"]
-        try:
-            config_text, pipeline_toml = _apply_toml(sub, argv[1:])
-        except ValueError as e:
-            print(f"error: {e}", file=sys.stderr)
-            return 2
+    try:
+        _read_config(parser, argv)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
-    args._config_text = config_text
-    args._pipeline_toml = pipeline_toml
-    from .perf import tune_allocator
+    from .core.perf import tune_allocator
 
     tune_allocator()
     logging.basicConfig(
@@ -823,7 +504,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"interrupted{_resume_hint(args, argv)}", file=sys.stderr)
         return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())

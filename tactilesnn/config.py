@@ -29,10 +29,10 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from ._checks import check_int
+from .core.checks import check_int
+from .core.registry import Registry
 from .encoders import ENCODERS
 from .models import MODELS
-from .registry import Registry
 
 DEFAULT_ENCODER = "gwt"
 DEFAULT_MODEL = "tempotron"

@@ -1,10 +1,10 @@
 """Spike pipeline: channel selection -> encoder -> clock afferents -> model.
 
 It only composes registered components (:mod:`tactilesnn.encoders`, :mod:`tactilesnn.models`);
-training lives in :class:`tactilesnn.training.Trainer`. Array contract: ``X`` ``[N, channels,
+training lives in :class:`tactilesnn.trainer.Trainer`. Array contract: ``X`` ``[N, channels,
 window]`` float at ``fs_hz`` (the data's channels, in its units), ``y`` ``[N]`` int class indices.
 Spikes between stages are times ``[N, afferents, k]`` in ms from the window start (``+inf`` =
-none, :mod:`tactilesnn.spikes`). Channels are selected by name, so a configuration pairs with any
+none, :mod:`tactilesnn.core.spikes`). Channels are selected by name, so a configuration pairs with any
 sensor that provides them.
 """
 
@@ -16,11 +16,12 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ._checks import as_float_array, check_allocation, check_finite, check_float32_range
 from .config import PipelineConfig
+from .core.checks import as_float_array, check_allocation, check_finite, check_float32_range
+from .core.spikes import clock_times
 from .encoders import build_encoder
 from .models import build_model
-from .spikes import clock_times
+from .trainer import Trainer
 
 
 def select_channels(wanted: Sequence[str], available: Sequence[str]) -> list[int]:
@@ -113,8 +114,7 @@ class SpikePipeline:
     def fit(
         self, X: np.ndarray, y: np.ndarray, progress: bool = False, **kw: object
     ) -> list[float]:
-        """Fit the encoder, encode, and train the model (:class:`~tactilesnn.training.Trainer`)."""
-        from .training import Trainer
+        """Fit the encoder, encode, and train the model (:class:`~tactilesnn.trainer.Trainer`)."""
 
         self.calibrate(X)
         return Trainer(self.model, self.config.train, progress=progress).fit(

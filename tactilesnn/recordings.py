@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._checks import check_allocation, check_finite, check_float32_range, check_positive
+from .core.checks import check_allocation, check_finite, check_float32_range, check_positive
 from .datasets_synth import WindowDataset
 
 log = logging.getLogger("tactilesnn")

@@ -7,8 +7,8 @@ import sys
 import numpy as np
 import pytest
 
+from tactilesnn.app.run import load_run
 from tactilesnn.cli import main
-from tactilesnn.training import load_run
 
 
 @pytest.fixture(scope="module")
@@ -93,17 +93,14 @@ def test_generate_trial_task_with_task_kw_and_faults(tmp_path, capsys):
 def test_task_configs_parse(name):
     from pathlib import Path
 
-    from tactilesnn.cli import _apply_toml, _config, build_parser
+    from tactilesnn.app.config_file import read_train_file
+    from tactilesnn.app.defaults import run_spec
 
-    parser = build_parser()
-    sub = parser._subparsers._group_actions[0].choices["train"]
     path = Path(__file__).resolve().parents[1] / "configs" / f"{name}.toml"
-    argv = ["train", "--config", str(path)]
-    _apply_toml(sub, argv[1:])
-    args = parser.parse_args(argv)
-    assert args.task == name
-    cfg = _config(args)  # every key is a valid pipeline setting
-    assert cfg.channels in (("all",), ("dynamic",))
+    file = read_train_file(path)
+    assert file.run["task"] == name
+    spec = run_spec(file.run, Path("x"), toml=file.pipeline)  # every key is a valid setting
+    assert spec.config.channels in (("all",), ("dynamic",)) and spec.source.name == name
 
 
 def test_serve_refuses_a_port_out_of_range(capsys):
@@ -117,8 +114,16 @@ def test_every_flag_of_every_command_has_help_with_its_default_and_choices():
 
     from tactilesnn.cli import build_parser
 
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    for name, p in sub.choices.items():
+    def commands(parser, prefix=""):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, p in a.choices.items():
+                    yield prefix + name, p
+                    yield from commands(p, prefix + name + " ")
+
+    seen = dict(commands(build_parser()))
+    assert "bench stability" in seen and "bench real" in seen  # each benchmark's own flags
+    for name, p in seen.items():
         text = p.format_help()
         for a in p._actions:
             if isinstance(a, argparse._HelpAction):

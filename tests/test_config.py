@@ -7,10 +7,10 @@ import pytest
 
 from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig, TrainConfig
+from tactilesnn.core.registry import Registry
 from tactilesnn.datasets_synth import TASKS, register_task
 from tactilesnn.encoders import ENCODERS, GWTConfig, LIFPopulationConfig
 from tactilesnn.models import MODELS, SNNConfig, TempotronConfig
-from tactilesnn.registry import Registry
 
 
 def test_round_trip_and_type_tags():

@@ -6,13 +6,14 @@ import numpy as np
 import onnx
 import pytest
 
+from tactilesnn.app.run import load_run
 from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
 from tactilesnn.pipeline import SpikePipeline
 from tactilesnn.service.runtime import PipelineSession, StreamState
-from tactilesnn.training import load_run, train_run
+from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
@@ -41,7 +42,7 @@ def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model)
     # the LIF population code needs a shorter tempotron tau
     kw = {"snn_hidden": 16} if model == "snn" else {"tau_ms": 200.0 if encoder == "lif" else 2000.0}
     cfg = PipelineConfig.from_flat(encoder=encoder, model=model, epochs=2, **kw)
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "run", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "run", progress=False)
     out = tmp_path / "m.onnx"
     assert main(["export", str(run), "--out", str(out), "--quiet"]) == 0
     onnx.checker.check_model(str(out))
@@ -62,7 +63,7 @@ def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
     kw = {"seed": 0, "n_samples": 36}
     cfg = PipelineConfig.from_flat(encoder="lif", model="snn", epochs=1, snn_hidden=8, channels=("all",),
                          lif_norm="window", lif_lo=0.05, lif_hi=0.8, lif_neurons=3)  # fmt: skip
-    run, _ = train_run("stiffness_curvature", kw, cfg, tmp_path / "run", progress=False)
+    run, _ = run_task("stiffness_curvature", kw, cfg, tmp_path / "run", progress=False)
     pipe, _ = load_run(run)
     from tactilesnn.datasets_synth import get_task
 
@@ -79,7 +80,7 @@ def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
     nodes = []
     for dt in (10.0, 2.5):  # 51 vs 201 time steps
         cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_dt_ms=dt)
-        run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / f"r{dt}", progress=False)
+        run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / f"r{dt}", progress=False)
         pipe, _ = load_run(run)
         rep = export_pipeline(pipe, tmp_path / f"m{dt}.onnx", test_windows.X[:16])
         nodes.append(rep["nodes"])
@@ -90,7 +91,7 @@ def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
 
 def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
     export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:8])
     sess = PipelineSession(str(tmp_path / "m.onnx"))
@@ -107,7 +108,7 @@ def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
 def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
     from tactilesnn.export import quantize_int8
 
-    run, _ = train_run(
+    run, _ = run_task(
         "hook_loop", SMALL, PipelineConfig.from_flat(epochs=3), tmp_path / "r", progress=False
     )
     pipe, _ = load_run(run)
@@ -150,11 +151,11 @@ def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path
 def test_verification_checks_each_component_graph(tmp_path, test_windows):
     import torch
 
-    from tactilesnn.export.graph import chain
+    from tactilesnn.core.onnx_graph import chain
     from tactilesnn.export.onnx import build_parts, verify
 
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
     X = test_windows.X[:32]
     enc, mod = build_parts(pipe)
@@ -205,7 +206,7 @@ def test_spike_time_tolerance_grows_for_late_spikes_only():
 def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, test_windows, readout):
     """Spiking (count) and leaky (mean) output layers: one LSTM per LIF layer, no Loop."""
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_readout=readout)
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
     rep = export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
     ops = [n.op_type for n in onnx.load(str(tmp_path / "m.onnx")).graph.node]

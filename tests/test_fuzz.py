@@ -21,10 +21,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from tactilesnn.app.runs import RunWriter
 from tactilesnn.config import PipelineConfig
 from tactilesnn.encoders.base import ENCODERS, build_encoder
 from tactilesnn.recordings import load_data_file
-from tactilesnn.runs import RunWriter
 
 FUZZ = settings(
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
@@ -166,20 +166,18 @@ def _toml_value(v) -> str | None:
 )
 def test_toml_files_error_or_valid(table: dict, form: str) -> None:
     """A TOML file through the CLI's reader: a one-line error (exit 2) or accepted settings."""
-    from tactilesnn.cli import _apply_toml, build_parser
+    from tactilesnn.app.config_file import read_train_file
 
     lines = [f"{k} = {_toml_value(v)}" for k, v in table.items() if _toml_value(v) is not None]
     if form == "train":
         lines = ["[train]", *lines]
     elif form == "nested":
         lines = ['[encoder]\ntype = "gwt"', *lines]
-    parser = build_parser()
-    sub = parser._subparsers._group_actions[0].choices["train"]
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "c.toml"
         path.write_text("\n".join(lines) + "\n")
         try:
-            _apply_toml(sub, ["--config", str(path)])
+            read_train_file(path)
         except SPECIFIC as e:
             assert str(e)
 
@@ -298,14 +296,15 @@ json_values = st.recursive(
 def client(tmp_path_factory):
     from starlette.testclient import TestClient
 
+    from tactilesnn.app.run import load_run
     from tactilesnn.datasets_synth import HookLoopTask
     from tactilesnn.export import export_pipeline
     from tactilesnn.service.app import create_app
-    from tactilesnn.training import load_run, train_run
+    from tests.helpers import run_task
 
     small = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
     tmp = tmp_path_factory.mktemp("fuzz_svc")
-    run, _ = train_run("hook_loop", small, PipelineConfig.from_flat(epochs=1), tmp / "r",
+    run, _ = run_task("hook_loop", small, PipelineConfig.from_flat(epochs=1), tmp / "r",
                        progress=False)  # fmt: skip
     pipe, _ = load_run(run)
     test = HookLoopTask(**small).build()[1]

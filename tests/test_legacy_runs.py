@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tactilesnn.training import load_run
+from tactilesnn.app.run import load_run
 
 FIX = Path(__file__).parent / "fixtures" / "legacy_runs"
 

@@ -5,13 +5,15 @@ import pytest
 
 nir = pytest.importorskip("nir")
 
+from tactilesnn.app.run import load_run  # noqa: E402
 from tactilesnn.cli import main  # noqa: E402
 from tactilesnn.config import PipelineConfig  # noqa: E402
 from tactilesnn.datasets_synth import HookLoopTask  # noqa: E402
 from tactilesnn.export import export_pipeline  # noqa: E402
-from tactilesnn.export.nir import compare, simulate, snn_to_nir  # noqa: E402
+from tactilesnn.export.nir import compare, simulate  # noqa: E402
+from tactilesnn.models.snn_nir import snn_to_nir  # noqa: E402
 from tactilesnn.service.runtime import PipelineSession  # noqa: E402
-from tactilesnn.training import load_run, train_run  # noqa: E402
+from tests.helpers import run_task  # noqa: E402
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
@@ -21,7 +23,7 @@ def test_nir_export_reproduces_scores_on_the_test_split(tmp_path, capsys, readou
     cfg = PipelineConfig.from_flat(
         encoder="lif", model="snn", epochs=3, snn_hidden=16, snn_readout=readout, snn_dt_ms=2.0
     )
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     out = tmp_path / "m.nir"
     assert main(["export", str(run), "--format", "nir", "--out", str(out), "--quiet"]) == 0
     assert "predictions agree 100.00 %" in capsys.readouterr().out
@@ -60,12 +62,12 @@ def test_subtract_reset_is_not_plain_nir_reset(tmp_path):
 
 
 def test_tempotron_is_refused_and_recurrent_snn_exports(tmp_path, capsys):
-    run, _ = train_run("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp_path / "t",
+    run, _ = run_task("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp_path / "t",
                        progress=False)  # fmt: skip
     rc = main(["export", str(run), "--format", "nir", "--out", str(tmp_path / "t.nir")])
     assert rc == 2 and "no NIR equivalent" in capsys.readouterr().err
     cfg = PipelineConfig.from_flat(model="snn", epochs=2, snn_hidden=8, snn_recurrent=True)
-    run, m = train_run("hook_loop", SMALL, cfg, tmp_path / "rec", progress=False, export=True)
+    run, m = run_task("hook_loop", SMALL, cfg, tmp_path / "rec", progress=False, export=True)
     assert m["onnx"]["max_score_diff"] <= 1e-4  # recurrent layers export to ONNX (state as I/O)
     pipe, _ = load_run(run)
     assert [n for n, _ in pipe.model.state_names] == ["h_state", "o_state", "hs_state"]

@@ -2,7 +2,7 @@
 
 import json
 
-import tactilesnn.training as training
+import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
 
 TINY = ["--task-kw", "n_planar=6", "--task-kw", "n_concave=3", "--task-kw", "n_convex=3",
@@ -39,25 +39,25 @@ def test_overwrite_replaces_its_own_run(tmp_path):
 def test_ctrl_c_says_how_to_resume_and_a_failed_start_needs_no_resume(tmp_path, monkeypatch,
                                                                        capsys):  # fmt: skip
     out = tmp_path / "r"
-    real = training.save_checkpoint
+    real = app_run.save_checkpoint
 
     def interrupt(folder, state):
         real(folder, state)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(training, "save_checkpoint", interrupt)
+    monkeypatch.setattr(app_run, "save_checkpoint", interrupt)
     args = ["train", "--epochs", "2", *TINY, "--out", str(out), "--quiet", "--no-export"]
     assert main(args) == 130
     err = capsys.readouterr().err
     assert "interrupted; the last finished epoch is saved" in err and "--resume" in err
-    monkeypatch.setattr(training, "save_checkpoint", real)
+    monkeypatch.setattr(app_run, "save_checkpoint", real)
     assert main([*args, "--resume"]) == 0
 
     def fail(*a, **k):
         raise ValueError("bad data")
 
     out2 = tmp_path / "r2"
-    monkeypatch.setattr(training, "fit_and_evaluate", fail)
+    monkeypatch.setattr(app_run, "fit_and_evaluate", fail)
     args2 = ["train", "--epochs", "1", *TINY, "--out", str(out2), "--quiet", "--no-export"]
     assert main(args2) == 2
     monkeypatch.undo()
@@ -88,7 +88,7 @@ def test_damaged_files_get_errors_not_tracebacks(tmp_path, capsys):
     )
     assert rc == 2 and "damaged" in capsys.readouterr().err
     # an empty batch is an empty answer, for every encoder
-    from tactilesnn.training import load_run
+    from tactilesnn.app.run import load_run
 
     assert main([*args[:-4], "--out", str(tmp_path / "s"), "--encoder", "stft", "--quiet",
                  "--no-export"]) == 0  # fmt: skip

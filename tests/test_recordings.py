@@ -114,7 +114,7 @@ def test_encoder_selection_picks_the_code_that_keeps_what_separates_the_classes(
     cannot see it, the LIF population (levels calibrated on training data) can."""
     from tactilesnn.config import PipelineConfig
     from tactilesnn.datasets_synth import WindowDataset
-    from tactilesnn.training import select_encoder
+    from tactilesnn.selection import select_encoder
 
     rng = np.random.default_rng(0)
     y = np.arange(60) % 2

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tactilesnn.app.sweep import check_trial, load_sweep, run_sweep, trial_id, trials
 from tactilesnn.cli import main
-from tactilesnn.sweep import load_sweep, run_sweep, train_argv, trial_id, trials
 
 SMALL = 'task_kw = ["n_planar=16", "n_concave=8", "n_convex=8", "n_test=8"]'
 
@@ -36,10 +36,12 @@ def test_grid_and_random_trials_are_deterministic_and_bad_settings_refused(tmp_p
     a, b = trials(rnd), trials(rnd)
     assert a == b and all(1e-3 <= s["readout_lr"] <= 1e-1 for s in a)
     assert len({s["readout_lr"] for s in a}) == 5
-    argv = train_argv({"task_kw": ["a=1", "b=2"], "stats": ["mean", "max"], "snn_recurrent": False},
-                      Path("o"))  # fmt: skip
-    assert argv[1:] == ["--task-kw", "a=1", "--task-kw", "b=2", "--stats", "mean", "max",
-                        "--no-snn-recurrent", "--out", "o", "--quiet"]  # fmt: skip
+    # a trial is a RunSpec built as train builds one (no command line in between)
+    spec = check_trial({"task_kw": ["n_planar=6", "n_test=2"], "stats": ["mean", "max"],
+                        "model": "snn", "snn_recurrent": False, "epochs": 2})  # fmt: skip
+    assert spec.source.params["n_planar"] == 6 and spec.source.params["n_test"] == 2
+    assert spec.config.encoder.stats == ("mean", "max") and spec.config.model.recurrent is False
+    assert spec.config.train.epochs == 2 and spec.export
     for body, match in [
         ("[grid]\nn_bandz = [1]\n", "n_bandz"),
         ("[grid]\nout = ['x']\n", "out"),
@@ -47,10 +49,20 @@ def test_grid_and_random_trials_are_deterministic_and_bad_settings_refused(tmp_p
         ("[base]\nepochs = 1\n", "exactly one"),
         ("[random]\ntrials = 2\n[random.space]\nlr = {uniform = [2, 1]}\n", "lo < hi"),
         ("[grid\n", "TOML"),
+        ("[base]\nepochs = '3'\n[grid]\nseed = [1]\n", "integer"),
+        ("[base]\nexport = 'false'\n[grid]\nseed = [1]\n", "true or false"),
+        ("[random]\ntrials = 100000000\n", "1-10000"),
+        (
+            "[grid]\n"
+            + "\n".join(
+                f"{k} = {list(range(59))}" for k in ("seed", "epochs", "n_bands", "batch_size")
+            ),
+            "combinations",
+        ),
     ]:
         with pytest.raises(ValueError, match=match):
             load_sweep(_write(tmp_path, body))
-    with pytest.raises(ValueError, match="not valid train arguments"):
+    with pytest.raises(ValueError, match="not valid train settings"):
         run_sweep(_write(tmp_path, "[grid]\nencoder = ['nope']\n"), tmp_path / "o", workers=1)
 
 
@@ -112,7 +124,7 @@ def test_dask_sweep_completes_when_a_worker_is_killed(tmp_path):
 
 
 def test_the_shipped_sweep_files_are_valid():
-    from tactilesnn.sweep import check_trial
+    from tactilesnn.app.sweep import check_trial
 
     files = sorted((Path(__file__).resolve().parents[1] / "configs").glob("sweep*.toml"))
     assert files

@@ -7,10 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import tactilesnn.training as training
+import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig
-from tactilesnn.runs import load_arrays
+from tactilesnn.core.files import load_arrays
+from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 _REL = Path("braille_icub_abc") / "braille_abc_icub.npz"
@@ -27,9 +28,9 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
     cfg = PipelineConfig.from_flat(
         model=model, epochs=4, **({"snn_hidden": 16} if model == "snn" else {})
     )
-    ref_dir, _ = training.train_run("hook_loop", SMALL, cfg, tmp_path / "ref", progress=False)
+    ref_dir, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "ref", progress=False)
 
-    real_save = training.save_checkpoint
+    real_save = app_run.save_checkpoint
     calls = {"n": 0}
 
     def crash_after_two(folder, state):
@@ -38,16 +39,16 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
         if calls["n"] == 2:
             raise KeyboardInterrupt  # the session is cut mid-run
 
-    monkeypatch.setattr(training, "save_checkpoint", crash_after_two)
+    monkeypatch.setattr(app_run, "save_checkpoint", crash_after_two)
     out = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        training.train_run("hook_loop", SMALL, cfg, out, progress=False)
+        run_task("hook_loop", SMALL, cfg, out, progress=False)
     assert not out.exists() and (tmp_path / "run.partial" / "checkpoint.json").is_file()
-    monkeypatch.setattr(training, "save_checkpoint", real_save)
+    monkeypatch.setattr(app_run, "save_checkpoint", real_save)
     with pytest.raises(FileExistsError, match="--resume"):
-        training.train_run("hook_loop", SMALL, cfg, out, progress=False)
+        run_task("hook_loop", SMALL, cfg, out, progress=False)
     with pytest.raises(ValueError, match="same settings"):
-        training.train_run(
+        run_task(
             "hook_loop",
             SMALL,
             PipelineConfig.from_flat(model=model, epochs=5),
@@ -55,7 +56,7 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
             progress=False,
             resume=True,
         )
-    path, m = training.train_run("hook_loop", SMALL, cfg, out, progress=False, resume=True)
+    path, m = run_task("hook_loop", SMALL, cfg, out, progress=False, resume=True)
     assert not (tmp_path / "run.partial").exists()
     a, b = load_arrays(ref_dir / "weights.npz"), load_arrays(path / "weights.npz")
     for k in a:
@@ -154,7 +155,7 @@ def test_export_failure_keeps_the_finished_run(tmp_path, monkeypatch, capsys):
     assert "MemoryError" in m["onnx"]["error"] and m["test_accuracy"] > 0.5
     assert (out / "weights.npz").is_file() and not (out / "model.onnx").exists()
     assert not (tmp_path / "r.partial").exists()
-    training.load_run(out)  # the run is usable
+    app_run.load_run(out)  # the run is usable
 
 
 def test_recordings_never_straddle_the_split_and_are_scored_whole(tmp_path):

@@ -1,9 +1,5 @@
-"""The data contract of synthetic tasks and recordings, and the task registry.
-
-:class:`WindowDataset` is what every task's ``build()`` and every recordings reader returns:
-``X`` ``[N, channels, window]`` float32 in the sensor's readout units at ``fs_hz``, ``y`` ``[N]``
-int64 class indices, ``scan`` ``[N]`` int64 group ids (a scan, trial or recording: windows of one
-group never straddle a split).
+"""The task protocol and registry (the data contract, :class:`WindowDataset`, is in
+:mod:`tactilesnn.core.data`: what every task's ``build()`` and every recordings reader returns).
 
 A task is a frozen dataclass satisfying :class:`Task`, registered with ``@register_task`` (unique
 ``name`` and ``task_id``; the id is mixed into every random stream, so two tasks never share one).
@@ -14,22 +10,13 @@ one window; ``n_samples`` can grow) are siblings behind the same protocol.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from ..core.data import WindowDataset
 
-@dataclass(frozen=True)
-class WindowDataset:
-    """Windows of one split: ``X [N, C, W]`` float32, ``y [N]`` int64, ``scan [N]`` int64."""
-
-    X: np.ndarray
-    y: np.ndarray
-    scan: np.ndarray
-    fs_hz: float
-    class_names: tuple[str, ...]
-    channel_names: tuple[str, ...]
+__all__ = ["TASKS", "Task", "WindowDataset", "get_task", "register_task"]
 
 
 @runtime_checkable

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._checks import as_float_array, check_choice, check_finite, check_positive
+from ..core.checks import as_float_array, check_choice, check_finite, check_positive
 from .pvdf import EPS0, boussinesq_t3, contact_positions, disc_points
 
 STAGE_MS = (0.768, 1.536, 3.072)

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from ..core.version import __version__
 from .base import get_task
 
 log = logging.getLogger("tactilesnn")
@@ -153,7 +153,7 @@ def generate(
     checkpoint()
     bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=not progress)
     if scheduler:  # a shard whose worker died is rendered again: it depends only on its inputs
-        from ..dask_run import on_dask
+        from ..core.dask_run import on_dask
 
         for _, rec in on_dask(_render_shard, [(j,) for j in jobs], scheduler):
             shards[rec["file"]] = rec
@@ -186,7 +186,7 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
     ``class_names``, ``channel_names``, and ``recording`` = the sample a window came from, so the
     windows of one scan never straddle the split). Each shard's SHA-256 is checked against the
     manifest and the total size before anything is loaded; an unfinished folder is refused."""
-    from .._checks import check_allocation
+    from ..core.checks import check_allocation
 
     folder = Path(folder)
     path = folder / "manifest.json"

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._checks import as_float_array, check_finite, check_positive
+from ..core.checks import as_float_array, check_finite, check_positive
 
 PI11, PI12, PI44 = -98.9456e-11, 49.4729e-11, -12.4675e-11  # 1/Pa, seed 002
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)

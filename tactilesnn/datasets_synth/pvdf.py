@@ -32,7 +32,7 @@ from typing import ClassVar
 import numpy as np
 from scipy import optimize, signal
 
-from .._checks import as_float_array, check_decimation, check_finite, check_positive
+from ..core.checks import as_float_array, check_decimation, check_finite, check_positive
 
 EPS0 = 8.8541878128e-12
 

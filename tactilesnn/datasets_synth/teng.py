@@ -35,7 +35,7 @@ from typing import ClassVar
 import numpy as np
 from scipy import signal
 
-from .._checks import as_float_array, check_choice, check_finite, check_positive
+from ..core.checks import as_float_array, check_choice, check_finite, check_positive
 
 
 @dataclass(frozen=True)

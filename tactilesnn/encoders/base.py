@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from ..registry import Registry
+from ..core.registry import Registry
 
 ENCODERS: Registry = Registry("encoder")
 
@@ -105,6 +105,15 @@ class SpikeEncoder(nn.Module):
             out[i : i + batch] = self.encode_batch(chunk)
         return out
 
+    def transform(self, x: np.ndarray | Tensor) -> Tensor:
+        """One window ``[channels, samples]`` -> its spike times ``[afferents, max_spikes]``
+        (ms), or a batch ``[N, channels, samples]`` -> ``[N, afferents, max_spikes]``: use it as
+        a dataset transform (``WindowDataset.with_transform(encoder.transform)``, tonic style)."""
+        arr = x.detach().cpu().numpy() if isinstance(x, Tensor) else np.asarray(x)
+        if arr.ndim == 2:
+            return self.encode(arr[None])[0]
+        return self.encode(arr)
+
     def skip_stats(self) -> dict | None:
         """What the encoder skips, per mechanism (e.g. ``{"activity_gate": {...}}``: the fraction
         of (window, channel) pairs not transformed since it was built; ``"band_restriction"``:
@@ -117,8 +126,9 @@ class SpikeEncoder(nn.Module):
         changes."""
         yield
 
-    def export_metadata(self) -> dict[str, str]:
-        """Extra ONNX metadata a runtime needs to reproduce this encoder's skipping."""
+    def export_metadata(self) -> dict[str, tuple]:
+        """Fields of :class:`~tactilesnn.core.graph_contract.GraphContract` a runtime needs to
+        reproduce this encoder's skipping (``gate_rms``, ``bands_hz``, ``bands_transformed``)."""
         return {}
 
     def feature_map(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

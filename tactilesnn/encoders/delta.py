@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_int, check_positive
-from ..spikes import first_spike_times
+from ..core.checks import check_int, check_positive
+from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
 
 

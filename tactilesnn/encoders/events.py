@@ -16,8 +16,8 @@ from typing import ClassVar
 import numpy as np
 from torch import Tensor, nn
 
-from .._checks import check_int
-from ..spikes import first_spike_times
+from ..core.checks import check_int
+from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
 
 

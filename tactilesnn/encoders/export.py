@@ -396,7 +396,7 @@ def export_window_encoder(
     encoder: WindowEncoder, n_channels: int, path: str | Path, opset: int = 17
 ) -> Path:
     """Write ``encoder`` as ONNX with a dynamic batch axis; returns the path."""
-    from ..export.graph import torch_to_onnx
+    from ..core.onnx_graph import torch_to_onnx
 
     path = Path(path)
     dummy = torch.zeros(1, n_channels, encoder.window)

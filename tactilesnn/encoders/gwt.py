@@ -45,7 +45,7 @@ import scipy.sparse
 import torch
 from torch import nn
 
-from .._checks import as_float_array, check_choice, check_finite, check_positive
+from ..core.checks import as_float_array, check_choice, check_finite, check_positive
 
 PADDINGS = ("reflect", "zero", "periodic")
 SUPPORT_TOL = 1e-9  # bins where a band's response is below this fraction of its peak are skipped

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .._checks import check_choice, check_positive
+from ..core.checks import check_choice, check_positive
 
 MAPPINGS = ("log", "linear")
 STATS = ("mean", "std", "max")
@@ -128,8 +128,8 @@ def to_events(spike_times: torch.Tensor, duration_ms: float):
 
 def to_dense(spike_times: torch.Tensor, duration_ms: float, dt_ms: float) -> torch.Tensor:
     """Spike times ``[B, N]`` (ms, inf = none) -> dense raster ``[B, N, steps]`` float32
-    (the package's binning, :func:`tactilesnn.spikes.spike_raster`)."""
-    from ..spikes import raster_steps, spike_raster
+    (the package's binning, :func:`tactilesnn.core.spikes.spike_raster`)."""
+    from ..core.spikes import raster_steps, spike_raster
 
     steps = raster_steps(duration_ms, dt_ms)
     return spike_raster(spike_times.float(), dt_ms, steps).permute(1, 2, 0).contiguous()

@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_int, check_positive
+from ..core.checks import check_choice, check_int, check_positive
 from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes
 

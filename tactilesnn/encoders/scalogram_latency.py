@@ -9,7 +9,6 @@ The exported graph is the scalogram as two MatMuls + modulus (+ band pooling) + 
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -18,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_int, check_positive
+from ..core.checks import check_choice, check_int, check_positive
 from .base import SpikeEncoder, register_encoder
 from .export import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
@@ -229,13 +228,13 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         finally:
             self.skip_enabled = old
 
-    def export_metadata(self) -> dict[str, str]:
-        out = {}
+    def export_metadata(self) -> dict[str, tuple]:
+        out: dict[str, tuple] = {}
         if self.config.gate > 0:
-            out["gate_rms"] = json.dumps([float(v) for v in self.gate_rms])
+            out["gate_rms"] = tuple(float(v) for v in self.gate_rms)
         if self.restricted:
-            out["bands_hz"] = json.dumps([round(float(f), 4) for f in self.freqs_hz])
-            out["bands_transformed"] = json.dumps(self.kept_bands.tolist())
+            out["bands_hz"] = tuple(float(f) for f in self.freqs_hz)
+            out["bands_transformed"] = tuple(int(i) for i in self.kept_bands)
         return out
 
     def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:

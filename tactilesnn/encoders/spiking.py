@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .._checks import as_float_array, check_choice, check_finite, check_positive
+from ..core.checks import as_float_array, check_choice, check_finite, check_positive
 
 RESETS = ("rest", "subtract")
 

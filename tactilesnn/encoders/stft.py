@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .._checks import as_float_array, check_finite, check_positive
+from ..core.checks import as_float_array, check_finite, check_positive
 from .gwt import check_bands, gabor_response
 
 

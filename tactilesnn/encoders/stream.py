@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .._checks import as_float_array, check_finite
+from ..core.checks import as_float_array, check_finite
 from .gwt import GaborScalogram
 from .latency import LatencyCode
 from .stft import STFTScalogram

@@ -5,7 +5,7 @@ Mapping (time constants in seconds, from the configured ``dt_ms`` and ``tau_ms``
 threshold. NIR's LIF is ``tau dv/dt = (v_leak - v) + R I``; integrated exactly for an input held
 over the step (zero-order hold) that is ``v_t = beta v_{t-1} + (1 - beta) R I_t``, so
 ``R = 1 / (1 - beta)`` (dimensionless), ``v_leak = 0``, ``v_threshold = theta``. The graph's
-input is the spike raster (counts per ``dt`` step, :func:`tactilesnn.spikes.spike_raster`);
+input is the spike raster (counts per ``dt`` step, :func:`tactilesnn.core.spikes.spike_raster`);
 ``metadata["dt_s"]`` gives the step. What NIR has no primitive for, said plainly:
 
 * **reset by subtraction** (our default): NIR's LIF resets *to* ``v_reset``. The graph carries
@@ -27,7 +27,6 @@ own ``Affine`` mapping drops the bias (see :func:`_affine`), so ours replaces it
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -37,75 +36,12 @@ import torch
 from torch import Tensor, nn
 
 from ..models.functional import reduce_readout
-
-
-def _require_nir():
-    try:
-        import nir
-    except ImportError as e:  # optional dependency
-        raise ImportError(
-            "NIR export needs the 'nir' package: pip install 'tactilesnn[nir]'"
-        ) from e
-    return nir
-
-
-def snn_to_nir(model: Any):
-    """The SNN component (:class:`~tactilesnn.models.snn.SNNModel`) as a ``nir.NIRGraph``."""
-    nir = _require_nir()
-    net, cfg = model.net, model.config
-    dt_s, tau_s = cfg.dt_ms / 1000.0, cfg.tau_ms / 1000.0
-    beta = math.exp(-cfg.dt_ms / cfg.tau_ms)
-    r = 1.0 / (1.0 - beta)
-
-    def arr(t: Tensor) -> np.ndarray:
-        return t.detach().cpu().numpy().astype(np.float32)
-
-    def full(n: int, v: float) -> np.ndarray:
-        return np.full(n, v, dtype=np.float32)
-
-    n_in, n_h, n_c = net.hidden.fc.in_features, net.hidden.fc.out_features, model.n_classes
-    nodes: dict[str, Any] = {
-        "input": nir.Input(input_type={"input": np.array([n_in])}),
-        "fc1": nir.Affine(weight=arr(net.hidden.fc.weight), bias=arr(net.hidden.fc.bias)),
-        "lif1": nir.LIF(
-            tau=full(n_h, tau_s),
-            r=full(n_h, r),
-            v_leak=full(n_h, 0.0),
-            v_threshold=full(n_h, net.hidden.theta),
-            v_reset=full(n_h, 0.0),
-        ),
-        "fc2": nir.Affine(weight=arr(net.out.fc.weight), bias=arr(net.out.fc.bias)),
-        "output": nir.Output(output_type={"output": np.array([n_c])}),
-    }
-    if cfg.readout == "count":
-        nodes["readout"] = nir.LIF(tau=full(n_c, tau_s), r=full(n_c, r), v_leak=full(n_c, 0.0),
-                               v_threshold=full(n_c, net.out.theta), v_reset=full(n_c, 0.0))  # fmt: skip
-    else:
-        nodes["readout"] = nir.LI(tau=full(n_c, tau_s), r=full(n_c, r), v_leak=full(n_c, 0.0))
-    edges = [
-        ("input", "fc1"),
-        ("fc1", "lif1"),
-        ("lif1", "fc2"),
-        ("fc2", "readout"),
-        ("readout", "output"),
-    ]
-    if net.hidden.rec is not None:
-        nodes["rec"] = nir.Affine(weight=arr(net.hidden.rec.weight), bias=np.zeros(n_h, np.float32))
-        edges += [("lif1", "rec"), ("rec", "lif1")]
-    meta = {
-        "producer": "tactilesnn",
-        "dt_s": dt_s,
-        "reset": "subtract",
-        "readout": cfg.readout,
-        "input": "spike counts per dt step (raster of the encoder's spike times)",
-        "steps": int(model.steps),
-    }
-    return nir.NIRGraph(nodes=nodes, edges=edges, metadata=meta)
+from ..models.snn_nir import require_nir
 
 
 def write_nir(model: Any, path: Path, overwrite: bool = False) -> Path:
     """Write ``model`` as a NIR file (HDF5) atomically; refuses models NIR cannot express."""
-    nir = _require_nir()
+    nir = require_nir()
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
@@ -171,7 +107,7 @@ def simulate(graph: Any, raster: Tensor, honour_reset: bool = True) -> Tensor:
     """
     import nirtorch
 
-    nir = _require_nir()
+    nir = require_nir()
     dt_s = float(graph.metadata["dt_s"])
     subtract = honour_reset and graph.metadata.get("reset") == "subtract"
     if "rec" in graph.nodes:
@@ -197,7 +133,7 @@ def compare(model: Any, spikes: Tensor, path: Path | None = None) -> dict[str, f
     Reports the largest score difference and the prediction agreement, honouring the
     subtract-reset metadata and with plain NIR reset-to-zero semantics.
     """
-    nir = _require_nir()
+    nir = require_nir()
     graph = nir.read(str(path)) if path is not None else model.to_nir()
     if "rec" in graph.nodes:
         return {"simulated": 0.0}

@@ -28,11 +28,12 @@ import onnx
 import torch
 from torch import Tensor, nn
 
-from .. import __version__
+from ..core.graph_contract import EARLY_OUTPUTS, SCORES_OUTPUT, WINDOW_INPUT, GraphContract
+from ..core.onnx_graph import chain, torch_to_onnx
+from ..core.onnx_run import run_batched
+from ..core.spikes import clock_times
+from ..core.version import __version__
 from ..pipeline import SpikePipeline
-from ..service.runtime import EARLY_OUTPUTS, run_batched
-from ..spikes import clock_times
-from .graph import chain, torch_to_onnx
 
 SCORE_ATOL = 1e-4
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
@@ -126,23 +127,24 @@ def export_pipeline(
         raise ValueError("X_check holds no window: the export is verified against torch on it")
     enc, mod = build_parts(pipe)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
-    meta = {
-        "tactilesnn_version": __version__,
-        "fs_hz": repr(pipe.fs_hz),
-        "window_samples": str(pipe.window),
-        "channels": json.dumps(list(pipe.channel_names)),
-        "class_names": json.dumps(list(pipe.class_names)),
-        "units": "input in the sensor's readout units (see the run's task); scores: "
+    contract = GraphContract(
+        fs_hz=pipe.fs_hz,
+        window_samples=pipe.window,
+        channels=tuple(pipe.channel_names),
+        class_names=tuple(pipe.class_names),
+        encoder=pipe.config.encoder_type,
+        model=pipe.config.model_type,
+        state_inputs=tuple(n for n, _ in pipe.model.state_names),
+        bytes_per_window=pipe.bytes_per_window(),
+        encoder_channels=tuple(int(i) for i in pipe.channel_idx),
+        units="input in the sensor's readout units (see the run's task); scores: "
         + pipe.model.score_units,
-        "encoder": pipe.config.encoder_type,
-        "model": pipe.config.model_type,
-        "state_inputs": json.dumps([n for n, _ in pipe.model.state_names]),
-        "pipeline_config": json.dumps(pipe.config.to_dict()),
-        "bytes_per_window": str(pipe.bytes_per_window()),
-        "encoder_channels": json.dumps([int(i) for i in pipe.channel_idx]),
+        pipeline_config=pipe.config.to_dict(),
+        version=__version__,
+        extra=dict(metadata or {}),
         **pipe.encoder.export_metadata(),
-        **(metadata or {}),
-    }
+    )
+    meta = contract.to_metadata()
     for k, v in meta.items():
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
@@ -335,8 +337,6 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     Convs and the LSTM stay float32); reports the accuracy change on (X, y)."""
     from onnxruntime.quantization import QuantType, quantize_dynamic
 
-    from ..service.runtime import PipelineSession
-
     path = Path(path)
     out = path.with_name(path.stem + ".int8.onnx")
     if out.exists() and not overwrite:
@@ -361,10 +361,7 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
     finally:
         root.setLevel(level)
         tmp.unlink(missing_ok=True)
-    acc = {}
-    for name, p in (("float", path), ("int8", out)):
-        sess = PipelineSession(str(p))
-        acc[name] = float((sess.run(sess.validate(X)).argmax(1) == np.asarray(y)).mean())
+    acc = {name: _accuracy(p, X, y) for name, p in (("float", path), ("int8", out))}
     return {
         "path": str(out),
         "float_accuracy": acc["float"],
@@ -373,6 +370,20 @@ def quantize_int8(path: Path, X: np.ndarray, y: np.ndarray, overwrite: bool = Fa
         "float_bytes": path.stat().st_size,
         "int8_bytes": out.stat().st_size,
     }
+
+
+def _accuracy(path: Path, X: np.ndarray, y: np.ndarray) -> float:
+    """Accuracy of the exported graph at ``path`` on windows ``X`` (zero state), in slices
+    within :data:`CHECK_BUDGET_BYTES`."""
+    model = onnx.load(str(path))
+    contract = GraphContract.from_metadata({p.key: p.value for p in model.metadata_props})
+    sess = _session(model)
+    x = np.ascontiguousarray(X, np.float32)
+    states = [(i.name, int(i.shape[1])) for i in sess.get_inputs() if i.name != WINDOW_INPUT]
+    feeds = {WINDOW_INPUT: x, **_zero_states(states, len(x))}
+    batch = max(1, CHECK_BUDGET_BYTES // max(1, contract.bytes_per_window))
+    scores = run_batched(sess, [SCORES_OUTPUT], feeds, batch)[0]
+    return float((scores.argmax(1) == np.asarray(y)).mean())
 
 
 def _not_window_side(path: Path) -> list[str]:

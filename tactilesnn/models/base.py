@@ -19,6 +19,7 @@ class; nothing else in the package names it.
 
 from __future__ import annotations
 
+import contextlib
 from abc import abstractmethod
 from collections.abc import Callable
 from typing import ClassVar
@@ -26,9 +27,19 @@ from typing import ClassVar
 import torch
 from torch import Tensor, nn
 
-from ..registry import Registry
+from ..core.registry import Registry
 
 MODELS: Registry = Registry("model")
+
+
+@contextlib.contextmanager
+def seeded(seed: int):
+    """Within the block torch's global generator is seeded with ``seed``; afterwards it is as
+    before (layers that draw initial weights from it are reproducible without reseeding the
+    user's generator)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(int(seed))
+        yield
 
 
 def register_model(name: str, config: type) -> Callable[[type], type]:

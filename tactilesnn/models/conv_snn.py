@@ -23,9 +23,9 @@ from typing import ClassVar
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_int, check_positive, check_range
-from ..spikes import raster_steps, spike_raster
-from .base import SpikeModel, register_model
+from ..core.checks import check_choice, check_int, check_positive, check_range
+from ..core.spikes import raster_steps, spike_raster
+from .base import SpikeModel, register_model, seeded
 from .functional import decay_factor, li_scan, lif_scan, reduce_readout
 from .snn import _LIFScan
 
@@ -174,9 +174,9 @@ class ConvSNNModel(SpikeModel):
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
         layout = grid_layout(n_afferents, config.grid)
-        torch.manual_seed(int(seed))  # the layers draw their initial weights from the global RNG
         beta = decay_factor(config.dt_ms, config.tau_ms)
-        self.core = _ConvSNNCore(layout, config.channels, n_classes, beta)
+        with seeded(seed):  # the layers draw their initial weights from the global RNG
+            self.core = _ConvSNNCore(layout, config.channels, n_classes, beta)
         self.steps = raster_steps(duration_ms, config.dt_ms)
 
     def raster(self, spikes: Tensor) -> Tensor:

@@ -28,8 +28,8 @@ from typing import ClassVar
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_int, check_positive, check_range
-from .base import SpikeModel, register_model
+from ..core.checks import check_int, check_positive, check_range
+from .base import SpikeModel, register_model, seeded
 
 
 @dataclass(frozen=True)
@@ -81,7 +81,8 @@ class LIReadout(SpikeModel):
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
         g = torch.Generator().manual_seed(int(seed))
         n_in = n_afferents * config.n_times
-        self.linear = nn.Linear(n_in, n_classes)
+        with seeded(seed):  # (its own initial draws are replaced below)
+            self.linear = nn.Linear(n_in, n_classes)
         with torch.no_grad():
             self.linear.weight.copy_(torch.randn(n_classes, n_in, generator=g) / math.sqrt(n_in))
             self.linear.bias.zero_()

@@ -20,7 +20,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from ..spikes import spike_raster
+from ..core.spikes import spike_raster
 from .functional import lif_lstm_activations, lif_lstm_parameters, lif_rec_scan, lif_scan
 
 _I64 = 7  # onnx.TensorProto.INT64

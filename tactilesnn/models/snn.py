@@ -28,9 +28,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_int, check_positive
-from ..spikes import raster_steps, spike_raster
-from .base import SpikeModel, register_model
+from ..core.checks import check_choice, check_int, check_positive
+from ..core.spikes import raster_steps, spike_raster
+from .base import SpikeModel, register_model, seeded
 from .functional import (
     class_lead,
     decay_factor,
@@ -359,16 +359,17 @@ class SNNModel(SpikeModel):
     def __init__(self, config: SNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
-        torch.manual_seed(int(seed))  # nn.Linear draws its initial weights from the global RNG
-        self.net = SNNClassifier(
-            n_afferents, config.hidden, n_classes, readout=config.readout,
-            recurrent=config.recurrent, tau_mem_ms=config.tau_ms, dt_ms=config.dt_ms,
-        )  # fmt: skip
+        with seeded(seed):  # nn.Linear draws its initial weights from the global RNG
+            self.net = SNNClassifier(
+                n_afferents, config.hidden, n_classes, readout=config.readout,
+                recurrent=config.recurrent, tau_mem_ms=config.tau_ms, dt_ms=config.dt_ms,
+            )  # fmt: skip
         self.steps = raster_steps(duration_ms, config.dt_ms) + config.extra_steps
         self.register_buffer("early_margin", torch.tensor(self.NEVER))
 
     def raster(self, spikes: Tensor) -> Tensor:
-        """Spike times ``[B, A, k]`` -> counts ``[steps, B, A]`` (:func:`~tactilesnn.spikes.spike_raster`)."""
+        """Spike times ``[B, A, k]`` -> counts ``[steps, B, A]``
+        (:func:`~tactilesnn.core.spikes.spike_raster`)."""
         return spike_raster(spikes, self.config.dt_ms, self.steps)
 
     def scores(self, spikes: Tensor) -> Tensor:
@@ -450,7 +451,7 @@ class SNNModel(SpikeModel):
         return super().upgrade_state({"net." + k: v for k, v in state.items()})
 
     def to_nir(self):
-        from ..export.nir import snn_to_nir
+        from .snn_nir import snn_to_nir
 
         return snn_to_nir(self)
 

@@ -35,7 +35,7 @@ from typing import ClassVar
 import torch
 from torch import Tensor, nn
 
-from .._checks import check_choice, check_positive, check_range
+from ..core.checks import check_choice, check_positive, check_range
 from .base import SpikeModel, register_model
 
 

@@ -7,7 +7,6 @@ errors, runs the graph and returns class names, indices and scores. SNN graphs c
 
 from __future__ import annotations
 
-import json
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +15,16 @@ from typing import NamedTuple
 import numpy as np
 import onnxruntime as ort
 
-from .._checks import check_float32_range
+from ..core.checks import check_float32_range
+from ..core.graph_contract import (
+    EARLY_OUTPUTS,
+    SCORES_OUTPUT,
+    WINDOW_INPUT,
+    ContractError,
+    GraphContract,
+    state_output,
+)
+from ..core.onnx_run import run_batched
 
 
 class InputError(ValueError):
@@ -49,34 +57,12 @@ class Detail(NamedTuple):
     decision_ms: np.ndarray | None = None
 
 
-#: graph outputs of a model that decides before the window ends: the class of its first output
-#: neuron to fire (int64) and when, in ms of the window's spike code (the duration if none fires)
-EARLY_OUTPUTS = ("early_class", "decision_ms")
-
-
 def _check_float32(arr: np.ndarray, name: str) -> None:
     """Finite values that overflow float32 (the graph's precision) are refused with the range."""
     try:
         check_float32_range(arr, name)
     except ValueError as e:
         raise InputError(str(e)) from e
-
-
-def run_batched(
-    sess, outputs: list[str], feeds: dict[str, np.ndarray], batch: int, desc: str | None = None
-) -> list:
-    """``sess.run`` over the leading axis in slices of ``batch`` (bounded memory), concatenated;
-    with ``desc`` a progress bar of that name (over two slices or more)."""
-    n = len(next(iter(feeds.values())))
-    if n <= batch:  # one slice: no views to pass, no copies to join (16 us of a 0.27 ms call)
-        return sess.run(outputs, feeds)
-    starts = range(0, n, batch)
-    if desc is not None and len(starts) > 1:
-        from tqdm.auto import tqdm  # not needed by the service itself
-
-        starts = tqdm(starts, desc=desc, unit="batch")
-    parts = [sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()}) for i in starts]
-    return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
 
 
 def _with_spikes_output(path: str) -> bytes:
@@ -104,11 +90,6 @@ def pruned_graph(path: str, outputs: list[str]) -> bytes | None:
     return None if found is None else found[1]
 
 
-def _plain_outputs(state_inputs) -> list[str]:
-    """What plain classification asks for: ``scores`` and each state input's ``<name>_out``."""
-    return ["scores", *(f"{name}_out" for name in state_inputs)]
-
-
 def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str], bytes] | None:
     """``(every output of the graph at path, the graph pruned to outputs)``, None when nothing
     would be pruned or ``onnx`` is not installed. ``outputs`` defaults to
@@ -117,20 +98,40 @@ def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str]
         import onnx  # optional here: plain inference needs onnxruntime alone
     except ImportError:
         return None
-    from ..onnx_prune import prune_to_outputs
+    from ..core.onnx_prune import prune_to_outputs
 
     model = onnx.load(str(path))
     every = [o.name for o in model.graph.output]
     if outputs is None:
-        outputs = _plain_outputs(i.name for i in model.graph.input if i.name != "window")
+        states = [i.name for i in model.graph.input if i.name != WINDOW_INPUT]
+        outputs = [SCORES_OUTPUT, *(state_output(n) for n in states)]
     if not prune_to_outputs(model.graph, outputs):
         return None
     return every, model.SerializeToString()
 
 
-def _optional_json(meta: dict[str, str], key: str):
-    """A JSON metadata entry the export writes only for some encoders (None when absent)."""
-    return json.loads(meta.get(key) or "null")
+def _check_io(path: str, c: GraphContract, inputs: dict, outputs: set[str]) -> None:
+    """The graph's inputs and outputs are those its metadata promises (a tampered or foreign
+    graph is refused at load, not at the first request)."""
+    window = inputs.get(WINDOW_INPUT)
+    if window is None:
+        raise ValueError(f"{path}: the graph has no {WINDOW_INPUT!r} input")
+    dims = list(window.shape)
+    want = [len(c.channels), c.window_samples]
+    if len(dims) != 3 or any(
+        isinstance(d, int) and d != w for d, w in zip(dims[1:], want, strict=True)
+    ):
+        raise ValueError(
+            f"{path}: input {WINDOW_INPUT!r} is {dims}, metadata says [batch, {want[0]}, {want[1]}]"
+        )
+    states = set(inputs) - {WINDOW_INPUT}
+    if states != set(c.state_inputs):
+        raise ValueError(
+            f"{path}: state inputs {sorted(states)} differ from the metadata's {list(c.state_inputs)}"
+        )
+    missing = [o for o in c.plain_outputs if o not in outputs]
+    if missing:
+        raise ValueError(f"{path}: the graph lacks the outputs {missing}")
 
 
 class PipelineSession:
@@ -166,27 +167,25 @@ class PipelineSession:
         self.decides_early = set(EARLY_OUTPUTS) <= outs
         meta = self.plain_session.get_modelmeta().custom_metadata_map
         try:
-            self.fs_hz = float(meta["fs_hz"])
-            self.window = int(meta["window_samples"])
-            self.channels = json.loads(meta["channels"])
-            self.class_names = json.loads(meta["class_names"])
-        except (KeyError, ValueError) as e:
-            raise ValueError(f"{path} is not a tactilesnn export (metadata: {e})") from e
+            self.contract = c = GraphContract.from_metadata(meta)
+        except ContractError as e:
+            raise ValueError(f"{path} is not a usable tactilesnn export: {e}") from e
+        self.fs_hz, self.window = c.fs_hz, c.window_samples
+        self.channels, self.class_names = list(c.channels), list(c.class_names)
         self.metadata = dict(meta)
         # windows per onnxruntime call, so a large batch never needs more than the budget
-        per_window = int(meta.get("bytes_per_window", "0") or 0)
+        per_window = c.bytes_per_window
         self.batch = max(1, self.RUN_BUDGET_BYTES // per_window) if per_window > 0 else 1 << 30
         self.inputs = {i.name: i for i in self.plain_session.get_inputs()}
+        _check_io(path, c, self.inputs, outs)
         # every graph input besides the window is streaming state, returned as "<name>_out"
-        self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != "window"}
+        self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != WINDOW_INPUT}
         self.stateful = bool(self.state_units)
         # activity gate of the encoder: the graph encodes only the channels above their RMS
         # threshold (the rest is silent); a window in which every channel is silent has the
         # same scores each time for a stateless model, so the stream path answers it from a
         # cache instead of running the graph
-        gate = _optional_json(meta, "gate_rms")
-        self.gate_rms = None if gate is None else np.asarray(gate, np.float64)
-        self.gate_channels = _optional_json(meta, "encoder_channels")
+        self.gated = c.gate_rms is not None and bool(c.encoder_channels)
         self._silent: Detail | None = None
         self.stats = {
             "stream_windows": 0,
@@ -196,16 +195,15 @@ class PipelineSession:
         }
         # band restriction: bands outside the sensor's passband are not transformed (static:
         # the graph holds only the others)
-        bands = _optional_json(meta, "bands_hz")
-        kept = _optional_json(meta, "bands_transformed")
-        if bands is not None and kept is not None:
+        if c.bands_hz is not None and c.bands_transformed is not None:
+            n_bands = len(c.bands_hz)
             self.stats.update(
-                encoder_bands=len(bands), encoder_bands_skipped=len(bands) - len(kept)
+                encoder_bands=n_bands, encoder_bands_skipped=n_bands - len(c.bands_transformed)
             )
         if self.decides_early:  # the first output neuron to fire vs the full-window answer
             self.stats.update(stream_early_decisions=0, stream_early_differs=0,
                               stream_early_mean_decision_ms=0.0)  # fmt: skip
-        self.plain_outputs = _plain_outputs(self.state_units)
+        self.plain_outputs = c.plain_outputs
         self._zeros: tuple[int, dict[str, np.ndarray]] | None = None
 
     @property
@@ -319,11 +317,10 @@ class PipelineSession:
 
     def _silent_channels(self, win: np.ndarray) -> int:
         """How many of the window's encoder channels the gate silences (0 without a gate)."""
-        if self.gate_rms is None or self.gate_channels is None:
+        if not self.gated:
             return 0
-        rms = win[0, self.gate_channels].astype(np.float64).std(axis=-1)
-        silent = int((rms <= self.gate_rms).sum())
-        self.stats["stream_channel_windows"] += len(self.gate_channels)
+        silent = int(self.contract.silent_channels(win[0]).sum())
+        self.stats["stream_channel_windows"] += len(self.contract.encoder_channels)
         self.stats["stream_channel_windows_skipped"] += silent
         return silent
 
@@ -333,7 +330,7 @@ class PipelineSession:
         only the active channels)."""
         self.stats["stream_windows"] += 1
         silent = self._silent_channels(win)
-        if not self.stateful and self.gate_channels and silent == len(self.gate_channels):
+        if not self.stateful and self.gated and silent == len(self.contract.encoder_channels):
             if self._silent is None:
                 self._silent = self.run_detail(np.zeros_like(win))
             self.stats["stream_windows_skipped"] += 1

@@ -3,7 +3,7 @@ against its own float64 transform."""
 
 from __future__ import annotations
 
-from tactilesnn.bench.encoders import Workload, bench_gwt
+from tactilesnn.app.bench.encoders import Workload, bench_gwt
 
 
 def test_gwt_rows_cover_each_edge_treatment_with_float32_errors():

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from tactilesnn.bench import real
+from tactilesnn.app.bench import real
 from tactilesnn.recordings import load_data_file
 
 
@@ -89,7 +89,7 @@ def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
 
 
 def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monkeypatch):
-    from tactilesnn.bench import tasks
+    from tactilesnn.app.bench import tasks
     from tactilesnn.cli import main
     from tactilesnn.datasets_synth import TASKS
 

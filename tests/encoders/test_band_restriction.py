@@ -9,13 +9,13 @@ import pytest
 import torch
 
 from tactilesnn.config import PipelineConfig
+from tactilesnn.core.onnx_graph import torch_to_onnx
 from tactilesnn.encoders.scalogram_latency import (
     GWTConfig,
     GWTLatencyEncoder,
     STFTConfig,
     STFTLatencyEncoder,
 )
-from tactilesnn.export.graph import torch_to_onnx
 
 FS, W = 2000.0, 400
 

@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
+from tactilesnn.app.run import load_run
 from tactilesnn.config import PipelineConfig
 from tactilesnn.encoders import DeltaConfig, build_encoder
 from tactilesnn.service.runtime import PipelineSession
-from tactilesnn.training import load_run, train_run
+from tests.helpers import run_task
 
 
 def reference(x: np.ndarray, delta: np.ndarray, fs: float, k: int) -> np.ndarray:
@@ -47,7 +48,7 @@ def test_trains_and_exports_through_the_registry_only(tmp_path):
     small = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
     cfg = PipelineConfig.from_flat(encoder="delta", model="snn", channels=("all",), epochs=3,
                                    snn_hidden=16)  # fmt: skip
-    run, m = train_run("hook_loop", small, cfg, tmp_path / "r", progress=False, export=True)
+    run, m = run_task("hook_loop", small, cfg, tmp_path / "r", progress=False, export=True)
     assert m["onnx"]["max_score_diff"] <= 1e-4 and m["test_accuracy"] > 0.5
     pipe, _ = load_run(run)
     from tactilesnn.datasets_synth import HookLoopTask

@@ -6,7 +6,7 @@ import pytest
 from tactilesnn.config import PipelineConfig
 from tactilesnn.encoders import EventsConfig, build_encoder
 from tactilesnn.recordings import load_data_file
-from tactilesnn.training import train_run
+from tests.helpers import run_task
 
 
 def event_file(path, n=60, taxels=6, bins=50, seed=0):
@@ -42,7 +42,7 @@ def test_events_train_and_export(tmp_path, model):
     kw = {"snn_hidden": 32, "snn_dt_ms": 2.0, "snn_lr": 0.01} if model == "snn" else {}
     cfg = PipelineConfig.from_flat(encoder="events", model=model, channels=("all",), epochs=30,
                                    **kw)  # fmt: skip
-    _, m = train_run(None, {}, cfg, tmp_path / "r", progress=False, data=tmp_path / "ev.npz",
+    _, m = run_task(None, {}, cfg, tmp_path / "r", progress=False, data=tmp_path / "ev.npz",
                        export=True)  # fmt: skip
     assert m["test_accuracy"] >= 0.9
     assert m["onnx"]["model_max_score_diff"] <= 1e-4 and m["onnx"]["encoder_max_time_diff_ms"] == 0

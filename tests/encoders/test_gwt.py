@@ -152,10 +152,10 @@ def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
     import onnxruntime as ort
     import torch
 
+    from tactilesnn.core.onnx_graph import torch_to_onnx
     from tactilesnn.encoders import build_encoder
     from tactilesnn.encoders.base import ENCODERS
     from tactilesnn.encoders.scalogram_latency import unit_peak
-    from tactilesnn.export.graph import torch_to_onnx
 
     cfg = ENCODERS.config_class("gwt")
     x = np.random.default_rng(1).standard_normal((8, 2, 200)).astype(np.float32)
@@ -176,7 +176,7 @@ def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
 
 def test_data_defaults_follow_the_rate_and_the_training_spectrum():
     from tactilesnn.encoders.base import ENCODERS
-    from tactilesnn.training import median_power_frequency
+    from tactilesnn.selection import median_power_frequency
 
     for name in ("gwt", "stft"):
         cls = ENCODERS.config_class(name)

@@ -57,7 +57,7 @@ def test_std_stat_sees_bursts_only():
 
 
 def test_to_dense_roundtrip():
-    # one binning convention (tactilesnn.spikes): a 20 ms window at 1 ms is 20 steps, step j holds
+    # one binning convention (tactilesnn.core.spikes): a 20 ms window at 1 ms is 20 steps, step j holds
     # [j, j + 1) ms and a spike at exactly the window end falls into the last step
     t = torch.tensor([[0.0, 12.0, float("inf"), 20.0]])
     d = to_dense(t, duration_ms=20, dt_ms=1.0)

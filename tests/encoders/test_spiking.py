@@ -163,8 +163,8 @@ def test_exported_lif_graph_counts_spikes_as_torch_does(tmp_path) -> None:
     import onnxruntime as ort
     import torch
 
+    from tactilesnn.core.onnx_graph import torch_to_onnx
     from tactilesnn.encoders.base import ENCODERS, build_encoder
-    from tactilesnn.export.graph import torch_to_onnx
 
     fs, n, c = 500.0, 1500, 8
     rng = np.random.default_rng(0)

@@ -10,8 +10,8 @@ import torch
 from onnx import TensorProto, helper
 from torch import nn
 
-from tactilesnn.export.graph import torch_to_onnx
-from tactilesnn.export.shapes import fold_static_shapes
+from tactilesnn.core.onnx_graph import torch_to_onnx
+from tactilesnn.core.onnx_shapes import fold_static_shapes
 
 
 class _Traced(nn.Module):

@@ -3,10 +3,12 @@
 import numpy as np
 import torch
 
+from tactilesnn.app.run import load_run
 from tactilesnn.config import PipelineConfig
 from tactilesnn.models import ReadoutConfig, build_model
 from tactilesnn.models.li_readout import trace_features
-from tactilesnn.training import Trainer, load_run, train_run
+from tactilesnn.trainer import Trainer
+from tests.helpers import run_task
 
 
 def test_traces_match_a_float64_loop():
@@ -42,7 +44,7 @@ def test_trains_thirty_classes_from_spike_timing():
 def test_readout_exports_through_the_registry_only(tmp_path):
     small = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
     cfg = PipelineConfig.from_flat(model="readout", epochs=5)
-    run, m = train_run("hook_loop", small, cfg, tmp_path / "r", progress=False, export=True)
+    run, m = run_task("hook_loop", small, cfg, tmp_path / "r", progress=False, export=True)
     assert m["onnx"]["max_score_diff"] <= 1e-4 and m["test_accuracy"] > 0.8
     pipe, _ = load_run(run)
     assert pipe.config.model_type == "readout"

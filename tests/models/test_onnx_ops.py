@@ -11,6 +11,7 @@ import pytest
 import torch
 from torch import nn
 
+from tactilesnn.core.spikes import spike_raster
 from tactilesnn.models.functional import (
     li_closed,
     li_decay_matrix,
@@ -19,7 +20,6 @@ from tactilesnn.models.functional import (
     lif_scan,
 )
 from tactilesnn.models.onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
-from tactilesnn.spikes import spike_raster
 
 
 def _run_onnx(module: nn.Module, args: tuple, names: list[str]) -> list[np.ndarray]:

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
+from tactilesnn.app.run import load_run
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
 from tactilesnn.service.app import create_app
-from tactilesnn.training import load_run, train_run
+from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
@@ -19,7 +20,7 @@ SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("svc")
-    run, _ = train_run(
+    run, _ = run_task(
         "hook_loop", SMALL, PipelineConfig.from_flat(epochs=2), tmp / "r", progress=False
     )
     pipe, _ = load_run(run)

@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
+from tactilesnn.app.run import load_run
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
 from tactilesnn.service.live import LiveHub, spectrogram, window_event
 from tactilesnn.service.runtime import PipelineSession, StreamState
-from tactilesnn.training import load_run, train_run
+from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 HOSTILE_ID = '<img src=x onerror="document.body.dataset.pwned=1">'
@@ -31,7 +32,7 @@ HOSTILE_ID = '<img src=x onerror="document.body.dataset.pwned=1">'
 def exported(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("live")
     cfg = PipelineConfig.from_flat(epochs=2, model="readout")
-    run, _ = train_run("hook_loop", SMALL, cfg, tmp / "r", progress=False)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp / "r", progress=False)
     pipe, _ = load_run(run)
     test = HookLoopTask(**SMALL).build()[1]
     export_pipeline(pipe, tmp / "m.onnx", test.X[:32])

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
+from tactilesnn.app.run import load_run
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.export import export_pipeline
 from tactilesnn.service.app import create_app
 from tactilesnn.service.live import page_html, page_script_js
 from tactilesnn.service.security import default_allowed_hosts
-from tactilesnn.training import load_run, train_run
+from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
 
@@ -24,7 +25,7 @@ SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
 @pytest.fixture(scope="module")
 def model(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("sec")
-    run, _ = train_run("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp / "r",
+    run, _ = run_task("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp / "r",
                        progress=False)  # fmt: skip
     pipe, _ = load_run(run)
     test = HookLoopTask(**SMALL).build()[1]

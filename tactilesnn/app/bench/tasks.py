@@ -12,6 +12,7 @@ to the amplifier's noise rms.
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import tempfile
 import time
@@ -19,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..baselines import linear_amplitude_baseline
-from ..datasets_synth import TASKS, get_task
-from ..datasets_synth.generate import generate
-from ..datasets_synth.pvdf import PVDFTriangle
+from ...baselines import linear_amplitude_baseline
+from ...datasets_synth import TASKS, get_task
+from ...datasets_synth.generate import generate
+from ...datasets_synth.pvdf import PVDFTriangle
 
 
 def generation_rate(name: str, n: int, workers: int, repeats: int) -> dict:
@@ -94,3 +95,30 @@ def run(n: int = 200, workers: int = 2, repeats: int = 3, progress: bool = True)
           f"{sk['max_diff_pC']:.1e} pC (noise rms {sk['noise_rms_pC']:.1e} pC, peak "
           f"{sk['peak_pC']:.2f} pC)")  # fmt: skip
     return out
+
+
+HELP = "every synthetic task: generation speed, sizes, amplitude-only baseline"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=int, default=2, help="generation processes")
+    p.add_argument("--references", action="store_true",
+                   help="also each task's spike pipeline (--data defaults) against the "
+                   "non-spiking references of bench real")  # fmt: skip
+    p.add_argument("--seeds", type=int, default=1, help="with --references: seeds")
+    p.add_argument("--pipelines", nargs="+", default=["default+readout"],
+                   help="with --references: spike pipelines")  # fmt: skip
+    p.add_argument("--epochs", type=int, default=None, help="with --references: epochs")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import real, require_out, write_result
+
+    if options.references:
+        require_out(out, "tasks --references")
+    write_result(out, "tasks.json", run(workers=options.workers, progress=not options.quiet))
+    if options.references:  # each task as a user's file: spike pipeline vs strong references
+        real.run(Path(out) / "references", datasets=list(real.synthetic_datasets()),
+                 seeds=options.seeds, pipelines=options.pipelines, epochs=options.epochs,
+                 progress=not options.quiet)  # fmt: skip
+    return 0

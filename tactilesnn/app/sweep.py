@@ -26,8 +26,7 @@ so a killed worker leaves no half-written results. ``results.json`` / ``results.
 
 from __future__ import annotations
 
-import argparse
-import functools
+import dataclasses
 import hashlib
 import itertools
 import json
@@ -41,12 +40,15 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from .runs import write_json_atomic
+from ..core.files import write_json_atomic
+from .defaults import run_spec
+from .options import check_settings, train_options
+from .run import RunSpec, train_run
 
 log = logging.getLogger("tactilesnn")
 
-#: train flags a sweep sets itself
-RESERVED = ("out", "overwrite", "resume", "quiet", "config")
+#: trials one sweep may hold (a grid's combinations or random draws)
+MAX_TRIALS = 10_000
 
 
 def load_sweep(path: Path) -> dict:
@@ -63,19 +65,25 @@ def load_sweep(path: Path) -> dict:
         raise ValueError(f"{path}: unknown section(s) {sorted(extra)}; use base, grid, random")
     if ("grid" in spec) == ("random" in spec):
         raise ValueError(f"{path}: give exactly one of [grid] or [random]")
-    known = _train_settings()
+    known = train_options()
     space = spec.get("grid") or spec["random"].get("space", {})
     for key in [*spec.get("base", {}), *space]:
-        if key not in known or key in RESERVED:
+        if key not in known:
             raise ValueError(f"{path}: '{key}' is not a setting a sweep can vary (train --help)")
+    check_settings(spec.get("base", {}), f"{path} [base]")
     if "grid" in spec:
+        n = 1
         for key, values in spec["grid"].items():
             if not isinstance(values, list) or not values:
                 raise ValueError(f"{path}: grid.{key} must be a non-empty list")
+            n *= len(values)
+        if n > MAX_TRIALS:
+            raise ValueError(f"{path}: the grid has {n} combinations (at most {MAX_TRIALS})")
     else:
         r = spec["random"]
-        if not isinstance(r.get("trials"), int) or r["trials"] < 1:
-            raise ValueError(f"{path}: random.trials must be a positive integer")
+        trials = r.get("trials")
+        if isinstance(trials, bool) or not isinstance(trials, int) or not 1 <= trials <= MAX_TRIALS:
+            raise ValueError(f"{path}: random.trials must be an integer in 1-{MAX_TRIALS}")
         for key, dist in space.items():
             _check_distribution(key, dist, path)
     return spec
@@ -93,18 +101,6 @@ def _check_distribution(key: str, dist: object, path: Path) -> None:
         f"{path}: random.space.{key} must be a list of values or {{uniform = [lo, hi]}} / "
         "{log_uniform = [lo, hi]} with 0 < lo < hi"
     )
-
-
-@functools.cache
-def _train_parser() -> argparse.ArgumentParser:
-    from .cli import build_parser
-
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices["train"]
-
-
-def _train_settings() -> set[str]:
-    return {a.dest for a in _train_parser()._actions if a.option_strings}
 
 
 def trials(spec: dict) -> list[dict]:
@@ -139,46 +135,27 @@ def trial_id(index: int, settings: dict) -> str:
     return f"t{index:03d}-{digest}"
 
 
-def train_argv(settings: dict, out: Path) -> list[str]:
-    """``tactilesnn train`` arguments for one trial (``n_bands=10`` -> ``--n-bands 10``; a list
-    gives a flag's several values, or repeats a repeatable flag such as ``task_kw``)."""
-    repeated = {a.dest for a in _train_parser()._actions if isinstance(a, argparse._AppendAction)}
-    argv = ["train"]
-    for key, value in settings.items():
-        flag = "--" + key.replace("_", "-")
-        if isinstance(value, bool):
-            argv.append(flag if value else "--no-" + key.replace("_", "-"))
-        elif isinstance(value, list) and key in repeated:  # task_kw = ["a=1", "b=2"]
-            argv += [x for v in value for x in (flag, str(v))]
-        elif isinstance(value, list):
-            argv += [flag, *map(str, value)]
-        else:
-            argv += [flag, str(value)]
-    return [*argv, "--out", str(out), "--quiet"]
-
-
-def check_trial(settings: dict) -> None:
-    """Parse a trial's arguments as ``train`` would (bad values fail before any work)."""
-    parser = _train_parser()
+def check_trial(settings: dict) -> RunSpec:
+    """A trial's run, built as ``train`` builds it (bad values fail before any work)."""
     try:
-        parser.parse_args(train_argv(settings, Path("x"))[1:])
-    except SystemExit as e:
-        raise ValueError(f"trial settings {settings} are not valid train arguments") from e
+        return run_spec(check_settings(settings, "trial"), Path("x"), progress=False)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"trial settings {settings} are not valid train settings: {e}") from e
 
 
 def run_trial(settings: dict, out: str, threads: int = 1) -> dict:
     """Train one trial into ``out`` (skipped when its run folder is complete); its metrics."""
     import torch
 
-    from .cli import main
-
     out_path = Path(out)
     if not (out_path / "metrics.json").is_file():
         torch.set_num_threads(max(1, threads))
         t0 = time.perf_counter()
-        rc = main(train_argv(settings, out_path))
-        if rc != 0:
-            return {"error": f"train exited with {rc}", "seconds": time.perf_counter() - t0}
+        try:
+            train_run(dataclasses.replace(check_trial(settings), out=out_path, overwrite=True))
+        except Exception as e:  # one failed trial is reported in the table, the others go on
+            log.error("trial %s failed: %s", out_path.name, e)
+            return {"error": f"{type(e).__name__}: {e}", "seconds": time.perf_counter() - t0}
     m = json.loads((out_path / "metrics.json").read_text())
     keys = ("test_accuracy", "test_accuracy_ci95", "fit_seconds", "encode_seconds",
             "test_accuracy_per_recording")  # fmt: skip
@@ -198,7 +175,7 @@ def _local(jobs: list[tuple[str, dict, str]], workers: int) -> Iterator[tuple[st
 
 
 def _dask(jobs: list[tuple[str, dict, str]], scheduler: str) -> Iterator[tuple[str, dict]]:
-    from .dask_run import on_dask
+    from ..core.dask_run import on_dask
 
     for i, res in on_dask(run_trial, [(s, out, 1) for _, s, out in jobs], scheduler):
         yield jobs[i][0], res

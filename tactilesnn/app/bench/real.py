@@ -19,6 +19,7 @@ windows, per recording (scores accumulated). Writes ``real.json``, ``real.md`` a
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import time
@@ -28,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
-from ..datasets_synth import WindowDataset
-from ..recordings import auto_cut, cut_windows, datasets_from_arrays, load_data_file
+from ...config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
+from ...datasets_synth import WindowDataset
+from ...recordings import auto_cut, cut_windows, datasets_from_arrays, load_data_file
 
 log = logging.getLogger("tactilesnn")
 
@@ -71,7 +72,7 @@ REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
 
 def _synthetic(task: str) -> Loader:
     def load(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
-        from ..datasets_synth import get_task
+        from ...datasets_synth import get_task
 
         return get_task(task, seed=seed).build()
 
@@ -81,7 +82,7 @@ def _synthetic(task: str) -> Loader:
 def synthetic_datasets() -> dict[str, tuple[str | None, Loader, bool]]:
     """Every registered synthetic task as ``synth:<task>`` (its default size and split), for the
     same spike-vs-reference check as the real files (``--datasets synth:material ...``)."""
-    from ..datasets_synth import TASKS
+    from ...datasets_synth import TASKS
 
     return {f"synth:{t}": (None, _synthetic(t), False) for t in sorted(TASKS)}
 
@@ -154,7 +155,7 @@ def references(
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ..training import recording_accuracy
+    from ...training import recording_accuracy
 
     def scored(clf, f_train: np.ndarray, f_test: np.ndarray) -> tuple[float, float | None]:
         clf.fit(f_train, train.y)
@@ -191,7 +192,8 @@ def run(
     epochs: int | None = None,
     progress: bool = True,
 ) -> dict:
-    from ..training import fit_and_evaluate, select_encoder
+    from ...selection import select_encoder
+    from ...training import fit_and_evaluate
 
     data_root = Path(data_root)
     rows: list[dict] = []
@@ -333,3 +335,26 @@ def plot(summary: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+HELP = "real recordings: the defaults against non-spiking references on the same split"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data-root", default="../shared/data",
+                   help="folder holding the real datasets (never copied into the repo)")  # fmt: skip
+    p.add_argument("--datasets", nargs="+", help="subset of datasets (default: the real ones "
+                   "found); synth:<task> runs the same check on a synthetic task")  # fmt: skip
+    p.add_argument("--pipelines", nargs="+", help="subset of spike pipelines")
+    p.add_argument("--seeds", type=int, default=3, help="dataset and training seeds")
+    p.add_argument("--epochs", "--bench-epochs", type=int, default=None,
+                   help="epochs (default: each model's own default, as train --data)")  # fmt: skip
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import require_out
+
+    run(Path(require_out(out, "real")), data_root=Path(options.data_root), seeds=options.seeds,
+        datasets=options.datasets, pipelines=options.pipelines, epochs=options.epochs,
+        progress=not options.quiet)  # fmt: skip
+    return 0

@@ -7,10 +7,11 @@ import os
 import shutil
 import tempfile
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
+
+from ..core.files import jsonable
 
 
 class RunExistsError(FileExistsError):
@@ -73,7 +74,7 @@ class RunWriter:
         self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent))
 
     def write_json(self, name: str, obj: object) -> None:
-        (self.tmp / name).write_text(json.dumps(obj, indent=2, sort_keys=True, default=_jsonable))
+        (self.tmp / name).write_text(json.dumps(obj, indent=2, sort_keys=True, default=jsonable))
 
     def write_arrays(self, name: str, arrays: dict[str, np.ndarray]) -> None:
         np.savez(self.tmp / name, **arrays)
@@ -94,34 +95,3 @@ class RunWriter:
 
     def abort(self) -> None:
         shutil.rmtree(self.tmp, ignore_errors=True)
-
-
-def write_json_atomic(path: Path, obj: object) -> None:
-    """Replace ``path`` with ``obj`` as JSON (temporary file + rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=_jsonable))
-    os.replace(tmp, path)
-
-
-def load_arrays(path: Path) -> dict[str, np.ndarray]:
-    """Load a weights file written by :meth:`RunWriter.write_arrays` (pickle disabled)."""
-    try:
-        with np.load(path, allow_pickle=False) as f:
-            return {k: f[k] for k in f.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-        raise ValueError(f"{path} is corrupt or not a weights file ({e})") from e
-
-
-def read_json(path: Path) -> dict:
-    return json.loads(Path(path).read_text())
-
-
-def _jsonable(o: object) -> object:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

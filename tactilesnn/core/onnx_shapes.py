@@ -22,7 +22,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from ..onnx_prune import prune_to_outputs
+from .onnx_prune import prune_to_outputs
 
 #: fixpoint rounds: each makes more shapes static for the next inference
 MAX_ROUNDS = 4

@@ -21,6 +21,7 @@ marked. Writes ``pareto.json``, ``pareto.md`` and ``pareto.png`` (error vs cost,
 
 from __future__ import annotations
 
+import argparse
 import copy
 import gc
 import json
@@ -35,12 +36,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..config import PipelineConfig
-from ..datasets_synth import get_task
-from ..pipeline import SpikePipeline, accuracy_ci95
+from ...config import PipelineConfig
+from ...core.spikes import clock_times
+from ...datasets_synth import TASKS, get_task
+from ...pipeline import SpikePipeline, accuracy_ci95
+from ...training import fit_and_evaluate
 from ..runs import RunWriter
-from ..spikes import clock_times
-from ..training import fit_and_evaluate
 
 log = logging.getLogger("tactilesnn")
 
@@ -136,8 +137,8 @@ Prepared = tuple[dict, dict | None]
 def prepare_point(pipe: SpikePipeline, test, tmp: Path) -> list[Prepared]:
     """The precision rows of one trained pipeline (see the module docstring), untimed, each with
     the calls :func:`time_rows` times; its graphs are written into the empty folder ``tmp``."""
-    from ..export import export_pipeline, quantize_int8
-    from ..service.runtime import PipelineSession
+    from ...export import export_pipeline, quantize_int8
+    from ...service.runtime import PipelineSession
 
     X, y = test.X, test.y
     x1, x64 = X[:1], X[: min(64, len(X))]
@@ -240,8 +241,8 @@ def realtime_session(
     graph encodes only the touched ones. ``int8``: the graph's window-side MatMuls dynamically
     quantised (:func:`quantize_int8`; the Convs and the LSTM stay float32). ``snn``: its hidden
     units and time step (ms); the default is the SNN's default."""
-    from ..export import export_pipeline, quantize_int8
-    from ..service.runtime import PipelineSession
+    from ...export import export_pipeline, quantize_int8
+    from ...service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
     cfg = PipelineConfig.from_flat(model="snn", channels=("all",), f_hi_hz=800.0, f_lo_hz=5.0,
@@ -416,3 +417,24 @@ def plot(
 
 def load(path: Path) -> dict:
     return json.loads(Path(path).read_text())
+
+
+HELP = "run time against error of encoder x model configurations (and real-time rows)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS),
+                   help="the task whose pipelines are compared")  # fmt: skip
+    p.add_argument(
+        "--epochs", "--bench-epochs", type=int, default=10, help="training epochs per configuration"
+    )
+    p.add_argument("--quick", action="store_true", help="a few small cases (as the tests run)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import require_out
+
+    run(Path(require_out(out, "pareto")), task=options.task, quick=options.quick,
+        epochs=options.epochs, overwrite=options.overwrite, progress=not options.quiet)  # fmt: skip
+    return 0

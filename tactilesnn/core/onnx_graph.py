@@ -10,7 +10,7 @@ import onnx
 import torch
 from torch import nn
 
-from .shapes import fold_static_shapes
+from .onnx_shapes import fold_static_shapes
 
 OPSET = 17
 

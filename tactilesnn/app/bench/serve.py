@@ -7,12 +7,14 @@ of 32. Reports requests/s, windows/s, p50 / p99 latency and errors (expected: ze
 
 from __future__ import annotations
 
+import argparse
 import http.client
 import io
 import socket
 import statistics
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -46,7 +48,7 @@ def _client(port: int, body: bytes, stop: float, lat: list, errors: list) -> Non
 def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     import uvicorn
 
-    from ..service.app import create_app
+    from ...service.app import create_app
 
     app = create_app(model)
     session = app.state.session
@@ -109,3 +111,20 @@ def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     table = "\n".join(lines)
     print(table)
     return {"rows": rows, "table": table}
+
+
+HELP = "load test of the HTTP service: throughput and latency with concurrent clients"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, help="model.onnx to load-test")
+    p.add_argument("--clients", type=int, default=8, help="concurrent clients")
+    p.add_argument("--seconds", type=float, default=10.0, help="duration per case")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import write_result
+
+    write_result(out, "serve.json", run(options.model, clients=options.clients,
+                                        seconds=options.seconds))  # fmt: skip
+    return 0

@@ -15,6 +15,7 @@ the time saved and checks that spikes of the active part are identical to the un
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import importlib.util
 import json
@@ -28,8 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..encoders.gwt import GaborScalogram, log_bands
-from ..encoders.stft import STFTScalogram
+from ...encoders.gwt import GaborScalogram, log_bands
+from ...encoders.stft import STFTScalogram
 
 CMOR = "cmor1.5-1.0"
 
@@ -235,7 +236,7 @@ def bench_stft(
     """
     from scipy import signal
 
-    from ..encoders.latency import LatencyCode
+    from ...encoders.latency import LatencyCode
 
     x = w.signal()
     hop = nperseg // 2
@@ -349,3 +350,17 @@ def run(out: Path | None, repeats: int = 7, hop: int = 10, sparse: bool = False)
         os.replace(tmp, out)
         print(f"results: {out}")
     return results
+
+
+HELP = "GWT / STFT encoders against PyWavelets, ssqueezepy, fCWT and scipy (speed, error)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--repeats", type=int, default=7, help="timed runs per case")
+    p.add_argument("--sparse", action="store_true", help="the activity-gate benchmark instead")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    run(Path(out) / "encoders.json" if out else None, repeats=options.repeats,
+        sparse=options.sparse)  # fmt: skip
+    return 0

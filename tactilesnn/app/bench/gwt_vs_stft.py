@@ -11,17 +11,18 @@ resolution (``gwt_mean`` vs ``stft``) from what it gains from time resolution in
 
 from __future__ import annotations
 
+import argparse
 import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
-from ..baselines import linear_amplitude_baseline
-from ..config import PipelineConfig
-from ..datasets_synth import HookLoopTask
+from ...baselines import linear_amplitude_baseline
+from ...config import PipelineConfig, TrainConfig
+from ...datasets_synth import HookLoopTask
+from ...training import fit_and_evaluate
 from ..runs import RunWriter
-from ..training import fit_and_evaluate
 
 log = logging.getLogger("tactilesnn")
 
@@ -146,3 +147,22 @@ def plot_curves(rows: list[dict], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+HELP = "seed 001's comparison: GWT vs STFT latency codes on the hook/loop task over seeds"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seeds", type=int, default=5, help="dataset and training seeds")
+    p.add_argument("--epochs", type=int, default=TrainConfig().epochs, help="training epochs")
+    p.add_argument("--difficulty", type=float, default=1.0, help="task difficulty multiplier")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import require_out
+
+    run(seeds=options.seeds, out=Path(require_out(out, "gwt-vs-stft")),
+        overwrite=options.overwrite, epochs=options.epochs, difficulty=options.difficulty,
+        progress=not options.quiet)  # fmt: skip
+    return 0

@@ -9,16 +9,18 @@ peer's forward output is checked against our plain reference loop where its neur
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import torch
 from torch import nn
 
-from ..models.functional import lif_scan
-from ..models.snn import LIFLayer
+from ...models.functional import lif_scan
+from ...models.snn import LIFLayer
 
 T, B, N_IN, N_H, N_OUT = 500, 64, 96, 128, 10
 BETA = 0.95
@@ -130,7 +132,7 @@ def matmul_gflops(threads: int) -> float:
 
 
 def run(repeats: int = 7) -> dict:
-    from ..perf import tune_allocator
+    from ...core.perf import tune_allocator
 
     results_alloc = tune_allocator()
     torch.manual_seed(0)
@@ -199,3 +201,17 @@ def format_table(res: dict) -> str:
             f"{r['forward_ms'] / o['forward_ms']:.1f}x / {r['train_step_ms'] / o['train_step_ms']:.1f}x |"
         )
     return "\n".join(lines)
+
+
+HELP = "SNN training step against snnTorch, Norse and SpikingJelly (same network)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--repeats", type=int, default=7, help="timed runs per case")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import write_result
+
+    write_result(out, "snn.json", run(repeats=options.repeats))
+    return 0

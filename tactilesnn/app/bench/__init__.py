@@ -1,0 +1,51 @@
+"""Benchmarks (``tactilesnn bench <name>``), one module each.
+
+A benchmark module defines ``HELP`` (one line), ``add_arguments(parser)`` (its own flags; ``--out``
+and ``--quiet`` are every benchmark's) and ``main(out, options) -> exit status``; its measuring
+functions (``run(...)``) are the Python API. Adding one: a new module and a line below.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+#: name on the command line -> module (imported when the command line is built)
+BENCHMARKS: dict[str, str] = {
+    "gwt-vs-stft": "gwt_vs_stft",
+    "encoders": "encoders",
+    "snn": "snn",
+    "serve": "serve",
+    "tasks": "tasks",
+    "real": "real",
+    "pareto": "pareto",
+    "stability": "stability",
+    "skip": "skip",
+}
+
+
+def benchmark(name: str) -> ModuleType:
+    """The module of benchmark ``name`` (ValueError naming the known ones)."""
+    if name not in BENCHMARKS:
+        raise ValueError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
+    return importlib.import_module(f"{__name__}.{BENCHMARKS[name]}")
+
+
+def write_result(out, name: str, obj: dict) -> None:
+    """``obj`` as ``out/name`` (JSON, atomic) when ``out`` is given; says where."""
+    from pathlib import Path
+
+    from ...core.files import write_json_atomic
+
+    if out is None:
+        return
+    path = Path(out) / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, obj)
+    print(f"results: {path}")
+
+
+def require_out(out, name: str):
+    if out is None:
+        raise ValueError(f"bench {name} needs --out DIR")
+    return out

@@ -1,0 +1,129 @@
+"""Defaults that follow the data, and the one place that turns a settings dict into a run.
+
+:func:`run_spec`: settings (command-line flags, a TOML ``--config``, a sweep trial) -> a
+:class:`~tactilesnn.app.run.RunSpec`. With ``data`` (a user's file) the defaults follow the file:
+every channel, the ``readout`` model, the ``events`` encoder for event files (the ``csnn`` model
+when their taxels form a grid), long recordings cut into windows, and the encoder chosen among
+:data:`~tactilesnn.config.DATA_ENCODER_CANDIDATES` on held-out training recordings
+(:func:`~tactilesnn.app.select.select_encoder`) unless the settings name one.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from ..config import (
+    DATA_ENCODER_CANDIDATES,
+    PipelineConfig,
+    apply_flat,
+    data_file_defaults,
+    encoder_settings_given,
+    flat_settings,
+)
+from ..datasets_synth import get_task, parse_faults
+from ..datasets_synth.base import task_parameters
+from ..recordings import auto_window, event_grid, is_event_file
+from .options import run_options, train_options
+from .run import FileSource, RunSpec, TaskSource
+
+log = logging.getLogger("tactilesnn")
+
+
+def task_params(task: str, settings: dict[str, Any]) -> dict[str, Any]:
+    """The task's parameters from run options (difficulty, amplitude spread, faults,
+    ``task_kw`` entries ``key=value`` with JSON values)."""
+    kw: dict[str, Any] = {"difficulty": settings["difficulty"],
+                          "amplitude_spread": settings["amplitude_spread"]}  # fmt: skip
+    for item in settings.get("task_kw") or ():
+        key, sep, val = str(item).partition("=")
+        if not sep or not key:
+            raise ValueError(f"task_kw expects key=value, got {item!r}")
+        try:
+            value = json.loads(val)
+        except json.JSONDecodeError:
+            value = val
+        kw[key.strip()] = tuple(value) if isinstance(value, list) else value
+    if settings.get("faults"):
+        if "faults" not in task_parameters(task):
+            raise ValueError(f"faults apply to tasks with a sensor-fault model, not {task}")
+        parse_faults(settings["faults"])  # fail early on a typo
+        kw["faults"] = settings["faults"]
+    return kw
+
+
+def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None) -> PipelineConfig:
+    """The pipeline settings given (``settings``' pipeline keys) over ``base`` (a TOML
+    ``--config``'s pipeline settings), with the defaults of the data source for what neither
+    gives (see the module docstring)."""
+    options = train_options()
+    flat = {k: v for k, v in settings.items() if k in options and options[k].pipeline}
+    base = base or {}
+    given = _given(settings, base)
+    data = settings.get("data")
+    if not data and "channels" not in given:
+        # the default channel ('dynamic', hook_loop's) where the task has it, else all of them
+        names = get_task(settings["task"], **task_params(settings["task"], settings)).channel_names
+        if not set(PipelineConfig().channels) <= set(names):
+            flat["channels"] = ("all",)
+    if data:
+        events = is_event_file(Path(data))
+        owners = flat_settings()
+        for key, value in data_file_defaults(
+            events, event_grid(Path(data)) if events else None
+        ).items():
+            # a default setting of the default model (or encoder) only goes with that component
+            part = owners[key][0].split()[0] if key in owners else None
+            if key not in given and part not in given:
+                flat[key] = value
+    return apply_flat(base, flat)
+
+
+def data_window(settings: dict[str, Any]) -> tuple[float | None, float | None]:
+    """``(window_s, hop_s)`` to cut a data file's recordings with (None: keep them whole)."""
+    window_s, hop_s = settings.get("data_window_s"), settings.get("data_hop_s")
+    if window_s is None and hop_s is None:
+        window_s, hop_s = auto_window(Path(settings["data"])) or (None, None)
+        if window_s is not None:
+            log.info("recordings of %s cut into %.3g s windows every %.3g s (--data-window-s 0 "
+                     "keeps them whole)", settings["data"], window_s, hop_s)  # fmt: skip
+    elif window_s == 0:
+        if hop_s is not None:
+            raise ValueError("--data-hop-s needs a window length (--data-window-s > 0)")
+        window_s = None
+    return window_s, hop_s
+
+
+def run_spec(
+    settings: dict[str, Any],
+    out: Path,
+    toml: dict[str, Any] | None = None,
+    **run: Any,
+) -> RunSpec:
+    """Settings -> :class:`~tactilesnn.app.run.RunSpec` for ``out``. ``settings``: run options
+    (missing ones take their defaults) and the pipeline settings given; ``toml``: a
+    ``--config`` file's pipeline settings; ``run``: ``overwrite``, ``resume``, ``progress``,
+    ``config_text`` of the RunSpec."""
+    settings = {**{o.name: o.default for o in run_options()}, **settings}
+    config = pipeline_config(settings, toml)
+    data = settings.get("data")
+    if (settings.get("data_window_s") or settings.get("data_hop_s")) and not data:
+        raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
+    select: tuple[str, ...] = ()
+    if data:
+        source: Any = FileSource(Path(data), *data_window(settings))
+        if not is_event_file(Path(data)) and not encoder_settings_given(_given(settings, toml)):
+            select = DATA_ENCODER_CANDIDATES
+    else:
+        task = settings["task"]
+        source = TaskSource(task, {**task_params(task, settings), "seed": config.seed})
+    return RunSpec(source, config, Path(out), export=bool(settings["export"]),
+                   val_fraction=float(settings["val_fraction"]), select_encoders=select, **run)  # fmt: skip
+
+
+def _given(settings: dict[str, Any], toml: dict[str, Any] | None) -> set[str]:
+    """Names of the pipeline settings the user gave (flags or keys, and TOML keys/sections)."""
+    options = train_options()
+    return {k for k in settings if k in options and options[k].pipeline} | set(toml or {})

@@ -1,0 +1,290 @@
+"""A training run as one typed object, executed by one function.
+
+:class:`RunSpec` says what ``tactilesnn train`` needs (data source, pipeline config, output
+folder, resume / overwrite, export); :func:`train_run` builds the data, trains, evaluates and
+writes the run folder atomically. The CLI, sweeps and benchmarks build a ``RunSpec`` and call it.
+
+Run folder: ``config.json`` (settings, data source, rate, channel and class names),
+``weights.npz`` (no pickle), ``metrics.json``, ``confusion_matrix.json|png``,
+``training_error.png``, ``test_windows.png``, ``config.toml`` (the ``--config`` given) and
+``model.onnx`` (with export). While training, each epoch is checkpointed in ``<out>.partial/``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import platform
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..baselines import linear_amplitude_baseline
+from ..config import PipelineConfig, is_nested
+from ..core.data import WindowDataset
+from ..core.files import load_arrays, read_json, write_json_atomic
+from ..core.version import __version__
+from ..datasets_synth import get_task
+from ..pipeline import SpikePipeline, select_channels
+from ..recordings import load_data_file
+from ..selection import select_encoder
+from ..training import TrainResult, fit_and_evaluate, load_checkpoint, save_checkpoint
+from .plots import plot_confusion, plot_training, plot_windows
+from .runs import RunWriter, default_run_dir
+
+log = logging.getLogger("tactilesnn")
+
+#: where runs go when no folder is named
+RUNS_ROOT = Path("runs")
+
+
+@dataclass(frozen=True)
+class TaskSource:
+    """A registered synthetic task and its parameters (rendered deterministically)."""
+
+    name: str = "hook_loop"
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        return self.name
+
+    def record(self) -> dict[str, Any]:
+        return {"task": self.name, "task_kwargs": dict(self.params), "data": None}
+
+    def check_config(self, config: PipelineConfig) -> None:
+        """Refuse channels the task does not provide, before any data is rendered."""
+        select_channels(config.channels, get_task(self.name, **self.params).channel_names)
+
+    def load(self, seed: int, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
+        return get_task(self.name, **self.params).build(progress=progress)
+
+
+@dataclass(frozen=True)
+class FileSource:
+    """Recordings in a file (``.npz``) or a generated folder, optionally cut into windows of
+    ``window_s`` seconds every ``hop_s``."""
+
+    path: Path
+    window_s: float | None = None
+    hop_s: float | None = None
+
+    @property
+    def label(self) -> str:
+        return Path(self.path).stem
+
+    def record(self) -> dict[str, Any]:
+        cut = {"data_window_s": self.window_s, "data_hop_s": self.hop_s} if self.window_s else {}
+        return {"task": None, "task_kwargs": {}, "data": str(self.path), **cut}
+
+    def check_config(self, config: PipelineConfig) -> None:
+        """Channels are checked against the file when it is read."""
+
+    def load(self, seed: int, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
+        return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s)
+
+
+DataSource = TaskSource | FileSource
+
+
+def source_of(record: dict[str, Any]) -> DataSource:
+    """The data source a run folder's ``config.json`` (or ``run.json``) describes."""
+    if record.get("data"):
+        return FileSource(Path(record["data"]), record.get("data_window_s"),
+                          record.get("data_hop_s"))  # fmt: skip
+    return TaskSource(record["task"], dict(record.get("task_kwargs") or {}))
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything one training run needs (see the module docstring)."""
+
+    source: DataSource
+    config: PipelineConfig
+    #: the run folder; None: ``runs/<source>-<encoder>-<model>-<UTC time>`` named after the
+    #: encoder trained (the chosen one where one is selected)
+    out: Path | None
+    overwrite: bool = False
+    resume: bool = False
+    export: bool = False
+    val_fraction: float = 0.0
+    #: encoders to choose among on held-out training recordings (empty: ``config``'s own)
+    select_encoders: tuple[str, ...] = ()
+    #: the TOML text the settings came from (kept in the run folder as ``config.toml``)
+    config_text: str | None = None
+    progress: bool = True
+
+    def record(self) -> dict[str, Any]:
+        """The settings that identify the run (``run.json``; a resume must match them)."""
+        return {
+            **self.source.record(),
+            **({"select_encoders": list(self.select_encoders)} if self.select_encoders else {}),
+            "pipeline": self.config.to_dict(),
+            "val_fraction": self.val_fraction,
+        }
+
+
+@dataclass
+class RunResult:
+    """The written run folder, its metrics, and the pipeline config trained (the chosen encoder
+    where one was selected)."""
+
+    path: Path
+    metrics: dict
+    config: PipelineConfig
+
+
+def train_run(spec: RunSpec) -> RunResult:
+    """Build the data, train, evaluate and write ``spec.out`` atomically.
+
+    Each epoch's state is checkpointed in ``<out>.partial/``; ``spec.resume`` continues from
+    there after an interruption (same settings required). Nothing existing is replaced unless
+    ``spec.overwrite``.
+    """
+    out = _default_out(spec, spec.config) if spec.out is None else Path(spec.out)
+    writer = RunWriter(out, overwrite=spec.overwrite)  # refuses an existing folder before work
+    partial = out.with_name(out.name + ".partial")
+    record = spec.record()
+    try:
+        state = _open_partial(partial, record, spec)
+        train, test = _load(spec)
+        config, selection = spec.config, None
+        if spec.select_encoders:
+            config, selection = select_encoder(config, train, spec.select_encoders)
+            if spec.out is None:  # the folder is named after what was trained
+                writer.path = _default_out(spec, config)
+        res = fit_and_evaluate(
+            config, train, test, progress=spec.progress, val_fraction=spec.val_fraction,
+            checkpoint=lambda epoch, st: save_checkpoint(partial, st), resume=state,
+            require_export=spec.export,
+        )  # fmt: skip
+        res.metrics["trivial_amplitude_baseline_accuracy"] = linear_amplitude_baseline(
+            train.X, train.y, test.X, test.y
+        )
+        res.metrics["train_error_history"] = res.history
+        if selection is not None:
+            res.metrics["encoder_selection_val_accuracy"] = selection
+        _write_run(writer, spec, {**record, "pipeline": config.to_dict()}, res, train, test)
+        path = writer.commit()
+        shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
+    except BaseException:
+        writer.abort()
+        raise
+    if spec.export:  # after the run is safely written: an export failure never loses the run
+        res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)
+        write_json_atomic(path / "metrics.json", res.metrics)
+    return RunResult(path, res.metrics, config)
+
+
+def _default_out(spec: RunSpec, config: PipelineConfig) -> Path:
+    return default_run_dir(RUNS_ROOT, spec.source.label, config.encoder_type, config.model_type)
+
+
+def _open_partial(partial: Path, record: dict, spec: RunSpec) -> dict | None:
+    """Prepare ``<out>.partial/`` (the run's settings and checkpoints); the checkpoint to
+    resume from with ``spec.resume``, else None."""
+    state = None
+    if spec.resume:
+        if not (partial / "checkpoint.json").is_file():
+            raise FileNotFoundError(f"nothing to resume: no checkpoint in {partial}")
+        if read_json(partial / "run.json") != json.loads(json.dumps(record)):
+            raise ValueError(
+                f"--resume needs the same settings as the interrupted run ({partial / 'run.json'})"
+            )
+        state = load_checkpoint(partial)
+        log.info("resuming %s from epoch %d", spec.out, state["epoch"])
+    elif partial.exists() and not (partial / "checkpoint.json").is_file():
+        # a run that failed before its first epoch left only its settings: nothing to resume
+        shutil.rmtree(partial)
+    elif partial.exists():
+        if not spec.overwrite:
+            raise FileExistsError(
+                f"an interrupted run is in {partial}: pass --resume to continue it or "
+                "--overwrite to discard it"
+            )
+        shutil.rmtree(partial)
+    partial.mkdir(parents=True, exist_ok=True)
+    (partial / "run.json").write_text(json.dumps(record, indent=2))
+    return state
+
+
+def _load(spec: RunSpec) -> tuple[WindowDataset, WindowDataset]:
+    t0 = time.perf_counter()
+    spec.source.check_config(spec.config)
+    train, test = spec.source.load(spec.config.seed, progress=spec.progress)
+    log.info("%s: %d train / %d test windows (%d x %d samples @ %g Hz) in %.1f s",
+             spec.source.label, train.y.size, test.y.size, train.X.shape[1], train.X.shape[2],
+             train.fs_hz, time.perf_counter() - t0)  # fmt: skip
+    return train, test
+
+
+def _write_run(writer: RunWriter, spec: RunSpec, record: dict, res: TrainResult,
+               train: WindowDataset, test: WindowDataset) -> None:  # fmt: skip
+    """The run folder's files, into the writer's temporary folder."""
+    writer.write_json("config.json", {
+        **record, "fs_hz": train.fs_hz, "window": int(train.X.shape[-1]),
+        "channel_names": list(train.channel_names), "class_names": list(train.class_names),
+        "tactilesnn_version": __version__, "torch_version": torch.__version__,
+        "python": platform.python_version(),
+    })  # fmt: skip
+    if spec.config_text is not None:
+        writer.file("config.toml").write_text(spec.config_text)
+    writer.write_arrays("weights.npz", res.pipeline.weights())
+    writer.write_json("confusion_matrix.json",
+                      {"labels": list(test.class_names), "matrix": res.confusion.tolist()})  # fmt: skip
+    plot_confusion(res.confusion, test.class_names, writer.file("confusion_matrix.png"))
+    plot_training(res.history, res.metrics["val_accuracy_history"],
+                  writer.file("training_error.png"))  # fmt: skip
+    plot_windows(res.pipeline, test.X, test.y, writer.file("test_windows.png"))
+    writer.write_json("metrics.json", res.metrics)
+
+
+def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
+    """The ``(train, test)`` windows of a run's data source, cut as they were cut."""
+    return source_of(cfg).load(seed)
+
+
+def export_into_run(
+    pipe: SpikePipeline, run: Path, X_check: np.ndarray, record: dict, progress: bool = False
+) -> dict:
+    """Write ``run/model.onnx`` (verified on ``X_check``); a failure is reported, not raised."""
+    from ..export import data_hash, export_pipeline
+
+    try:
+        rep = export_pipeline(
+            pipe,
+            run / "model.onnx",
+            X_check,
+            metadata={"training_data_sha256": data_hash(record), "run": run.name},
+            progress=progress,
+        )
+    except Exception as e:  # onnxruntime raises its own types too; the run is kept
+        log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)
+        return {"error": f"{type(e).__name__}: {e}"}
+    keys = ("nodes", "max_score_diff", "windows_beyond_atol", "prediction_agreement",
+            "encoder_max_time_diff_ms", "model_max_score_diff")  # fmt: skip
+    return {k: rep[k] for k in keys if k in rep}
+
+
+def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
+    """Rebuild a trained pipeline from a run folder (JSON config + npz weights, no pickle)."""
+    run_dir = Path(run_dir)
+    for name in ("config.json", "weights.npz"):
+        if not (run_dir / name).is_file():
+            raise FileNotFoundError(f"{run_dir} is not a run folder: {name} is missing")
+    cfg = read_json(run_dir / "config.json")
+    legacy = not is_nested(cfg["pipeline"])  # written before the component layer
+    pipe = SpikePipeline(
+        PipelineConfig.from_dict(cfg["pipeline"]),
+        cfg["fs_hz"],
+        cfg["window"],
+        cfg["channel_names"],
+        cfg["class_names"],
+    )
+    pipe.load_weights(load_arrays(run_dir / "weights.npz"), legacy=legacy)
+    return pipe, cfg

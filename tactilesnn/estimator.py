@@ -1,0 +1,268 @@
+"""A scikit-learn classifier over the spike pipeline: ``SpikeClassifier().fit(X, y, fs_hz=...)``.
+
+Hyperparameters live in ``__init__`` (stored as given, checked in ``fit``), what is learned from
+the data ends in ``_``: the class labels (``classes_``), the channel names, the pipeline
+(``pipeline_``, a :class:`~tactilesnn.pipeline.SpikePipeline` to export with
+:func:`tactilesnn.export_pipeline`) and the temperature that calibrates ``predict_proba``.
+So ``clone``, ``GridSearchCV``, ``cross_val_score`` and ``Pipeline`` work.
+
+``X``: ``[N, channels, samples]`` windows at ``fs_hz`` in the sensor's units (``[N, samples]``
+is one channel; ``[N, taxels, polarity, bins]`` event counts), or a
+:class:`~tactilesnn.core.data.WindowDataset` (its rate, channel and class names are used).
+The defaults are those of ``tactilesnn train --data`` (a user's file): every channel, the
+``readout`` model, the encoder chosen among GWT, STFT and LIF on held-out training windows
+(``encoder="auto"``; the ``events`` encoder for event counts).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+from sklearn.base import BaseEstimator, ClassifierMixin
+from sklearn.utils.multiclass import check_classification_targets
+from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
+
+from .config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
+from .core.checks import check_float32_range
+from .core.data import WindowDataset
+from .encoders import ENCODERS
+from .models.base import seeded
+from .pipeline import SpikePipeline
+from .selection import median_power_frequency, select_encoder
+from .trainer import Trainer
+from .training import split_validation
+
+
+class SpikeClassifier(ClassifierMixin, BaseEstimator):
+    """Spike-encoder + spiking-model classifier with the scikit-learn API.
+
+    Parameters
+    ----------
+    encoder : registered encoder name, or ``"auto"`` (chosen on held-out training windows).
+    model : registered model name (``readout``, ``snn``, ``tempotron``, ``csnn``...).
+    encoder_params, model_params : settings of the encoder's / model's config (field names, e.g.
+        ``{"n_bands": 16}``, ``{"hidden": 64}``); unset fields keep the component's defaults
+        for the data's rate and window.
+    channels : ``"all"`` or channel names to use (names given to ``fit`` or ``ch0, ch1...``).
+    epochs : training epochs (None: the model's default).
+    batch_size, clock_afferents, seed : as ``tactilesnn train``.
+    val_fraction : windows (whole groups) held out of training for best-weight selection and
+        the probability calibration (0: both on the training windows).
+    fs_hz : sampling rate (Hz) when ``fit`` is not given one (``fit``'s wins).
+    progress : progress bars while encoding and training.
+    """
+
+    def __init__(
+        self,
+        encoder: str = "auto",
+        model: str = "readout",
+        encoder_params: dict | None = None,
+        model_params: dict | None = None,
+        channels: str | tuple[str, ...] = "all",
+        epochs: int | None = None,
+        batch_size: int = 32,
+        clock_afferents: int = 5,
+        val_fraction: float = 0.0,
+        seed: int = 0,
+        fs_hz: float | None = None,
+        progress: bool = False,
+    ) -> None:
+        self.encoder = encoder
+        self.model = model
+        self.encoder_params = encoder_params
+        self.model_params = model_params
+        self.channels = channels
+        self.epochs = epochs
+        self.batch_size = batch_size
+        self.clock_afferents = clock_afferents
+        self.val_fraction = val_fraction
+        self.seed = seed
+        self.fs_hz = fs_hz
+        self.progress = progress
+
+    # ------------------------------------------------------------------ fit
+    def fit(
+        self,
+        X: Any,
+        y: Any = None,
+        fs_hz: float | None = None,
+        groups: Any = None,
+        channel_names: Any = None,
+    ) -> SpikeClassifier:
+        """Learn the classes, calibrate the encoder, train the model.
+
+        ``groups`` ``[N]``: recording ids (windows of one recording are held out together);
+        ``channel_names``: names of ``X``'s channels (default ``ch0, ch1...``)."""
+        with seeded(int(self.seed)):  # the caller's torch generator is left as it was
+            return self._fit(X, y, fs_hz, groups, channel_names)
+
+    def _fit(self, X, y, fs_hz, groups, channel_names) -> SpikeClassifier:
+        data = self._dataset(X, y, fs_hz, groups, channel_names)
+        self.classes_ = np.asarray(self._labels)
+        self.n_features_in_ = int(np.prod(data.X.shape[1:]))
+        self.channel_names_ = data.channel_names
+        self.fs_hz_ = data.fs_hz
+        config = self._config(data)
+        self.encoder_selection_: dict[str, float] | None = None
+        if self.encoder == "auto" and data.X.ndim == 3:
+            config, self.encoder_selection_ = select_encoder(config, data,
+                                                             DATA_ENCODER_CANDIDATES)  # fmt: skip
+        fit_set, val_set = split_validation(data, float(self.val_fraction), config.seed)
+        pipe = SpikePipeline(config, data.fs_hz, data.X.shape[-1], data.channel_names,
+                             [str(c) for c in self.classes_])  # fmt: skip
+        pipe.calibrate(fit_set.X)
+        spikes = pipe.encode(fit_set.X, progress=self.progress)
+        val = None
+        if val_set is not None:
+            val = (pipe.encode(val_set.X), val_set.y)
+        trainer = Trainer(pipe.model, config.train, progress=self.progress)
+        self.history_ = trainer.fit(spikes, fit_set.y, val=val)
+        self.pipeline_ = pipe
+        calib = val if val is not None else (spikes, fit_set.y)
+        self.temperature_ = _temperature(pipe.scores(calib[0]).numpy(), np.asarray(calib[1]))
+        return self
+
+    def _dataset(self, X, y, fs_hz, groups, channel_names) -> WindowDataset:
+        if isinstance(X, WindowDataset):
+            if y is not None:
+                raise ValueError("fit(WindowDataset) takes its labels from the dataset; pass no y")
+            self._labels = np.asarray(X.class_names)
+            return X
+        if y is None:
+            raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is "
+                             "None (or pass a WindowDataset, which holds its labels)")  # fmt: skip
+        check_classification_targets(y)
+        fs = fs_hz if fs_hz is not None else self.fs_hz
+        if fs is None:
+            raise ValueError("the sampling rate is unknown: pass fit(X, y, fs_hz=...) or "
+                             "SpikeClassifier(fs_hz=...)")  # fmt: skip
+        if (
+            isinstance(fs, bool)
+            or not isinstance(fs, int | float)
+            or not math.isfinite(fs)
+            or fs <= 0
+        ):
+            raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
+        arr = _windows(X)
+        labels, y_idx = np.unique(column_or_1d(y, warn=True), return_inverse=True)
+        if len(y_idx) != len(arr):
+            raise ValueError(f"X has {len(arr)} windows but y has {len(y_idx)} labels")
+        if labels.size < 2:
+            raise ValueError(f"y holds {labels.size} class; a classifier needs at least two")
+        self._labels = labels
+        names = _channel_names(channel_names, arr.shape[1])
+        scan = np.arange(len(arr)) if groups is None else np.unique(groups, return_inverse=True)[1]
+        if len(scan) != len(arr):
+            raise ValueError(f"groups has {len(scan)} entries for {len(arr)} windows")
+        return WindowDataset(arr, y_idx.astype(np.int64), scan.astype(np.int64), float(fs),
+                             tuple(str(c) for c in labels), names)  # fmt: skip
+
+    def _config(self, data: WindowDataset) -> PipelineConfig:
+        """The pipeline settings: ``train --data``'s defaults, then this estimator's."""
+        defaults = data_file_defaults(events=data.X.ndim == 4)
+        flat = {k: v for k, v in defaults.items() if k not in ("encoder", "model")}
+        encoder = self.encoder if self.encoder != "auto" else defaults.get("encoder", "gwt")
+        d = PipelineConfig.from_flat(encoder=encoder, model=self.model, **flat).to_dict()
+        fitted = getattr(ENCODERS.config_class(encoder), "data_defaults", None)
+        if fitted is not None and data.X.ndim == 3:  # bands that follow the rate and spectrum
+            median = median_power_frequency(data.X, data.fs_hz)
+            d["encoder"].update(fitted(data.fs_hz, data.X.shape[-1], median))
+        d["encoder"].update(self.encoder_params or {})
+        d["model"].update(self.model_params or {})
+        d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
+        d["clock_afferents"] = self.clock_afferents
+        d["train"].update(batch_size=self.batch_size, seed=self.seed,
+                          **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
+        return PipelineConfig.from_dict(d)
+
+    # ------------------------------------------------------------------ predict
+    def decision_function(self, X: Any) -> np.ndarray:
+        """Class scores ``[N, classes]`` (the model's own units, higher = more likely); with two
+        classes, as scikit-learn has it, ``[N]``: the second class's score minus the first's."""
+        scores = self._scores(X)
+        return scores[:, 1] - scores[:, 0] if scores.shape[1] == 2 else scores
+
+    def _scores(self, X: Any) -> np.ndarray:
+        check_is_fitted(self, "pipeline_")
+        arr = _windows(X, min_samples=1)  # (a wrong window length is reported below)
+        want = (len(self.channel_names_), self.pipeline_.window)
+        if arr.shape[1:3] != want:
+            raise ValueError(
+                f"X has {int(np.prod(arr.shape[1:]))} features, but {type(self).__name__} is "
+                f"expecting {self.n_features_in_} features as input: {want[0]} channels of "
+                f"{want[1]} samples (as in fit), got {list(arr.shape[1:])}"
+            )
+        with torch.no_grad():
+            return self.pipeline_.scores(self.pipeline_.encode(arr)).numpy().astype(np.float64)
+
+    def predict(self, X: Any) -> np.ndarray:
+        scores = self._scores(X)  # (first: it checks the estimator is fitted)
+        return self.classes_[scores.argmax(1)]
+
+    def predict_proba(self, X: Any) -> np.ndarray:
+        """Class probabilities ``[N, classes]``: a softmax of the scores divided by a temperature
+        fitted (maximum likelihood) on the validation windows, else the training windows."""
+        return _softmax(self._scores(X) / self.temperature_)
+
+    def predict_log_proba(self, X: Any) -> np.ndarray:
+        return np.log(np.clip(self.predict_proba(X), 1e-300, None))
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.allow_nan = False
+        tags.input_tags.three_d_array = True
+        return tags
+
+
+def _windows(X: Any, min_samples: int = 2) -> np.ndarray:
+    """``[N, samples]`` -> ``[N, 1, samples]``; 3-D windows and 4-D event counts as given.
+    scikit-learn's own checks first (sparse, complex, object, empty, NaN/Inf: its messages)."""
+    if isinstance(X, WindowDataset):
+        X = X.X
+    arr = check_array(X, dtype=(np.float32, np.float64), allow_nd=True, ensure_min_samples=1,
+                      ensure_min_features=min_samples, input_name="X")  # fmt: skip
+    if arr.ndim == 2:
+        arr = arr[:, None, :]
+    if arr.ndim not in (3, 4):
+        raise ValueError(
+            f"X must be [N, channels, samples] (or [N, samples], or [N, taxels, polarity, bins] "
+            f"event counts), got shape {list(arr.shape)}"
+        )
+    if arr.shape[-1] < min_samples:
+        raise ValueError(f"windows need at least 2 samples, got shape {list(arr.shape)}")
+    check_float32_range(arr, "X")
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _channel_names(names: Any, n: int) -> tuple[str, ...]:
+    if names is None:
+        return tuple(f"ch{i}" for i in range(n))
+    names = tuple(str(c) for c in names)
+    if len(names) != n or len(set(names)) != n:
+        raise ValueError(f"channel_names must be {n} distinct names, got {len(names)}")
+    return names
+
+
+def _softmax(z: np.ndarray) -> np.ndarray:
+    z = z - z.max(1, keepdims=True)
+    e = np.exp(z)
+    return e / e.sum(1, keepdims=True)
+
+
+def _temperature(scores: np.ndarray, y: np.ndarray) -> float:
+    """Temperature ``T`` minimising the negative log-likelihood of ``softmax(scores / T)`` over
+    a log grid (robust for any score scale; 1 if the scores carry no spread)."""
+    spread = float(np.std(scores))
+    if not np.isfinite(spread) or spread <= 0:
+        return 1.0
+    grid = spread * np.logspace(-3, 3, 121)
+    idx = np.arange(len(y))
+
+    def nll(t: float) -> float:
+        p = _softmax(scores / t)
+        return float(-np.log(np.clip(p[idx, y], 1e-300, None)).mean())
+
+    return float(min(grid, key=nll))

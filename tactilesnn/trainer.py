@@ -1,0 +1,131 @@
+"""The training loop of any spike model: mini-batches, epochs, validation, early stopping,
+resumable state. Used by :meth:`tactilesnn.pipeline.SpikePipeline.fit`, the scikit-learn
+estimator and :func:`tactilesnn.training.fit_and_evaluate`; a user's own loop can replace it
+(the models are plain ``nn.Module``s with a ``loss``)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from .config import TrainConfig
+from .models.base import SpikeModel, to_tensor_labels
+
+
+class Trainer:
+    """Training loop for any :class:`~tactilesnn.models.base.SpikeModel`.
+
+    Models that learn by a rule get :meth:`~SpikeModel.rule_update` per mini-batch; the others
+    Adam on :meth:`~SpikeModel.loss`. After each epoch: training error, validation accuracy
+    (if given), best-weight bookkeeping, early stopping (``patience``) and a resumable state
+    (weights, optimizer, RNG; momentum is a model buffer) for ``on_epoch``.
+    """
+
+    def __init__(self, model: SpikeModel, config: TrainConfig, progress: bool = False) -> None:
+        self.model, self.config, self.progress = model, config, progress
+        self.history: dict = {}
+
+    def fit(
+        self,
+        spikes: torch.Tensor,
+        y: np.ndarray,
+        val: tuple[torch.Tensor, np.ndarray] | None = None,
+        on_epoch: Callable[[int, dict], None] | None = None,
+        resume: dict | None = None,
+    ) -> list[float]:
+        """Train on spike times ``[N, A, k]`` and labels ``[N]``; returns the error per epoch."""
+        cfg, model = self.config, self.model
+        yt = to_tensor_labels(np.asarray(y), model.n_classes, spikes.shape[0])
+        gen = torch.Generator().manual_seed(cfg.seed)
+        by_rule = model.learns_by_rule
+        opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
+        st = {"epoch": 0, "history": [], "val_history": [], "best_score": -math.inf, "stale": 0}
+        if resume is None:
+            model.prepare(spikes)  # resumed runs restore what it fitted with their weights
+        best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        if resume is not None:
+            _load_state(model, resume["model"])
+            gen.set_state(torch.from_numpy(np.asarray(resume["rng"], dtype=np.uint8)))
+            if opt is not None and "optimizer" in resume:
+                _restore_optimizer(opt, resume["optimizer"])
+            st = {k: resume[k] for k in st}
+            st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
+            best_w = {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}
+        desc = f"train {type(model).registry_name}"
+        bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc, disable=not self.progress)
+        for epoch in bar:
+            perm = torch.randperm(spikes.shape[0], generator=gen)
+            model.train()
+            for i in range(0, perm.numel(), cfg.batch_size):
+                idx = perm[i : i + cfg.batch_size]
+                if by_rule:
+                    with torch.no_grad():
+                        model.rule_update(spikes[idx], yt[idx], epoch)
+                else:
+                    loss = model.loss(spikes[idx], yt[idx])
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+            model.eval()
+            err = float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
+            st["history"].append(err)
+            score = 1.0 - err
+            if val is not None:
+                vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
+                score = float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
+                st["val_history"].append(score)
+            if score > st["best_score"]:
+                st["best_score"], st["stale"] = score, 0
+                best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            else:
+                st["stale"] += 1
+            st["epoch"] = epoch + 1
+            bar.set_postfix(
+                train_error=f"{err:.4f}", **({"val_acc": f"{score:.4f}"} if val else {})
+            )
+            if on_epoch is not None:
+                on_epoch(epoch, self.state(st, gen, opt, best_w))
+            if cfg.patience and val is not None and st["stale"] >= cfg.patience:
+                break
+        if cfg.keep_best:
+            model.load_state_dict(best_w)
+        model.eval()
+        model.calibrate_decision(spikes)  # on the weights kept
+        self.history = st
+        return st["history"]
+
+    def state(self, st: dict, gen: torch.Generator, opt, best_w: dict) -> dict:
+        """Everything needed to resume: weights, optimizer state, RNG, bookkeeping."""
+        state = dict(st)
+        state["model"] = {k: v.detach().numpy().copy() for k, v in self.model.state_dict().items()}
+        state["best"] = {k: v.numpy().copy() for k, v in best_w.items()}
+        state["rng"] = gen.get_state().numpy().copy()
+        if opt is not None:
+            state["optimizer"] = _flatten_optimizer(opt)
+        return state
+
+
+def _load_state(module: torch.nn.Module, arrays: dict) -> None:
+    module.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in arrays.items()})
+
+
+def _flatten_optimizer(opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
+    out = {}
+    for i, st in opt.state_dict()["state"].items():
+        for k, v in st.items():
+            out[f"{i}.{k}"] = v.numpy().copy() if torch.is_tensor(v) else np.asarray(v)
+    return out
+
+
+def _restore_optimizer(opt: torch.optim.Optimizer, flat: dict[str, np.ndarray]) -> None:
+    sd = opt.state_dict()
+    state: dict[int, dict] = {}
+    for key, v in flat.items():
+        i, name = key.split(".", 1)
+        state.setdefault(int(i), {})[name] = torch.from_numpy(np.array(v))
+    sd["state"] = state
+    opt.load_state_dict(sd)

@@ -1,0 +1,154 @@
+"""The package's layers import only downwards, and nothing imports in a circle.
+
+Every ``import`` of the package, at module level or inside a function, is an edge; the layers
+are read from the tree (see README "Architecture")."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import tactilesnn
+
+ROOT = Path(tactilesnn.__file__).resolve().parent
+
+#: bottom to top; a module is in the first layer with a matching prefix
+LAYERS: list[tuple[str, tuple[str, ...]]] = [
+    ("core", ("core",)),
+    ("components", ("datasets_synth", "encoders", "models", "recordings")),
+    ("pipeline", ("config", "pipeline", "trainer", "baselines")),
+    ("training | export | service", ("training", "selection", "estimator", "export", "service")),
+    ("application", ("app",)),
+    ("cli", ("cli", "__main__")),
+]
+#: layer 3's parts sit side by side: none imports another (the estimator and the encoder
+#: selection are part of training)
+SIDE_BY_SIDE = {
+    "training": "training",
+    "selection": "training",
+    "estimator": "training",
+    "export": "export",
+    "service": "service",
+}
+
+
+def _module(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """Package modules imported by ``path`` (relative dotted names, '' = the package root)."""
+    mod = _module(path)
+    pkg = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
+    if mod == "":
+        pkg = []
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg[: len(pkg) - (node.level - 1)]
+                target = ".".join([*base, *([node.module] if node.module else [])])
+            elif (node.module or "").startswith("tactilesnn"):
+                target = node.module[len("tactilesnn") :].lstrip(".")
+            else:
+                continue
+            for alias in node.names:  # `from . import x` may name a submodule
+                sub = f"{target}.{alias.name}".lstrip(".")
+                out.add(sub if _exists(sub) else target)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("tactilesnn"):
+                    out.add(alias.name[len("tactilesnn") :].lstrip("."))
+    return {m for m in out if m != mod}
+
+
+def _exists(mod: str) -> bool:
+    p = ROOT.joinpath(*mod.split("."))
+    return p.with_suffix(".py").is_file() or (p / "__init__.py").is_file()
+
+
+def _layer(mod: str) -> int:
+    if mod in ("", "core.version"):  # the package root imports nothing eagerly
+        return 0
+    head = mod.split(".")[0]
+    for i, (_, prefixes) in enumerate(LAYERS):
+        if head in prefixes:
+            return i
+    raise AssertionError(f"module tactilesnn.{mod} is in no layer: add it to LAYERS")
+
+
+def _graph() -> dict[str, set[str]]:
+    return {_module(p): _imports(p) for p in ROOT.rglob("*.py")}
+
+
+def test_every_module_is_in_a_layer():
+    for mod in _graph():
+        _layer(mod)
+
+
+def test_no_upward_import():
+    bad = []
+    for mod, deps in _graph().items():
+        if mod == "":
+            continue
+        for dep in deps:
+            if dep != "" and _layer(dep) > _layer(mod):
+                bad.append(f"{mod} ({LAYERS[_layer(mod)][0]}) -> {dep} ({LAYERS[_layer(dep)][0]})")
+    assert not bad, "upward imports:\n" + "\n".join(sorted(bad))
+
+
+def test_training_export_and_service_do_not_import_each_other():
+    bad = []
+    for mod, deps in _graph().items():
+        part = SIDE_BY_SIDE.get(mod.split(".")[0])
+        if part is not None:
+            bad += [f"{mod} -> {d}" for d in deps
+                    if SIDE_BY_SIDE.get(d.split(".")[0], part) != part]  # fmt: skip
+    assert not bad, bad
+
+
+def test_no_import_circle():
+    graph = _graph()
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph.get(m, ())):
+            if d not in graph:
+                continue
+            if state.get(d) == 1:
+                cycle = [*stack[stack.index(d) :], d]
+                raise AssertionError("import circle: " + " -> ".join(cycle))
+            if d not in state:
+                visit(d)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+def test_the_service_never_imports_torch():
+    """``tactilesnn.service`` runs with numpy + onnxruntime only (a deployment without torch)."""
+    graph = _graph()
+    seen, todo = set(), [m for m in graph if m.startswith("service") and m != "service.demo"]
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        todo += [d for d in graph.get(m, ()) if d in graph]
+    for m in seen:
+        text = ROOT.joinpath(*m.split(".")).with_suffix(".py")
+        text = text if text.is_file() else ROOT.joinpath(*m.split("."), "__init__.py")
+        tree = ast.parse(text.read_text())
+        names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import)
+                 for a in n.names} | {(n.module or "").split(".")[0] for n in ast.walk(tree)
+                                      if isinstance(n, ast.ImportFrom) and not n.level}  # fmt: skip
+        assert "torch" not in names, f"tactilesnn.{m} imports torch"
