@@ -20,6 +20,14 @@ from .datasets_synth import TASKS
 
 log = logging.getLogger("tactilesnn")
 
+DESCRIPTION = """\
+tactilesnn: spiking-network tactile perception (sensor models, spike encoders, SNN classifiers,
+ONNX export and an inference service). Start with:
+  tactilesnn train                       the default synthetic task and pipeline
+  tactilesnn train --data recordings.npz your recordings (.npz: X [N, channels, samples], y, fs,
+                                         class_names); defaults follow the file
+Each command has its own --help. `python train.py ...` is the same command line."""
+
 
 SCHEDULER_HELP = (
     "Dask scheduler address (tcp://HOST:PORT) to run on a cluster instead of local processes; "
@@ -140,31 +148,13 @@ def _parity(rep: dict) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .app.run import load_run, run_data
-    from .datasets_synth import get_task
-    from .recordings import load_data_file
+    from .app.run import evaluation_data, load_run
+    from .pipeline import accuracy_ci95
     from .training import recording_accuracy
 
     pipe, cfg = load_run(Path(args.run_dir))
-    if args.data:  # cut as the run's own data was
-        tr, test = load_data_file(Path(args.data), pipe.config.seed,
-                                  window_s=cfg.get("data_window_s"), hop_s=cfg.get("data_hop_s"))  # fmt: skip
-        if args.all:
-            test = type(test)(
-                np.concatenate([tr.X, test.X]),
-                np.concatenate([tr.y, test.y]),
-                np.concatenate([tr.scan, test.scan]),
-                test.fs_hz,
-                test.class_names,
-                test.channel_names,
-            )
-        if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
-            raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")
-        test = _match_channels(test, pipe.channel_names)
-    elif cfg.get("data"):
-        _, test = run_data(cfg, pipe.config.seed)
-    else:
-        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
+    test = evaluation_data(pipe, cfg, Path(args.data) if args.data else None, every=args.all,
+                           progress=not args.quiet)  # fmt: skip
     scores = pipe.scores(pipe.encode(test.X, progress=not args.quiet)).numpy()
     pred = scores.argmax(1)
     per_rec = recording_accuracy(scores, test.y, test.scan)
@@ -178,8 +168,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                "per_class_recall": recall, **(per_rec or {})}  # fmt: skip
         print(json.dumps(out))
         return 0
-    from .pipeline import accuracy_ci95
-
     print(f"{args.run_dir}: accuracy {100 * acc:.2f} % (+-{100 * accuracy_ci95(acc, test.y.size):.2f} %"
           f" 95% CI) on {test.y.size} windows")  # fmt: skip
     if per_rec is not None:
@@ -190,18 +178,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for name, r in recall.items():
         print(f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}")
     return 0
-
-
-def _match_channels(data, want: Sequence[str]):
-    """``data`` with its channels in the run's order (by name); ValueError if they differ."""
-    have = tuple(data.channel_names)
-    if have == tuple(want):
-        return data
-    if sorted(have) != sorted(want):
-        raise ValueError(f"the data's channels {list(have)} are not the run's {list(want)}")
-    log.warning("data channels are in another order than the run's: reordered by name")
-    idx = [have.index(c) for c in want]
-    return type(data)(data.X[:, idx], data.y, data.scan, data.fs_hz, data.class_names, tuple(want))
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -353,11 +329,7 @@ def _resume_hint(args: argparse.Namespace, argv: list[str]) -> str:
     return ""
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tactilesnn", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    sub = parser.add_subparsers(dest="command", required=True)
-
+def _parse_train(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "train", "train a pipeline and write a run folder")
     _add_train_args(p)
     p.add_argument("--out", help="run folder (default runs/<source>-<encoder>-<model>-<time>, "
@@ -366,8 +338,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train, train_file=None)
-    parser.train_parser = p  # type: ignore[attr-defined]  # (--config sets its defaults)
+    return p
 
+
+def _parse_evaluate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "evaluate", "evaluate a run folder on its test split or --data")
     p.add_argument("run_dir", help="run folder written by train")
     p.add_argument("--data", help="recordings .npz or generated folder to evaluate on (its test "
@@ -376,7 +350,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)
+    return p
 
+
+def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "export", "export a run folder to ONNX (window -> scores) or NIR")
     p.add_argument("run_dir", help="run folder written by train")
     p.add_argument("--out", required=True, help="model.onnx (or model.nir) to write")
@@ -392,7 +369,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)
+    return p
 
+
+def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "generate", "render a synthetic task into sharded files")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
     p.add_argument("--n", type=int, required=True, help="number of samples (scans or trials)")
@@ -412,7 +392,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help=SCHEDULER_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_generate)
+    return p
 
+
+def _parse_sweep(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "sweep", "grid / random search over train settings, each a run folder")
     p.add_argument("--config", required=True, help="sweep TOML ([base] + [grid] or [random])")
     p.add_argument("--out", required=True,
@@ -422,7 +405,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help=SCHEDULER_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_sweep)
+    return p
 
+
+def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only)")
     p.add_argument("model", help="model.onnx written by train or export")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
@@ -434,7 +420,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="extra host names browsers may use to reach the service (DNS-rebinding "
                         "guard; loopback names are always allowed; '*' turns the check off)")  # fmt: skip
     p.set_defaults(func=cmd_serve)
+    return p
 
+
+def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service's base URL")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
@@ -446,7 +435,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--chunk-ms", type=float, default=100.0, help="signal per request (ms)")
     p.add_argument("--seed", type=int, default=0, help="task seed (which scans are rendered)")
     p.set_defaults(func=cmd_demo_stream)
+    return p
 
+
+def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "bench", "benchmarks (each has its own flags: tactilesnn bench NAME --help)")
     names = p.add_subparsers(dest="name", required=True, metavar="NAME", help="which benchmark")
     from .app.bench import BENCHMARKS, benchmark
@@ -458,6 +450,27 @@ def build_parser() -> argparse.ArgumentParser:
         b.add_argument("--quiet", action="store_true", help="no progress bars")
         module.add_arguments(b)
         b.set_defaults(func=cmd_bench)
+    return p
+
+
+#: the sub-commands and their parsers (``python train.py`` passes anything else to ``train``)
+COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse_export,
+            "generate": _parse_generate, "sweep": _parse_sweep, "serve": _parse_serve,
+            "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .core.version import __version__
+
+    parser = argparse.ArgumentParser(prog="tactilesnn", description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=f"tactilesnn {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, add in COMMANDS.items():
+        p = add(sub)
+        if name == "train":
+            parser.train_parser = p  # type: ignore[attr-defined]  # (--config sets its defaults)
     return parser
 
 
@@ -474,7 +487,7 @@ def _read_config(parser: argparse.ArgumentParser, argv: list[str]):
     from .app.config_file import read_train_file
 
     file = read_train_file(Path(known.config))
-    parser.train_parser.set_defaults(train_file=file, **file.run)
+    parser.train_parser.set_defaults(train_file=file, **file.run, **file.command)
     return file
 
 
@@ -500,6 +513,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.func(args)
     except (ValueError, FileExistsError, FileNotFoundError, ExportError) as e:
         print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a full disk, a read-only folder, a permission: the machine's, not ours
+        print(f"error: {e.strerror or e} ({e.filename or 'while writing'}); nothing partial "
+              "was left under the output's name", file=sys.stderr)  # fmt: skip
         return 2
     except KeyboardInterrupt:
         print(f"interrupted{_resume_hint(args, argv)}", file=sys.stderr)

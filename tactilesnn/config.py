@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 from .core.checks import check_int
 from .core.registry import Registry
@@ -35,6 +35,8 @@ from .encoders import ENCODERS
 from .models import MODELS
 
 DEFAULT_ENCODER = "gwt"
+#: a time reference needs a few afferents; thousands are a typo (and gigabytes of spike times)
+MAX_CLOCK_AFFERENTS = 1024
 DEFAULT_MODEL = "tempotron"
 
 
@@ -96,6 +98,9 @@ class PipelineConfig:
         if not self.channels:
             raise ValueError("channels must name at least one channel (or 'all')")
         check_int(self.clock_afferents, "clock_afferents", 0)
+        if self.clock_afferents > MAX_CLOCK_AFFERENTS:
+            raise ValueError(f"clock_afferents must be at most {MAX_CLOCK_AFFERENTS}, got "
+                             f"{self.clock_afferents}")  # fmt: skip
         ENCODERS.name_of_config(self.encoder)  # TypeError if not a registered encoder's config
         MODELS.name_of_config(self.model)
         if not isinstance(self.train, TrainConfig):
@@ -193,7 +198,7 @@ def encoder_settings_given(keys: set[str]) -> bool:
     """True if ``keys`` (flat setting names or TOML sections given by the user) choose an
     encoder or set one of an encoder's settings."""
     owners = flat_settings()
-    return "encoder" in keys or any(owners[k][0].startswith("encoder") for k in keys if k in owners)
+    return "encoder" in keys or any(owners[k].part == "encoder" for k in keys if k in owners)
 
 
 def place_flat(
@@ -266,25 +271,43 @@ def owner_of_flag(flag: str) -> tuple[str, tuple[str, ...]] | None:
     return None
 
 
-def flat_settings() -> dict[str, tuple[str, Any, str, tuple[str, ...] | None]]:
-    """Every flat setting name -> ``(owner description, default, help, choices)`` (for the CLI)."""
-    out: dict[str, tuple[str, Any, str, tuple[str, ...] | None]] = {}
+class FlatSetting(NamedTuple):
+    """One flat setting name: which part of the pipeline it sets (``pipeline``, ``train``,
+    ``encoder`` or ``model``), the registered components that have it (encoder / model
+    settings), its default, help text and choices."""
+
+    part: str
+    components: tuple[str, ...]
+    default: Any
+    help: str
+    choices: tuple[str, ...] | None
+
+    @property
+    def owner(self) -> str:
+        """For help texts: ``"encoder gwt, stft"``, ``"train"``."""
+        return " ".join([self.part, ", ".join(self.components)]).strip()
+
+
+def flat_settings() -> dict[str, FlatSetting]:
+    """Every flat setting name -> its :class:`FlatSetting` (for the CLI and settings files)."""
+    out: dict[str, FlatSetting] = {}
     defaults = PipelineConfig()
     for name, fld in TOP_FLAGS.items():
-        out[name] = ("pipeline", getattr(defaults, fld), TOP_HELP[name], None)
+        out[name] = FlatSetting("pipeline", (), getattr(defaults, fld), TOP_HELP[name], None)
     for name, fld in TrainConfig.FLAGS.items():
-        out[name] = ("train", getattr(defaults.train, fld), TrainConfig.HELP[name], None)
+        out[name] = FlatSetting("train", (), getattr(defaults.train, fld), TrainConfig.HELP[name],
+                                None)  # fmt: skip
     for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
         for comp in reg.names():
             cfg_cls = reg.config_class(comp)
             choices = getattr(cfg_cls, "CHOICES", {})
             for flag, fld in cfg_cls.FLAGS.items():
-                if flag in out:
-                    owner, d0, h, c = out[flag]
-                    out[flag] = (f"{owner}, {comp}", d0, h, c)
+                if flag in out:  # several components share the name (e.g. n_bands)
+                    out[flag] = out[flag]._replace(components=(*out[flag].components, comp))
                 else:
-                    out[flag] = (f"{kind} {comp}", _field_default(cfg_cls, fld),
-                                 cfg_cls.HELP.get(fld, ""), choices.get(fld))  # fmt: skip
+                    c = choices.get(fld)
+                    out[flag] = FlatSetting(kind, (comp,), _field_default(cfg_cls, fld),
+                                            cfg_cls.HELP.get(fld, ""), tuple(c) if c else None)  # fmt: skip
     return out
 
 

@@ -207,6 +207,15 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         fitted (maximum likelihood) on the validation windows, else the training windows."""
         return _softmax(self._scores(X) / self.temperature_)
 
+    def score(self, X: Any, y: Any = None, sample_weight: Any = None) -> float:
+        """Accuracy on ``(X, y)``, or on a :class:`WindowDataset` (its labels: class names when
+        the estimator was fitted on names, else the indices)."""
+        if isinstance(X, WindowDataset) and y is None:
+            check_is_fitted(self, "pipeline_")
+            names = self.classes_.dtype.kind in "US"
+            X, y = X.X, (np.asarray(X.class_names)[X.y] if names else X.y)
+        return super().score(X, y, sample_weight=sample_weight)
+
     def predict_log_proba(self, X: Any) -> np.ndarray:
         return np.log(np.clip(self.predict_proba(X), 1e-300, None))
 

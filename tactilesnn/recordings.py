@@ -55,6 +55,7 @@ def load_data_file(
     elif not path.is_file():
         raise FileNotFoundError(f"data file {path} does not exist")
     else:
+        check_npz_size(path)  # from the headers, before any array is read
         try:
             with np.load(path, allow_pickle=False) as f:
                 arrays = {k: np.asarray(f[k]) for k in f.files}
@@ -66,6 +67,60 @@ def load_data_file(
             raise ValueError("a hop (--data-hop-s) needs a window length (--data-window-s)")
         return train, test
     return cut_windows(train, window_s, hop_s), cut_windows(test, window_s, hop_s)
+
+
+#: members of an .npz file a reader looks at; more is not a recordings file
+MAX_MEMBERS = 1024
+#: longest class or channel name (characters)
+MAX_NAME_CHARS = 200
+
+
+def check_npz_size(path: Path) -> None:
+    """Refuse, from the zip directory and each array's header alone, a file whose arrays would
+    not fit in memory (a header may declare terabytes over a tiny body; a compressed member may
+    expand a thousandfold): a clear error before any array is read."""
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as z:
+            infos = z.infolist()
+            if len(infos) > MAX_MEMBERS:
+                raise ValueError(f"{path}: {len(infos)} members; a recordings file has a few")
+            for info in infos:
+                size = info.file_size  # the uncompressed size the directory declares
+                if info.filename.endswith(".npy"):
+                    shape, dtype = _npy_header(z, info.filename)
+                    size = max(size, int(np.prod(shape, dtype=np.float64)) * dtype.itemsize)
+                total += size
+    except zipfile.BadZipFile as e:
+        raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    except (OSError, EOFError) as e:
+        raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    check_allocation(total, f"the arrays of {path} (as their headers declare them)")
+
+
+def _npy_header(z: zipfile.ZipFile, member: str) -> tuple[tuple[int, ...], np.dtype]:
+    with z.open(member) as f:
+        try:
+            major, _ = np.lib.format.read_magic(f)
+            read = (np.lib.format.read_array_header_1_0 if major == 1
+                    else np.lib.format.read_array_header_2_0)  # fmt: skip
+            shape, _, dtype = read(f)
+        except ValueError as e:
+            raise ValueError(f"member {member}: not a .npy array ({e})") from e
+    return tuple(shape), dtype
+
+
+def _names(values: object, what: str, path: Path | str) -> tuple[str, ...]:
+    """Distinct, non-empty names of bounded length (class or channel names)."""
+    names = tuple(str(c) for c in np.atleast_1d(values))
+    bad = [n for n in names if not n.strip() or len(n) > MAX_NAME_CHARS]
+    if bad:
+        raise ValueError(f"{path}: {what} must be non-empty and at most {MAX_NAME_CHARS} "
+                         f"characters, got {bad[0][:40]!r}")  # fmt: skip
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"{path}: {what} holds duplicates {dup[:5]}")
+    return names
 
 
 def cut_windows(ds: WindowDataset, window_s: float, hop_s: float | None = None) -> WindowDataset:
@@ -123,13 +178,15 @@ def datasets_from_arrays(
         if y_raw.dtype.kind != "f" or not np.array_equal(y_raw, np.round(y_raw)):
             raise ValueError(f"{path}: y must hold integer class indices, got dtype {y_raw.dtype}")
     y = y_raw.astype(np.int64)
-    names = tuple(str(c) for c in np.atleast_1d(arrays["class_names"]))
+    names = _names(arrays["class_names"], "class_names", path)
+    if len(names) < 2:
+        raise ValueError(f"{path}: class_names must name at least two classes")
     if y.min() < 0 or y.max() >= len(names):
         raise ValueError(f"{path}: labels must index class_names (0..{len(names) - 1})")
     ch = tuple(f"ch{i}" for i in range(X.shape[1]))
     if "channel_names" in arrays:
-        ch = tuple(str(c) for c in np.atleast_1d(arrays["channel_names"]))
-        if len(ch) != X.shape[1] or len(set(ch)) != len(ch):
+        ch = _names(arrays["channel_names"], "channel_names", path)
+        if len(ch) != X.shape[1]:
             raise ValueError(f"{path}: channel_names must be {X.shape[1]} distinct names")
     if X.dtype.kind == "f":  # checked in place: a float64 copy of a large file would double it
         check_finite(X, f"{path}: X")
@@ -312,9 +369,14 @@ def events_as_channels(arrays: dict[str, np.ndarray], path: Path) -> dict[str, n
     n, taxels, pols, bins = X.shape
     if "fs" not in arrays:
         if "bin_ms" in arrays:
-            bin_ms = float(np.asarray(arrays["bin_ms"]).reshape(()))
-            if not (np.isfinite(bin_ms) and bin_ms > 0):
-                raise ValueError(f"{path}: bin_ms must be a positive number, got {bin_ms}")
+            b = np.asarray(arrays["bin_ms"])
+            if b.size != 1 or b.dtype.kind not in "fiu":
+                raise ValueError(f"{path}: bin_ms must be one number (ms per bin)")
+            bin_ms = float(b.reshape(()))
+            if not (np.isfinite(bin_ms) and 1e-6 <= bin_ms <= 1e6):
+                raise ValueError(
+                    f"{path}: bin_ms must be a number of ms in [1e-6, 1e6], got {bin_ms}"
+                )
         else:
             bin_ms = 1.0
             log.warning("%s: event bins have no stated width (bin_ms): taken as 1 ms", path)

@@ -200,13 +200,15 @@ def save_checkpoint(folder: Path, state: dict) -> None:
         for k, v in state.get(group, {}).items():
             arrays[f"{group}/{k}"] = np.asarray(v)
     arrays["rng"] = np.asarray(state["rng"])
-    tmp = folder / "checkpoint.tmp.npz"
-    np.savez(tmp, **arrays)
-    os.replace(tmp, folder / "checkpoint.npz")
-    meta = {k: state[k] for k in SCALARS}
-    tmp_j = folder / "checkpoint.tmp.json"
-    tmp_j.write_text(json.dumps(meta))
-    os.replace(tmp_j, folder / "checkpoint.json")
+    tmp, tmp_j = folder / "checkpoint.tmp.npz", folder / "checkpoint.tmp.json"
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, folder / "checkpoint.npz")
+        tmp_j.write_text(json.dumps({k: state[k] for k in SCALARS}))
+        os.replace(tmp_j, folder / "checkpoint.json")
+    finally:  # a failed write (full disk) leaves no temporary file
+        tmp.unlink(missing_ok=True)
+        tmp_j.unlink(missing_ok=True)
 
 
 def load_checkpoint(folder: Path) -> dict:

@@ -1,6 +1,7 @@
 """Nothing a user wrote is lost: --overwrite replaces only what tactilesnn wrote."""
 
 import json
+import os
 
 import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
@@ -112,3 +113,178 @@ def test_nan_weights_are_refused_by_evaluate_and_export(tmp_path, capsys):
     assert "NaN" in capsys.readouterr().err
     assert main(["export", str(out), "--out", str(tmp_path / "m.onnx")]) == 2
     assert "NaN" in capsys.readouterr().err and not (tmp_path / "m.onnx").exists()
+
+
+def test_a_users_partial_folder_symlink_or_file_is_never_removed(tmp_path, capsys):
+    out = tmp_path / "r"
+    args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
+    partial = tmp_path / "r.partial"
+    partial.mkdir()  # the user's own folder of that name, with their notes
+    (partial / "notes.txt").write_text("mine")
+    for extra in ([], ["--overwrite"]):
+        assert main([*args, *extra]) == 2
+        assert "did not write" in capsys.readouterr().err
+        assert (partial / "notes.txt").read_text() == "mine"
+    (partial / "notes.txt").unlink()
+    assert main(args) == 2  # an empty folder tactilesnn did not make is not removed either
+    assert "did not make" in capsys.readouterr().err and partial.is_dir()
+    partial.rmdir()
+    target = tmp_path / "elsewhere"
+    target.mkdir()
+    (target / "keep").write_text("x")
+    partial.symlink_to(target)
+    assert main(args) == 2 and "a link or a file" in capsys.readouterr().err
+    assert (target / "keep").read_text() == "x"
+    partial.unlink()
+    partial.write_text("a file")
+    assert main([*args, "--overwrite"]) == 2 and "a link or a file" in capsys.readouterr().err
+    assert partial.read_text() == "a file"
+    partial.unlink()
+    assert main(args) == 0  # and with the way clear, it trains
+
+
+def test_overwrite_keeps_the_users_files_inside_a_run_folder(tmp_path, capsys):
+    out = tmp_path / "r"
+    args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
+    assert main(args) == 0
+    (out / "my_notes.md").write_text("findings")
+    assert main([*args, "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "my_notes.md" in err and "did not write" in err
+    assert (out / "my_notes.md").read_text() == "findings"
+    (out / "my_notes.md").unlink()
+    assert main([*args, "--overwrite"]) == 0
+
+
+def test_two_trainings_into_one_out_are_refused_up_front(tmp_path, capsys):
+    import os
+
+    from tactilesnn.app.runs import OutLock
+
+    out = tmp_path / "r"
+    with OutLock(out):  # another process (here: this one) is writing --out
+        rc = main(["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"])
+        assert rc == 2 and f"pid {os.getpid()}" in capsys.readouterr().err
+        assert not out.exists() and not (tmp_path / "r.partial").exists()
+    # a lock left by a process that is gone is taken over
+    (tmp_path / "r.lock").write_text(json.dumps({"pid": 2**22 + 12345, "token": "0" * 32}))
+    assert main(["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet",
+                 "--no-export"]) == 0  # fmt: skip
+    assert not (tmp_path / "r.lock").exists()
+
+
+def test_temporary_folders_of_a_killed_run_are_cleaned_and_foreign_ones_kept(tmp_path):
+    from tactilesnn.app.runs import MARKER, RunWriter
+
+    stale = tmp_path / ".r.abc123"
+    stale.mkdir()
+    (stale / "weights.npz").write_bytes(b"x")
+    (stale / MARKER).write_text(json.dumps({"kind": "tmp", "token": "1" * 32, "pid": 2**22 + 7,
+                                            "files": ["weights.npz"]}))  # fmt: skip
+    foreign = tmp_path / ".r.users"
+    foreign.mkdir()
+    (foreign / "data.bin").write_bytes(b"y")
+    w = RunWriter(tmp_path / "r")
+    w.abort()
+    assert not stale.exists() and (foreign / "data.bin").read_bytes() == b"y"
+
+
+def test_resume_refuses_changed_data_and_evaluate_uses_the_trained_file(tmp_path, capsys):
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(24, 2, 64)).astype(np.float32)
+    y = np.repeat([0, 1], 12)
+    X[y == 1, 0] += 2.0
+    split = np.tile([0, 0, 1], 8)  # the same split whatever the class order
+    data = tmp_path / "d.npz"
+    np.savez(data, X=X, y=y, fs=np.float64(100.0), class_names=np.array(["a", "b"]), split=split)
+    out = tmp_path / "r"
+    args = ["train", "--data", str(data), "--encoder", "lif", "--epochs", "3", "--out", str(out),
+            "--quiet", "--no-export"]  # fmt: skip
+    real = app_run.save_checkpoint
+
+    def interrupt(folder, state):
+        real(folder, state)
+        raise KeyboardInterrupt
+
+    import pytest
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(app_run, "save_checkpoint", interrupt)
+    assert main(args) == 130
+    mp.undo()
+    X2 = X.copy()
+    X2[0, 0, 0] += 1.0  # the file changed since
+    np.savez(data, X=X2, y=y, fs=np.float64(100.0), class_names=np.array(["a", "b"]), split=split)
+    assert main([*args, "--resume"]) == 2 and "same data" in capsys.readouterr().err
+    np.savez(data, X=X, y=y, fs=np.float64(100.0), class_names=np.array(["a", "b"]), split=split)
+    assert main([*args, "--resume"]) == 0
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["data"] == str(data.resolve()) and len(cfg["data_sha256"]) == 64
+    # evaluated from another directory: the run's own (absolute) file
+    here = tmp_path / "elsewhere"
+    here.mkdir()
+    (here / "d.npz").write_bytes(b"not the data")
+    cwd = os.getcwd()
+    try:
+        os.chdir(here)
+        assert main(["evaluate", str(out), "--quiet", "--json"]) == 0
+    finally:
+        os.chdir(cwd)
+    # the same recordings with their classes listed in the other order score the same
+    before = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["test_accuracy"]
+    swapped = tmp_path / "swapped.npz"
+    np.savez(
+        swapped, X=X, y=1 - y, fs=np.float64(100.0), class_names=np.array(["b", "a"]), split=split
+    )
+    assert main(["evaluate", str(out), "--data", str(swapped), "--quiet", "--json"]) == 0
+    after = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["test_accuracy"]
+    assert after == before
+    other = tmp_path / "other.npz"
+    np.savez(other, X=X, y=y, fs=np.float64(100.0), class_names=np.array(["a", "zz"]), split=split)
+    assert main(["evaluate", str(out), "--data", str(other), "--quiet"]) == 2
+    assert "not among the run's" in capsys.readouterr().err
+    # the data file changed after training: evaluate says so instead of scoring it
+    np.savez(data, X=X2, y=y, fs=np.float64(100.0), class_names=np.array(["a", "b"]), split=split)
+    assert main(["evaluate", str(out), "--quiet"]) == 2
+    assert "changed since the run was trained" in capsys.readouterr().err
+
+
+def test_a_full_disk_is_an_error_not_a_traceback_and_leaves_no_temporaries(tmp_path, monkeypatch,
+                                                                          capsys):  # fmt: skip
+    import errno
+
+    import numpy as np
+
+    from tactilesnn.app import runs
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(a[0]))
+
+    monkeypatch.setattr(np, "savez", full)
+    out = tmp_path / "r"
+    rc = main(["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"])
+    assert rc == 2 and "No space left on device" in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob(".r.*"))
+    assert not list(tmp_path.glob("r.partial/*.tmp*")) and not (tmp_path / "r.lock").exists()
+    assert runs.MARKER  # the checkpoint folder left behind is marked as tactilesnn's own
+
+
+def test_toml_types_and_nesting_are_checked(tmp_path, capsys):
+    cases = {
+        'overwrite = "false"\n': "must be true or false",
+        "resume = 1\n": "must be true or false",
+        "out = 5\n": "must be text",
+        "epochs = 1e9\n": "must be an integer",
+        "clock_afferents = 1000000000\n": "at most 1024",
+        "x = " + "[" * 5000 + "]" * 5000 + "\n": "nested",
+        "task = 3\n": "must be text",
+    }
+    for body, match in cases.items():
+        cfg = tmp_path / "c.toml"
+        cfg.write_text(body)
+        rc = main(["train", "--config", str(cfg), "--out", str(tmp_path / "o"), "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2 and match in err, (body[:30], err)
+        assert "Traceback" not in err

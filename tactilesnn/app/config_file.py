@@ -20,8 +20,8 @@ from .options import check_settings, train_options
 
 MAX_CONFIG_BYTES = 1 << 20
 MAX_DEPTH = 8
-#: settings of the command line itself, not of the run; refused in a file
-COMMAND_ONLY = ("out", "overwrite", "resume", "quiet", "config")
+#: command-line flags a file may also set (typed: ``overwrite = "false"`` is refused)
+COMMAND = {"out": str, "overwrite": bool, "resume": bool, "quiet": bool}
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,8 @@ class TrainFile:
     text: str
     run: dict[str, Any] = field(default_factory=dict)
     pipeline: dict[str, Any] = field(default_factory=dict)
+    #: the command-line flags it sets (``out``, ``overwrite``, ``resume``, ``quiet``)
+    command: dict[str, Any] = field(default_factory=dict)
 
 
 def _depth(v: Any, level: int = 0) -> int:
@@ -66,12 +68,17 @@ def read_train_file(path: Path) -> TrainFile:
     options = train_options()
     run: dict[str, Any] = {}
     pipeline: dict[str, Any] = {}
+    command: dict[str, Any] = {}
     for key, value in table.items():
         name = key.replace("-", "_")
         if nested and key in ("encoder", "model", "train", *TOP_FLAGS):
             pipeline[key] = value
-        elif name in COMMAND_ONLY:
-            raise ValueError(f"{path}: {key!r} is a command-line flag, not a file setting")
+        elif name in COMMAND:
+            kind = COMMAND[name]
+            if isinstance(value, bool) != (kind is bool) or not isinstance(value, kind):
+                raise ValueError(f"{path}: {key!r} must be {'true or false' if kind is bool else 'text'}, "
+                                 f"got {str(value)[:60]!r}")  # fmt: skip
+            command[name] = value
         elif name in options and options[name].pipeline and not nested:
             pipeline[name] = value
         elif name in options and not options[name].pipeline:
@@ -87,4 +94,4 @@ def read_train_file(path: Path) -> TrainFile:
             PipelineConfig.from_flat(pipeline, strict=True)
     except (TypeError, ValueError) as e:
         raise ValueError(f"{path}: {e}") from e
-    return TrainFile(text, run, pipeline)
+    return TrainFile(text, run, pipeline, command)

@@ -75,7 +75,7 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
             events, event_grid(Path(data)) if events else None
         ).items():
             # a default setting of the default model (or encoder) only goes with that component
-            part = owners[key][0].split()[0] if key in owners else None
+            part = owners[key].part if key in owners else None
             if key not in given and part not in given:
                 flat[key] = value
     return apply_flat(base, flat)

@@ -164,18 +164,10 @@ def pipeline_options() -> tuple[Option, ...]:
                 pipeline=True,
             )
         )
-    for name, (owner, default, text, choices) in flat_settings().items():
-        kind = tuple if isinstance(default, tuple) else type(default)
-        out.append(
-            Option(
-                name,
-                default,
-                f"{text} [{owner}; default {default!r}]",
-                kind,
-                tuple(choices) if choices else None,
-                pipeline=True,
-            )
-        )
+    for name, f in flat_settings().items():
+        kind = tuple if isinstance(f.default, tuple) else type(f.default)
+        text = f"{f.help} [{f.owner}; default {f.default!r}]"
+        out.append(Option(name, f.default, text, kind, f.choices, pipeline=True))
     return tuple(out)
 
 

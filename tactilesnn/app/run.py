@@ -12,12 +12,13 @@ Run folder: ``config.json`` (settings, data source, rate, channel and class name
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import platform
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ import torch
 from ..baselines import linear_amplitude_baseline
 from ..config import PipelineConfig, is_nested
 from ..core.data import WindowDataset
-from ..core.files import load_arrays, read_json, write_json_atomic
+from ..core.files import file_sha256, load_arrays, read_json, write_json_atomic
 from ..core.version import __version__
 from ..datasets_synth import get_task
 from ..pipeline import SpikePipeline, select_channels
@@ -35,7 +36,15 @@ from ..recordings import load_data_file
 from ..selection import select_encoder
 from ..training import TrainResult, fit_and_evaluate, load_checkpoint, save_checkpoint
 from .plots import plot_confusion, plot_training, plot_windows
-from .runs import RunWriter, default_run_dir
+from .runs import (
+    PARTIAL_FILES,
+    ForeignFilesError,
+    OutLock,
+    RunWriter,
+    default_run_dir,
+    remove_owned,
+    write_marker,
+)
 
 log = logging.getLogger("tactilesnn")
 
@@ -68,24 +77,40 @@ class TaskSource:
 @dataclass(frozen=True)
 class FileSource:
     """Recordings in a file (``.npz``) or a generated folder, optionally cut into windows of
-    ``window_s`` seconds every ``hop_s``."""
+    ``window_s`` seconds every ``hop_s``. ``sha256``: the data's hash when it was trained on
+    (a run's record); loading refuses data that changed since."""
 
     path: Path
     window_s: float | None = None
     hop_s: float | None = None
+    sha256: str | None = None
 
     @property
     def label(self) -> str:
         return Path(self.path).stem
 
+    @functools.cached_property
+    def current_sha256(self) -> str:
+        """SHA-256 of the file's bytes (a generated folder: of its manifest, which holds every
+        shard's hash)."""
+        return file_sha256(Path(self.path))
+
     def record(self) -> dict[str, Any]:
+        """Absolute path and hash: a run folder's data, wherever it is evaluated from."""
         cut = {"data_window_s": self.window_s, "data_hop_s": self.hop_s} if self.window_s else {}
-        return {"task": None, "task_kwargs": {}, "data": str(self.path), **cut}
+        return {"task": None, "task_kwargs": {}, "data": str(Path(self.path).resolve()),
+                "data_sha256": self.current_sha256, **cut}  # fmt: skip
 
     def check_config(self, config: PipelineConfig) -> None:
         """Channels are checked against the file when it is read."""
 
     def load(self, seed: int, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
+        if self.sha256 is not None and self.sha256 != self.current_sha256:
+            raise ValueError(
+                f"the data at {self.path} changed since the run was trained (SHA-256 "
+                f"{self.current_sha256[:12]}... vs {self.sha256[:12]}...); pass the training "
+                "data, or evaluate on new data with --data"
+            )
         return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s)
 
 
@@ -96,7 +121,7 @@ def source_of(record: dict[str, Any]) -> DataSource:
     """The data source a run folder's ``config.json`` (or ``run.json``) describes."""
     if record.get("data"):
         return FileSource(Path(record["data"]), record.get("data_window_s"),
-                          record.get("data_hop_s"))  # fmt: skip
+                          record.get("data_hop_s"), record.get("data_sha256"))  # fmt: skip
     return TaskSource(record["task"], dict(record.get("task_kwargs") or {}))
 
 
@@ -147,6 +172,11 @@ def train_run(spec: RunSpec) -> RunResult:
     ``spec.overwrite``.
     """
     out = _default_out(spec, spec.config) if spec.out is None else Path(spec.out)
+    with OutLock(out):  # one training per --out, refused up front
+        return _train_run(spec, out)
+
+
+def _train_run(spec: RunSpec, out: Path) -> RunResult:
     writer = RunWriter(out, overwrite=spec.overwrite)  # refuses an existing folder before work
     partial = out.with_name(out.name + ".partial")
     record = spec.record()
@@ -187,29 +217,37 @@ def _default_out(spec: RunSpec, config: PipelineConfig) -> Path:
 
 def _open_partial(partial: Path, record: dict, spec: RunSpec) -> dict | None:
     """Prepare ``<out>.partial/`` (the run's settings and checkpoints); the checkpoint to
-    resume from with ``spec.resume``, else None."""
+    resume from with ``spec.resume``, else None. Only a checkpoint folder tactilesnn wrote is
+    ever removed (:func:`~tactilesnn.app.runs.remove_owned`)."""
     state = None
+    exists = partial.exists() or partial.is_symlink()
+    if exists and (partial.is_symlink() or not partial.is_dir()):
+        raise ForeignFilesError(f"{partial} exists and is not a checkpoint folder tactilesnn "
+                                "wrote (a link or a file); move it away or choose another --out")  # fmt: skip
     if spec.resume:
         if not (partial / "checkpoint.json").is_file():
             raise FileNotFoundError(f"nothing to resume: no checkpoint in {partial}")
         if read_json(partial / "run.json") != json.loads(json.dumps(record)):
             raise ValueError(
-                f"--resume needs the same settings as the interrupted run ({partial / 'run.json'})"
+                f"--resume needs the same settings and the same data as the interrupted run "
+                f"({partial / 'run.json'})"
             )
         state = load_checkpoint(partial)
         log.info("resuming %s from epoch %d", spec.out, state["epoch"])
-    elif partial.exists() and not (partial / "checkpoint.json").is_file():
+    elif exists and not (partial / "checkpoint.json").is_file():
         # a run that failed before its first epoch left only its settings: nothing to resume
-        shutil.rmtree(partial)
-    elif partial.exists():
+        remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")
+    elif exists:
         if not spec.overwrite:
             raise FileExistsError(
                 f"an interrupted run is in {partial}: pass --resume to continue it or "
                 "--overwrite to discard it"
             )
-        shutil.rmtree(partial)
-    partial.mkdir(parents=True, exist_ok=True)
-    (partial / "run.json").write_text(json.dumps(record, indent=2))
+        remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")
+    if state is None:
+        partial.mkdir(parents=True)
+        write_json_atomic(partial / "run.json", record)
+        write_marker(partial, "partial")
     return state
 
 
@@ -247,6 +285,49 @@ def _write_run(writer: RunWriter, spec: RunSpec, record: dict, res: TrainResult,
 def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
     """The ``(train, test)`` windows of a run's data source, cut as they were cut."""
     return source_of(cfg).load(seed)
+
+
+def evaluation_data(pipe: SpikePipeline, record: dict, data: Path | None = None,
+                    every: bool = False, progress: bool = False) -> WindowDataset:  # fmt: skip
+    """What to evaluate a trained pipeline on: the test split of its own data (``record``: its
+    ``config.json``), or of ``data`` (cut as its data was; ``every``: all its recordings),
+    with channels and classes matched to the run's by name (refused where they differ)."""
+    if data is None:
+        return source_of(record).load(pipe.config.seed, progress=progress)[1]
+    tr, test = load_data_file(Path(data), pipe.config.seed, window_s=record.get("data_window_s"),
+                              hop_s=record.get("data_hop_s"))  # fmt: skip
+    if every:
+        test = tr.concat(test)
+    if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
+        raise ValueError(f"data sampled at {test.fs_hz} Hz, the run expects {pipe.fs_hz} Hz")
+    return match_classes(match_channels(test, pipe.channel_names), pipe.class_names)
+
+
+def match_channels(data: WindowDataset, want: tuple[str, ...]) -> WindowDataset:
+    """``data`` with its channels in the run's order (by name); ValueError if they differ."""
+    have = tuple(data.channel_names)
+    if have == tuple(want):
+        return data
+    if sorted(have) != sorted(want):
+        raise ValueError(f"the data's channels {list(have)} are not the run's {list(want)}")
+    log.warning("data channels are in another order than the run's: reordered by name")
+    idx = [have.index(c) for c in want]
+    return replace(data, X=data.X[:, idx], channel_names=tuple(want))
+
+
+def match_classes(data: WindowDataset, want: tuple[str, ...]) -> WindowDataset:
+    """``data``'s labels as indices into the run's class names (matched by name: a file that
+    lists its classes in another order scores correctly); ValueError for classes the run does
+    not know."""
+    have = tuple(data.class_names)
+    if have == tuple(want):
+        return data
+    unknown = sorted(set(have) - set(want))
+    if unknown:
+        raise ValueError(f"the data's classes {unknown} are not among the run's {list(want)}")
+    log.warning("data classes are listed in another order than the run's: matched by name")
+    to_run = np.asarray([list(want).index(c) for c in have], dtype=np.int64)
+    return replace(data, y=to_run[data.y], class_names=tuple(want))
 
 
 def export_into_run(

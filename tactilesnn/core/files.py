@@ -11,11 +11,28 @@ import numpy as np
 
 
 def write_json_atomic(path: Path, obj: object) -> None:
-    """Replace ``path`` with ``obj`` as JSON (temporary file + rename)."""
+    """Replace ``path`` with ``obj`` as JSON (temporary file + rename; the temporary file is
+    removed if the write fails, e.g. on a full disk)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=jsonable))
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=jsonable))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 of a file's bytes, or of ``manifest.json`` for a folder (a generated dataset's
+    manifest holds every shard's hash)."""
+    import hashlib
+
+    path = Path(path)
+    h = hashlib.sha256()
+    with open(path / "manifest.json" if path.is_dir() else path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def load_arrays(path: Path) -> dict[str, np.ndarray]:

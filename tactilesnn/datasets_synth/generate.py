@@ -88,6 +88,8 @@ def generate(
     if n > task.n_samples:  # resizable tasks: sample indices beyond the default size are valid
         kwargs["n_samples"] = n
         task = get_task(task_name, **kwargs)
+    if (out.exists() or out.is_symlink()) and (out.is_symlink() or not out.is_dir()):
+        raise FileExistsError(f"{out} exists and is not a folder; choose another --out")
     manifest_path, partial_path = out / "manifest.json", out / "manifest.partial.json"
     if manifest_path.exists() and not overwrite:
         raise FileExistsError(f"{out} already holds a dataset; pass --overwrite to replace it")
@@ -96,8 +98,6 @@ def generate(
             f"{out} is not empty; pass --resume to finish an interrupted generation or "
             "--overwrite to replace it"
         )
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"{out} exists and is not a folder; choose another --out")
     if overwrite and out.exists() and any(out.iterdir()):
         ours = manifest_path.exists() or partial_path.exists()
         if not ours:
@@ -194,9 +194,9 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
         hint = " (generation unfinished: run generate --resume)" if (
             folder / "manifest.partial.json").exists() else ""  # fmt: skip
         raise FileNotFoundError(f"{folder} has no manifest.json: not a generated dataset{hint}")
-    m = json.loads(path.read_text())
-    channels, window = len(m["channel_names"]), int(m["window_samples"])
-    check_allocation(4 * int(m["n_windows"]) * channels * window, f"the dataset {folder}")
+    m = _manifest(path)
+    channels, window = len(m["channel_names"]), m["window_samples"]
+    check_allocation(4 * m["n_windows"] * channels * window, f"the dataset {folder}")
     xs, ys, ids = [], [], []
     for sh in m["shards"]:
         f = folder / sh["file"]
@@ -218,6 +218,32 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
     }
 
 
+def _manifest(path: Path) -> dict:
+    """A dataset folder's manifest, checked: the keys a reader needs with their types, and shard
+    files that are plain names inside the folder (never ``../x.npz`` or ``/etc/hostname``)."""
+    try:
+        m = json.loads(path.read_text())
+    except (ValueError, RecursionError) as e:
+        raise ValueError(f"{path}: not a valid manifest ({e})") from e
+    need = {"channel_names": list, "class_names": list, "window_samples": int, "n_windows": int,
+            "fs_hz": (int, float), "shards": list}  # fmt: skip
+    if not isinstance(m, dict):
+        raise ValueError(f"{path}: a manifest is a JSON object")
+    for key, kind in need.items():
+        if key not in m:
+            raise ValueError(f"{path}: the manifest lacks {key!r}; not a generated dataset")
+        if isinstance(m[key], bool) or not isinstance(m[key], kind):
+            raise ValueError(f"{path}: manifest {key!r} has the wrong type")
+    if m["window_samples"] < 1 or m["n_windows"] < 0 or not m["fs_hz"] > 0:
+        raise ValueError(f"{path}: manifest sizes must be positive")
+    for sh in m["shards"]:
+        name = sh.get("file") if isinstance(sh, dict) else None
+        if (not isinstance(name, str) or not isinstance(sh.get("sha256"), str)
+                or Path(name).name != name or name in ("", ".", "..")):  # fmt: skip
+            raise ValueError(f"{path}: shard entry {str(sh)[:80]} is not a file of the folder")
+    return m
+
+
 class ShardDataset:
     """torch-style Dataset over a generated folder: item ``i`` -> ``(X [C, W] float32, y int)``.
 
@@ -230,7 +256,7 @@ class ShardDataset:
         path = self.folder / "manifest.json"
         if not path.is_file():
             raise FileNotFoundError(f"{self.folder} has no manifest.json: not a generated dataset")
-        self.manifest = json.loads(path.read_text())
+        self.manifest = _manifest(path)
         self.shards = self.manifest["shards"]
         self.offsets = np.cumsum([0] + [s["windows"] for s in self.shards])
         self.class_names = tuple(self.manifest["class_names"])

@@ -28,6 +28,7 @@ import onnx
 import torch
 from torch import Tensor, nn
 
+from ..core.files import file_sha256
 from ..core.graph_contract import EARLY_OUTPUTS, SCORES_OUTPUT, WINDOW_INPUT, GraphContract
 from ..core.onnx_graph import chain, torch_to_onnx
 from ..core.onnx_run import run_batched
@@ -402,14 +403,9 @@ def _not_window_side(path: Path) -> list[str]:
 
 def data_hash(cfg: dict) -> str:
     """SHA-256 identifying the training data: the data file's bytes (a generated folder's
-    manifest), or the task and its settings."""
-    h = hashlib.sha256()
+    manifest; the run's record holds it as ``data_sha256``), or the task and its settings."""
     if cfg.get("data"):
-        src = Path(cfg["data"])
-        # a generated folder: its manifest holds every shard's SHA-256
-        with open(src / "manifest.json" if src.is_dir() else src, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-    else:
-        h.update(json.dumps({"task": cfg["task"], **cfg["task_kwargs"]}, sort_keys=True).encode())
+        return cfg.get("data_sha256") or file_sha256(Path(cfg["data"]))
+    h = hashlib.sha256()
+    h.update(json.dumps({"task": cfg["task"], **cfg["task_kwargs"]}, sort_keys=True).encode())
     return h.hexdigest()

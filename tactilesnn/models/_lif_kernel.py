@@ -110,13 +110,15 @@ def kernel():
     try:
         from torch.utils.cpp_extension import load_inline
 
-        with _elapsed_bar("fused LIF kernel (compiled once, then cached)"):
+        name = build_name()
+        cached = _is_built(name)
+        with _elapsed_bar("fused LIF kernel (compiled once, then cached)", quiet=cached):
             _kernel = load_inline(
-                name="tactilesnn_lif_v3",
+                name=name,
                 cpp_sources=_SOURCE,
                 functions=["lif_forward", "lif_backward"],
-                extra_cflags=["-O3", "-fopenmp"],
-                extra_ldflags=["-fopenmp"],
+                extra_cflags=list(CFLAGS),
+                extra_ldflags=list(LDFLAGS),
                 verbose=False,
             )
     except Exception as e:  # no compiler / ninja / headers: pure torch still works
@@ -125,13 +127,61 @@ def kernel():
     return _kernel
 
 
+CFLAGS = ("-O3", "-fopenmp")
+LDFLAGS = ("-fopenmp",)
+
+
+def build_name() -> str:
+    """The extension's name, from what its build depends on: the kernel source, torch's version
+    and install location, the compiler, the flags and Python's ABI. Environments that differ in
+    any of these build side by side under their own names (and never rebuild each other's);
+    environments that agree share one build."""
+    import hashlib
+    import platform
+    import shutil
+
+    import torch
+
+    cxx = os.environ.get("CXX", "c++")
+    key = "\n".join([_SOURCE, torch.__version__, os.path.dirname(torch.__file__),
+                      shutil.which(cxx) or cxx, " ".join(CFLAGS + LDFLAGS),
+                      sys.implementation.cache_tag or "", platform.machine()])  # fmt: skip
+    return "tactilesnn_lif_" + hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def _is_built(name: str) -> bool:
+    """True when a build of ``name`` is in torch's extensions cache (loading it is quick)."""
+    try:
+        from torch.utils.cpp_extension import _get_build_directory
+
+        folder = _get_build_directory(name, verbose=False)
+    except Exception:  # a private helper: if it moves, assume a build
+        return False
+    return any(f.endswith(".so") for f in os.listdir(folder)) if os.path.isdir(folder) else False
+
+
 @contextlib.contextmanager
-def _elapsed_bar(desc: str):
+def _elapsed_bar(desc: str, quiet: bool = False):
     """A ticking ``desc: elapsed`` line on stderr while a step of unknown length runs (the
-    compile takes about a minute the first time); silent when stderr is not a terminal."""
+    compile takes about a minute the first time); without a terminal (pipes, nohup, notebooks)
+    one log line before and one with the time after. ``quiet``: nothing (a cached build)."""
+    import time
+
     from tqdm.auto import tqdm
 
-    bar = tqdm(desc=desc, bar_format="{desc}: {elapsed}", disable=not sys.stderr.isatty())
+    if not sys.stderr.isatty():
+        if quiet:
+            yield
+            return
+        t0 = time.monotonic()
+        print(f"{desc}: compiling (about a minute, once per environment)...", file=sys.stderr,
+              flush=True)  # fmt: skip
+        try:
+            yield
+        finally:
+            print(f"{desc}: done in {time.monotonic() - t0:.0f} s", file=sys.stderr, flush=True)
+        return
+    bar = tqdm(desc=desc, bar_format="{desc}: {elapsed}", disable=quiet)
     stop = threading.Event()
 
     def tick() -> None:

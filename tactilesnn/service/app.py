@@ -26,7 +26,6 @@ import io
 import json
 import math
 import time
-from collections import OrderedDict
 from collections.abc import Iterable
 from contextlib import asynccontextmanager
 
@@ -38,12 +37,17 @@ from starlette.responses import HTMLResponse, JSONResponse, Response, StreamingR
 from starlette.routing import Route
 
 from .live import LiveHub, page_html, page_script_js, window_event
-from .runtime import InputError, PipelineSession, StreamState
+from .runtime import InputError, PipelineSession
 from .security import BrowserGuard, default_allowed_hosts
+from .streams import StreamTable, TooManyStreams
 
 MAX_BODY_BYTES = 8 << 20
 MAX_STREAMS = 256
 STREAM_TTL_S = 300.0  # a stream idle this long is dropped
+BODY_TIMEOUT_S = 30.0  # a body not received within this is dropped (408)
+INFLIGHT_BYTES = 64 << 20  # bodies held at once, reserved before reading (503 beyond)
+PARSE_INLINE_BYTES = 64 << 10  # larger bodies are parsed off the event loop
+MAX_CONNECTIONS = 256  # uvicorn answers 503 beyond this many concurrent connections
 
 
 class HTTPError(Exception):
@@ -108,20 +112,6 @@ class MicroBatcher:
                 start += len(x)
 
 
-async def _read_body(request: Request, limit: int) -> bytes:
-    declared = request.headers.get("content-length")
-    if declared is not None and declared.isdigit() and int(declared) > limit:
-        raise HTTPError(413, f"request body of {declared} bytes exceeds the {limit}-byte limit")
-    body = bytearray()
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > limit:
-            raise HTTPError(413, f"request body exceeds the {limit}-byte limit")
-    if not body:
-        raise HTTPError(400, "empty request body")
-    return bytes(body)
-
-
 NPY_TYPES = frozenset({"application/x-npy", "application/octet-stream"})
 MAX_STREAM_ID = 128
 
@@ -139,136 +129,161 @@ def _check_stream_id(sid: str) -> str:
     return sid
 
 
+def _check_media_type(ctype: str) -> str:
+    media = _media_type(ctype)
+    if media != "application/json" and media not in NPY_TYPES:
+        shown = repr(ctype[:100]) if ctype else "none"
+        raise HTTPError(
+            415,
+            f"unsupported content type {shown}; send Content-Type: application/json or "
+            "application/x-npy",
+        )
+    return media
+
+
 def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
     """Body -> (array-like, fs_hz or None). Only content types a browser cannot send across
     sites without a CORS preflight are accepted (see :mod:`tactilesnn.service.security`)."""
-    media = _media_type(ctype)
+    media = _check_media_type(ctype)
     if media in NPY_TYPES:
         try:
             arr = np.load(io.BytesIO(body), allow_pickle=False)
         except Exception as e:
             raise HTTPError(400, f"body is not a valid .npy array: {e}") from e
         return arr, None
-    if media == "application/json":
+    try:
+        doc = json.loads(body)
+    except RecursionError as e:
+        raise HTTPError(400, "JSON nested too deeply") from e
+    except ValueError as e:  # malformed, bad UTF-8, an integer of more than 4,300 digits
+        raise HTTPError(400, f"malformed JSON: {str(e)[:200]}") from e
+    if not isinstance(doc, dict):
+        raise HTTPError(400, "JSON body must be an object")
+    keys = [k for k in (key, key + "s") if k in doc]
+    if not keys:
+        raise HTTPError(422, f"JSON body needs a {key!r} (or {key + 's'!r}) field")
+    return doc[keys[0]], _rate(doc.get("fs_hz"))
+
+
+def _rate(fs: object) -> float | None:
+    """A request's ``fs_hz``: None, or a positive finite float (422 otherwise)."""
+    if fs is None:
+        return None
+    if isinstance(fs, bool) or not isinstance(fs, int | float):
+        raise HTTPError(422, "fs_hz must be a finite number")
+    try:
+        value = float(fs)  # a JSON integer of 400 digits overflows here
+    except OverflowError:
+        value = math.inf
+    if not math.isfinite(value) or value <= 0:
+        raise HTTPError(422, "fs_hz must be a finite number > 0")
+    return value
+
+
+class ByteBudget:
+    """Bytes of request bodies the service holds at once: a request reserves its size before
+    its body is read and is refused (503) when the budget is spent, so stalled uploads cannot
+    hold more than the budget."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit, self.held = int(limit), 0
+
+    @asynccontextmanager
+    async def reserve(self, n: int):
+        if self.held + n > self.limit:
+            raise HTTPError(503, f"the service holds {self.held} bytes of uploads (budget "
+                            f"{self.limit}); retry shortly")  # fmt: skip
+        self.held += n
         try:
-            doc = json.loads(body)
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise HTTPError(400, f"malformed JSON: {e}") from e
-        except RecursionError as e:
-            raise HTTPError(400, "JSON nested too deeply") from e
-        if not isinstance(doc, dict):
-            raise HTTPError(400, "JSON body must be an object")
-        keys = [k for k in (key, key + "s") if k in doc]
-        if not keys:
-            raise HTTPError(422, f"JSON body needs a {key!r} (or {key + 's'!r}) field")
-        fs = doc.get("fs_hz")
-        if fs is not None and (
-            isinstance(fs, bool) or not isinstance(fs, int | float) or not math.isfinite(fs)
-        ):
-            raise HTTPError(422, "fs_hz must be a finite number")
-        return doc[keys[0]], fs
-    shown = repr(ctype[:100]) if ctype else "none"
-    raise HTTPError(
-        415,
-        f"unsupported content type {shown}; send Content-Type: application/json or "
-        "application/x-npy",
-    )
+            yield
+        finally:
+            self.held -= n
 
 
-def create_app(
-    model_path: str,
-    threads: int = 0,
-    max_body_bytes: int = MAX_BODY_BYTES,
-    batch_window_ms: float = 2.0,
-    max_streams: int = MAX_STREAMS,
-    stream_ttl_s: float = STREAM_TTL_S,
-    allowed_hosts: Iterable[str] | None = None,
-) -> Starlette:
-    """The HTTP app. Streams idle for ``stream_ttl_s`` are dropped (so abandoned ids never lock
-    new streams out); each stream is fed under its own lock, off the event loop, so a large
-    chunk on one stream does not hold up the others. ``allowed_hosts``: the names a request's
-    ``Host`` may carry (default: the loopback names; see :mod:`tactilesnn.service.security`)."""
-    hosts = default_allowed_hosts("127.0.0.1") if allowed_hosts is None else set(allowed_hosts)
-    session = PipelineSession(model_path, threads=threads, expose_spikes=True)
-    batcher = MicroBatcher(session, batch_window_ms)
-    hub = LiveHub()
-    streams: OrderedDict[str, StreamState] = OrderedDict()  # least recently used first
-    stream_lock = asyncio.Lock()  # guards the table only, never held during inference
+class Service:
+    """The endpoints over one exported pipeline (see the module docstring)."""
 
-    def expire(now: float) -> None:
-        while streams:
-            sid, st = next(iter(streams.items()))
-            if now - st.meta.get("last_used", now) <= stream_ttl_s:
-                break
-            streams.pop(sid)
+    def __init__(self, model_path: str, threads: int, max_body_bytes: int, batch_window_ms: float,
+                 max_streams: int, stream_ttl_s: float, body_timeout_s: float,
+                 inflight_bytes: int) -> None:  # fmt: skip
+        self.session = PipelineSession(model_path, threads=threads, expose_spikes=True)
+        self.batcher = MicroBatcher(self.session, batch_window_ms)
+        self.hub = LiveHub()
+        self.streams = StreamTable(max_streams, stream_ttl_s)
+        self.max_body_bytes, self.body_timeout_s = int(max_body_bytes), float(body_timeout_s)
+        self.uploads = ByteBudget(inflight_bytes)
 
-    async def classify(request: Request):
-        body = await _read_body(request, max_body_bytes)
-        data, fs = _parse(body, request.headers.get("content-type", ""), "window")
+    async def body(self, request: Request, key: str) -> tuple[object, float | None]:
+        """The request's array-like and its ``fs_hz``: size checked on ``Content-Length``
+        first, read within ``body_timeout_s`` and the upload budget, parsed off the event loop
+        when large (an 8 MB JSON body takes ~0.5 s to parse)."""
+        limit = self.max_body_bytes
+        declared = request.headers.get("content-length")
+        if declared is not None and declared.isdigit() and int(declared) > limit:
+            raise HTTPError(413, f"request body of {declared} bytes exceeds the {limit}-byte limit")
+        ctype = request.headers.get("content-type", "")
+        _check_media_type(ctype)  # 415 before reading anything
+        size = int(declared) if declared is not None and declared.isdigit() else limit
+        async with self.uploads.reserve(size):
+            try:
+                body = await asyncio.wait_for(_read(request, limit), self.body_timeout_s)
+            except asyncio.TimeoutError as e:
+                raise HTTPError(
+                    408, f"request body not received within {self.body_timeout_s:g} s"
+                ) from e
+        if len(body) < PARSE_INLINE_BYTES:
+            return _parse(body, ctype, key)
+        return await asyncio.get_running_loop().run_in_executor(None, _parse, body, ctype, key)
+
+    async def classify(self, request: Request) -> JSONResponse:
+        session = self.session
+        data, fs = await self.body(request, "window")
         if fs is None and request.headers.get("x-fs-hz"):
             try:
-                fs = float(request.headers["x-fs-hz"])
+                fs = _rate(float(request.headers["x-fs-hz"]))
             except ValueError as e:
                 raise HTTPError(422, "X-Fs-Hz must be a number") from e
         x = session.validate(data, fs)
-        scores = await batcher.submit(x)
+        scores = await self.batcher.submit(x)
         idx = scores.argmax(1)
-        return JSONResponse(
-            {
-                "classes": [session.class_names[i] for i in idx],
-                "class_index": idx.tolist(),
-                "scores": scores.tolist(),
-            }
-        )
+        return JSONResponse({"classes": [session.class_names[i] for i in idx],
+                             "class_index": idx.tolist(), "scores": scores.tolist()})  # fmt: skip
 
-    async def stream(request: Request):
+    async def stream(self, request: Request) -> JSONResponse:
+        session = self.session
         sid = _check_stream_id(request.path_params["sid"])
         if request.method == "DELETE":
-            async with stream_lock:
-                existed = streams.pop(sid, None) is not None
+            existed = await self.streams.close(sid)
             return JSONResponse({"deleted": existed}, status_code=200 if existed else 404)
-        body = await _read_body(request, max_body_bytes)
-        data, fs = _parse(body, request.headers.get("content-type", ""), "chunk")
-        if fs is not None and abs(float(fs) - session.fs_hz) > 1e-6 * session.fs_hz:
+        data, fs = await self.body(request, "chunk")
+        if fs is not None and abs(fs - session.fs_hz) > 1e-6 * session.fs_hz:
             raise HTTPError(
                 422, f"sampling rate {fs} Hz does not match the model's {session.fs_hz}"
             )
-        async with stream_lock:
-            now = time.monotonic()
-            expire(now)
-            state = streams.get(sid)
-            if state is None:
-                if len(streams) >= max_streams:
-                    raise HTTPError(
-                        429,
-                        f"too many open streams ({max_streams}); DELETE unused ones or wait "
-                        f"{stream_ttl_s:g} s for idle ones to expire",
-                    )
-                state = streams[sid] = StreamState()
-                state.meta["lock"] = asyncio.Lock()
-            state.meta["last_used"] = now
-            streams.move_to_end(sid)
-        async with state.meta["lock"]:  # one chunk at a time per stream, in arrival order
-            loop = asyncio.get_running_loop()
-            live = hub.active
-            results = await loop.run_in_executor(
-                None, lambda: session.feed_stream(state, data, detail=live)
+        try:
+            stream = await self.streams.open(sid)
+        except TooManyStreams as e:
+            raise HTTPError(429, str(e)) from e
+        async with stream.lock:  # one chunk at a time per stream, in arrival order
+            live = self.hub.active
+            results = await asyncio.get_running_loop().run_in_executor(
+                None, lambda: session.feed_stream(stream.state, data, detail=live)
             )
-            state.meta["last_used"] = time.monotonic()
+            stream.last_used = time.monotonic()
         for r in results if live else ():
             window, spikes = r.pop("window"), r.pop("spikes")
-            hub.publish(window_event(sid, r, window, spikes, session.fs_hz, session.class_names,
-                                     session.window // 2))  # fmt: skip
+            self.hub.publish(window_event(sid, r, window, spikes, session.fs_hz,
+                                          session.class_names, session.window // 2))  # fmt: skip
         return JSONResponse({"stream": sid, "results": results})
 
-    async def page(request: Request):
+    async def page(self, request: Request) -> HTMLResponse:
         return HTMLResponse(page_html())
 
-    async def page_script(request: Request):
+    async def page_script(self, request: Request) -> Response:
         return Response(page_script_js(), media_type="text/javascript; charset=utf-8")
 
-    async def live(request: Request):
-        queue = hub.subscribe()
+    async def live(self, request: Request) -> StreamingResponse:
+        queue = self.hub.subscribe()
 
         async def events():
             try:
@@ -281,49 +296,85 @@ def create_app(
                         continue
                     yield f"data: {text}\n\n"
             finally:
-                hub.unsubscribe(queue)
+                self.hub.unsubscribe(queue)
 
         headers = {"Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
         return StreamingResponse(events(), media_type="text/event-stream", headers=headers)
 
-    async def model(request: Request):
-        return JSONResponse(session.info())
+    async def model(self, request: Request) -> JSONResponse:
+        return JSONResponse(self.session.info())
 
-    async def health(request: Request):
-        return JSONResponse({"status": "ok", "batches": batcher.calls, "windows": batcher.windows,
-                             "open_streams": len(streams), "live_pages": len(hub.queues),
-                             "live_events": hub.published})  # fmt: skip
+    async def health(self, request: Request) -> JSONResponse:
+        return JSONResponse({"status": "ok", "batches": self.batcher.calls,
+                             "windows": self.batcher.windows, "open_streams": len(self.streams),
+                             "live_pages": len(self.hub.queues), "live_events": self.hub.published,
+                             "upload_bytes_held": self.uploads.held})  # fmt: skip
+
+    def routes(self) -> list[Route]:
+        return [
+            Route("/v1/classify", self.classify, methods=["POST"]),
+            Route("/v1/stream/{sid}", self.stream, methods=["POST", "DELETE"]),
+            Route("/v1/model", self.model, methods=["GET"]),
+            Route("/healthz", self.health, methods=["GET"]),
+            Route("/", self.page, methods=["GET"]),
+            Route("/live.js", self.page_script, methods=["GET"]),
+            Route("/v1/live", self.live, methods=["GET"]),
+        ]
+
+
+async def _read(request: Request, limit: int) -> bytes:
+    body = bytearray()
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > limit:
+            raise HTTPError(413, f"request body exceeds the {limit}-byte limit")
+    if not body:
+        raise HTTPError(400, "empty request body")
+    return bytes(body)
+
+
+async def _on_error(request: Request, exc: Exception) -> JSONResponse:
+    if isinstance(exc, HTTPError):
+        return JSONResponse({"error": exc.message}, status_code=exc.status)
+    if isinstance(exc, InputError):
+        return JSONResponse({"error": str(exc)}, status_code=422)
+    return JSONResponse({"error": f"internal error: {type(exc).__name__}"}, status_code=500)
+
+
+def create_app(
+    model_path: str,
+    threads: int = 0,
+    max_body_bytes: int = MAX_BODY_BYTES,
+    batch_window_ms: float = 2.0,
+    max_streams: int = MAX_STREAMS,
+    stream_ttl_s: float = STREAM_TTL_S,
+    allowed_hosts: Iterable[str] | None = None,
+    body_timeout_s: float = BODY_TIMEOUT_S,
+    inflight_bytes: int = INFLIGHT_BYTES,
+) -> Starlette:
+    """The HTTP app (:class:`Service`'s endpoints behind the browser guard). ``allowed_hosts``:
+    the names a request's ``Host`` may carry (default: the loopback names; see
+    :mod:`tactilesnn.service.security`)."""
+    hosts = default_allowed_hosts("127.0.0.1") if allowed_hosts is None else set(allowed_hosts)
+    service = Service(model_path, threads, max_body_bytes, batch_window_ms, max_streams,
+                      stream_ttl_s, body_timeout_s, inflight_bytes)  # fmt: skip
 
     @asynccontextmanager
     async def lifespan(app):
-        await batcher.start()
+        await service.batcher.start()
         yield
-        await batcher.stop()
-
-    async def on_error(request: Request, exc: Exception):
-        if isinstance(exc, HTTPError):
-            return JSONResponse({"error": exc.message}, status_code=exc.status)
-        if isinstance(exc, InputError):
-            return JSONResponse({"error": str(exc)}, status_code=422)
-        return JSONResponse({"error": f"internal error: {type(exc).__name__}"}, status_code=500)
+        await service.batcher.stop()
 
     app = Starlette(
-        routes=[
-            Route("/v1/classify", classify, methods=["POST"]),
-            Route("/v1/stream/{sid}", stream, methods=["POST", "DELETE"]),
-            Route("/v1/model", model, methods=["GET"]),
-            Route("/healthz", health, methods=["GET"]),
-            Route("/", page, methods=["GET"]),
-            Route("/live.js", page_script, methods=["GET"]),
-            Route("/v1/live", live, methods=["GET"]),
-        ],
-        exception_handlers={HTTPError: on_error, InputError: on_error, Exception: on_error},
+        routes=service.routes(),
+        exception_handlers={HTTPError: _on_error, InputError: _on_error, Exception: _on_error},
         lifespan=lifespan,
         middleware=[Middleware(BrowserGuard, allowed_hosts=hosts)],
     )
-    app.state.session = session
-    app.state.batcher = batcher
-    app.state.hub = hub
+    app.state.service = service
+    app.state.session = service.session
+    app.state.batcher = service.batcher
+    app.state.hub = service.hub
     return app
 
 
@@ -347,4 +398,6 @@ def serve(
         port=port,
         log_level="info",
         timeout_graceful_shutdown=10,
+        limit_concurrency=MAX_CONNECTIONS,
+        timeout_keep_alive=5,
     )

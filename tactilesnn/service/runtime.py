@@ -38,12 +38,41 @@ class StreamState:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     buffer: np.ndarray | None = None
     windows_done: int = 0
-    meta: dict = field(default_factory=dict)
 
     @property
     def h(self) -> np.ndarray | None:
         """The SNN hidden-layer membrane (``h_state``), if the model has one."""
         return self.values.get("h_state")
+
+
+class Stats:
+    """Counters of a session, updated from the service's worker threads (one lock)."""
+
+    def __init__(self, **initial: float) -> None:
+        self._lock = threading.Lock()
+        self._values: dict[str, float] = dict(initial)
+
+    def add(self, **deltas: float) -> None:
+        with self._lock:
+            for k, v in deltas.items():
+                self._values[k] = self._values.get(k, 0) + v
+
+    def mean(self, name: str, count: str, value: float) -> None:
+        """Fold ``value`` into the running mean ``name`` over the counter ``count``
+        (incremented here)."""
+        with self._lock:
+            n = self._values[count] = self._values.get(count, 0) + 1
+            self._values[name] = (
+                self._values.get(name, 0.0) + (value - self._values.get(name, 0.0)) / n
+            )
+
+    def snapshot(self) -> dict[str, float]:
+        with self._lock:
+            return dict(self._values)
+
+    def __getitem__(self, name: str) -> float:
+        with self._lock:
+            return self._values[name]
 
 
 class Detail(NamedTuple):
@@ -110,6 +139,23 @@ def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str]
     return every, model.SerializeToString()
 
 
+def _check_weights(path: str) -> None:
+    """Refuse a graph whose weights hold NaN (it would give one answer for every input; +inf is
+    a legitimate constant: a silent afferent's spike time). Needs the ``onnx`` package; a
+    deployment without it skips the check."""
+    try:
+        import onnx
+        from onnx import numpy_helper
+    except ImportError:
+        return
+    model = onnx.load(str(path))
+    for init in model.graph.initializer:
+        if init.data_type in (onnx.TensorProto.FLOAT, onnx.TensorProto.DOUBLE,
+                              onnx.TensorProto.FLOAT16):  # fmt: skip
+            if np.isnan(numpy_helper.to_array(init)).any():
+                raise ValueError(f"{path}: weight {init.name!r} holds NaN; refusing to serve it")
+
+
 def _check_io(path: str, c: GraphContract, inputs: dict, outputs: set[str]) -> None:
     """The graph's inputs and outputs are those its metadata promises (a tampered or foreign
     graph is refused at load, not at the first request)."""
@@ -163,6 +209,7 @@ class PipelineSession:
                 )
         except Exception as e:  # onnxruntime / protobuf raise their own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
+        _check_weights(path)
         self.has_spikes = "spikes" in outs
         self.decides_early = set(EARLY_OUTPUTS) <= outs
         meta = self.plain_session.get_modelmeta().custom_metadata_map
@@ -187,22 +234,21 @@ class PipelineSession:
         # cache instead of running the graph
         self.gated = c.gate_rms is not None and bool(c.encoder_channels)
         self._silent: Detail | None = None
-        self.stats = {
-            "stream_windows": 0,
-            "stream_windows_skipped": 0,
-            "stream_channel_windows": 0,  # (window, encoder channel) pairs seen by the gate
-            "stream_channel_windows_skipped": 0,  # of which silent: not encoded
-        }
+        self.stats = Stats(
+            stream_windows=0,
+            stream_windows_skipped=0,
+            stream_channel_windows=0,  # (window, encoder channel) pairs seen by the gate
+            stream_channel_windows_skipped=0,  # of which silent: not encoded
+        )
         # band restriction: bands outside the sensor's passband are not transformed (static:
         # the graph holds only the others)
         if c.bands_hz is not None and c.bands_transformed is not None:
             n_bands = len(c.bands_hz)
-            self.stats.update(
-                encoder_bands=n_bands, encoder_bands_skipped=n_bands - len(c.bands_transformed)
-            )
+            self.stats.add(encoder_bands=n_bands,
+                           encoder_bands_skipped=n_bands - len(c.bands_transformed))  # fmt: skip
         if self.decides_early:  # the first output neuron to fire vs the full-window answer
-            self.stats.update(stream_early_decisions=0, stream_early_differs=0,
-                              stream_early_mean_decision_ms=0.0)  # fmt: skip
+            self.stats.add(stream_early_decisions=0, stream_early_differs=0,
+                           stream_early_mean_decision_ms=0.0)  # fmt: skip
         self.plain_outputs = c.plain_outputs
         self._zeros: tuple[int, dict[str, np.ndarray]] | None = None
 
@@ -224,7 +270,7 @@ class PipelineSession:
             "channels": self.channels,
             "class_names": self.class_names,
             "stateful": self.stateful,
-            "stats": dict(self.stats),
+            "stats": self.stats.snapshot(),
             "metadata": self.metadata,
         }
 
@@ -320,29 +366,27 @@ class PipelineSession:
         if not self.gated:
             return 0
         silent = int(self.contract.silent_channels(win[0]).sum())
-        self.stats["stream_channel_windows"] += len(self.contract.encoder_channels)
-        self.stats["stream_channel_windows_skipped"] += silent
+        self.stats.add(stream_channel_windows=len(self.contract.encoder_channels),
+                       stream_channel_windows_skipped=silent)  # fmt: skip
         return silent
 
     def _run_gated(self, win: np.ndarray, state: StreamState) -> Detail:
         """One stream window: from the silent-window cache when the gate silences every channel
         of a stateless model (the result is identical), else through the graph (which encodes
         only the active channels)."""
-        self.stats["stream_windows"] += 1
+        self.stats.add(stream_windows=1)
         silent = self._silent_channels(win)
         if not self.stateful and self.gated and silent == len(self.contract.encoder_channels):
             if self._silent is None:
                 self._silent = self.run_detail(np.zeros_like(win))
-            self.stats["stream_windows_skipped"] += 1
+            self.stats.add(stream_windows_skipped=1)
             return self._silent
         return self.run_detail(win, state if self.stateful else None)
 
     def _early(self, full: int, early: int, t_ms: float) -> dict:
         """A window's early decision, counted in :attr:`stats`."""
-        st = self.stats
-        n = st["stream_early_decisions"] = st["stream_early_decisions"] + 1
-        st["stream_early_differs"] += int(early != full)
-        st["stream_early_mean_decision_ms"] += (t_ms - st["stream_early_mean_decision_ms"]) / n
+        self.stats.add(stream_early_differs=int(early != full))
+        self.stats.mean("stream_early_mean_decision_ms", "stream_early_decisions", t_ms)
         return {"early_class": self.class_names[early], "decision_ms": t_ms}
 
     def feed_stream(

@@ -4,6 +4,7 @@ without a preflight, foreign Origins, rebound host names, and markup in stream i
 from __future__ import annotations
 
 import io
+import json
 import re
 
 import numpy as np
@@ -156,3 +157,159 @@ def test_stream_ids_are_bounded_and_printable(client, sid):
     r = c.post(stream_path(sid), content=buf.getvalue(),
                headers={"content-type": "application/x-npy"})  # fmt: skip
     assert r.status_code == 422 and "stream id" in r.json()["error"]
+
+
+# ---------------------------------------------------------------- bounded bodies, 4xx not 5xx
+@pytest.mark.parametrize(
+    ("body", "status", "match"),
+    [
+        (b'{"window": [[1]], "fs_hz": 1' + b"0" * 400 + b"}", 422, "fs_hz"),
+        (b'{"window": [[1]], "fs_hz": ' + b"9" * 5000 + b"}", 400, "malformed JSON"),
+        (b'{"window": [[1]], "fs_hz": -5}', 422, "fs_hz"),
+        (b'{"window": [[' + b"9" * 5000 + b"]]}", 400, "malformed JSON"),
+        (b'{"window": [[1e400]]}', 422, ""),
+        (b'{"window": [[' + b"1" * 30 + b"]]}", 422, ""),
+        (b'{"window": {"a": 1}}', 422, ""),
+        (b'"just a string"', 400, "object"),
+    ],
+)
+def test_bad_numbers_get_4xx(client, body, status, match):
+    c, _ = client
+    for route, key in (("/v1/classify", b"window"), ("/v1/stream/n", b"chunk")):
+        r = c.post(route, content=body.replace(b"window", key),
+                   headers={"content-type": "application/json"})  # fmt: skip
+        assert r.status_code == status, (route, r.text)
+        assert match in r.json()["error"]
+
+
+def test_a_stalled_upload_times_out_and_the_upload_budget_is_bounded(model):
+    """Real sockets on a running server: a client that declares 8 MB and stalls gets 408 after
+    the body timeout; while it holds the budget, an upload beyond it gets 503 at once."""
+    import asyncio
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+
+    from tactilesnn.service.app import ByteBudget, HTTPError
+
+    app = create_app(model[0], body_timeout_s=1.0, inflight_bytes=10_000_000)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        while not server.started:
+            time.sleep(0.02)
+
+        def send(length: int, body: bytes) -> socket.socket:
+            conn = socket.create_connection(("127.0.0.1", port), timeout=10)
+            conn.sendall(b"POST /v1/classify HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+                         b"application/json\r\nContent-Length: %d\r\n\r\n%s" % (length, body))  # fmt: skip
+            return conn
+
+        stalled = send(8_000_000, b'{"window": [[')
+        time.sleep(0.2)
+        second = send(5_000_000, b"{")  # 8 + 5 MB > the 10 MB budget
+        assert b" 503 " in second.recv(4096).split(b"\r\n")[0]
+        t0 = time.monotonic()
+        first_line = stalled.recv(4096).split(b"\r\n")[0]
+        assert b" 408 " in first_line and time.monotonic() - t0 < 5
+        stalled.close()
+        second.close()
+        assert app.state.service.uploads.held == 0
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
+
+    budget = ByteBudget(100)
+
+    async def hold():
+        async with budget.reserve(60):
+            with pytest.raises(HTTPError) as e:
+                async with budget.reserve(60):
+                    pass
+            assert e.value.status == 503
+            async with budget.reserve(40):
+                assert budget.held == 100
+        assert budget.held == 0
+
+    asyncio.run(hold())
+
+
+def test_large_json_bodies_are_parsed_off_the_event_loop(model, monkeypatch):
+    import threading
+
+    import tactilesnn.service.app as app_module
+
+    threads = []
+    real = app_module._parse
+
+    def spy(*a):
+        threads.append(threading.current_thread().name)
+        return real(*a)
+
+    monkeypatch.setattr(app_module, "_parse", spy)
+    _, test = model
+    with TestClient(create_app(model[0]), base_url="http://127.0.0.1") as c:
+        big = json.dumps({"windows": np.repeat(test.X[:1], 40, 0).tolist()}).encode()
+        assert len(big) > app_module.PARSE_INLINE_BYTES
+        assert c.post("/v1/classify", content=big,
+                      headers={"content-type": "application/json"}).status_code == 200  # fmt: skip
+        assert c.post("/v1/classify", content=_body(test),
+                      headers={"content-type": "application/json"}).status_code == 200  # fmt: skip
+    loop_thread = threads[1]  # the small body, parsed inline on the loop's thread
+    assert threads[0] != loop_thread
+
+
+# ---------------------------------------------------------------- hostile models
+@pytest.mark.parametrize(
+    ("key", "value", "match"),
+    [
+        ("class_names", '"hookloop"', "class_names"),
+        ("class_names", '["hook", "hook"]', "duplicates"),
+        ("class_names", '["hook", ""]', "non-empty"),
+        ("channels", "[1, 2]", "channels"),
+        ("channels", '{"a": 1}', "channels"),
+        ("channels", '["a", "b", "c"]', "metadata says"),
+        ("fs_hz", "nan", "fs_hz"),
+        ("window_samples", "1e9", "window_samples"),
+        ("encoder_channels", "[7]", "encoder_channels"),
+        ("bytes_per_window", "-1", "bytes_per_window"),
+        ("state_inputs", '["h_state"]', "state inputs"),
+    ],
+)
+def test_tampered_metadata_is_refused_at_load(model, tmp_path, key, value, match):
+    import onnx
+
+    from tactilesnn.service.runtime import PipelineSession
+
+    m = onnx.load(model[0])
+    for p in m.metadata_props:
+        if p.key == key:
+            p.value = value
+    bad = tmp_path / "bad.onnx"
+    onnx.save(m, str(bad))
+    with pytest.raises(ValueError, match=match):
+        PipelineSession(str(bad))
+
+
+def test_nan_weights_are_refused_at_load(model, tmp_path):
+    import onnx
+    from onnx import numpy_helper
+
+    from tactilesnn.service.runtime import PipelineSession
+
+    m = onnx.load(model[0])
+    init = next(i for i in m.graph.initializer
+                if i.data_type == onnx.TensorProto.FLOAT and np.prod(i.dims) > 1)  # fmt: skip
+    arr = numpy_helper.to_array(init).copy()
+    arr.flat[0] = np.nan
+    init.CopyFrom(numpy_helper.from_array(arr, init.name))
+    bad = tmp_path / "nan.onnx"
+    onnx.save(m, str(bad))
+    with pytest.raises(ValueError, match="holds NaN"):
+        PipelineSession(str(bad))

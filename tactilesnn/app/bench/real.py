@@ -192,9 +192,6 @@ def run(
     epochs: int | None = None,
     progress: bool = True,
 ) -> dict:
-    from ...selection import select_encoder
-    from ...training import fit_and_evaluate
-
     data_root = Path(data_root)
     rows: list[dict] = []
     known = {**REAL_DATASETS, **synthetic_datasets()}
@@ -211,41 +208,8 @@ def run(
             log.warning("bench real: %s not found under %s, skipped", rel, data_root)
             continue
         for seed in range(seeds):
-            train, test = loader(data_root, seed)
-            log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
-                     train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
-            ref_pipe = None
-            for label, enc, model, applies in chosen:
-                if applies == ("analog" if events else "events"):
-                    continue
-                cfg = default_config(events, enc, model, seed)
-                if epochs is not None:
-                    cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
-                t0 = time.perf_counter()
-                if enc is None and not events:  # as train --data: the encoder chosen on held-out
-                    cfg, _ = select_encoder(cfg, train, DATA_ENCODER_CANDIDATES)  # recordings
-                res = fit_and_evaluate(cfg, train, test, progress=progress)
-                m = res.metrics
-                rows.append({
-                    "dataset": name, "seed": seed, "method": label, "kind": "spike",
-                    "encoder": cfg.encoder_type,
-                    "accuracy": m["test_accuracy"],
-                    "accuracy_per_recording": m.get("test_accuracy_per_recording"),
-                    "seconds": time.perf_counter() - t0,
-                    # a model that decides before the window ends: its accuracy then, and when
-                    "early_accuracy": m.get("early_decision", {}).get("accuracy"),
-                    "early_window_fraction": None if "early_decision" not in m else
-                    1.0 - m["early_decision"]["window_skipped_fraction"],
-                })  # fmt: skip
-                if enc is None and ref_pipe is None:
-                    ref_pipe = res.pipeline
-            if ref_pipe is not None:
-                t0 = time.perf_counter()
-                for label, (acc, rec) in references(train, test, ref_pipe, seed).items():
-                    rows.append({"dataset": name, "seed": seed, "method": label,
-                                 "kind": "reference", "accuracy": acc,
-                                 "accuracy_per_recording": rec,
-                                 "seconds": time.perf_counter() - t0})  # fmt: skip
+            rows += _one_split(name, seed, *loader(data_root, seed), events, chosen, epochs,
+                               progress)  # fmt: skip
     summary = summarise(rows)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -254,6 +218,49 @@ def run(
     plot(summary, out / "real.png")
     print(table(summary))
     return {"rows": rows, "summary": summary}
+
+
+def _one_split(name: str, seed: int, train, test, events: bool, chosen: list, epochs: int | None,
+               progress: bool) -> list[dict]:  # fmt: skip
+    """Rows of one dataset split: each spike pipeline, then the references on the same split."""
+    from ...selection import select_encoder
+    from ...training import fit_and_evaluate
+
+    log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
+             train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
+    rows: list[dict] = []
+    ref_pipe = None
+    for label, enc, model, applies in chosen:
+        if applies == ("analog" if events else "events"):
+            continue
+        cfg = default_config(events, enc, model, seed)
+        if epochs is not None:
+            cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
+        t0 = time.perf_counter()
+        if enc is None and not events:  # as train --data: the encoder chosen on held-out
+            cfg, _ = select_encoder(cfg, train, DATA_ENCODER_CANDIDATES)  # recordings
+        res = fit_and_evaluate(cfg, train, test, progress=progress)
+        m = res.metrics
+        rows.append({
+            "dataset": name, "seed": seed, "method": label, "kind": "spike",
+            "encoder": cfg.encoder_type,
+            "accuracy": m["test_accuracy"],
+            "accuracy_per_recording": m.get("test_accuracy_per_recording"),
+            "seconds": time.perf_counter() - t0,
+            # a model that decides before the window ends: its accuracy then, and when
+            "early_accuracy": m.get("early_decision", {}).get("accuracy"),
+            "early_window_fraction": None if "early_decision" not in m else
+            1.0 - m["early_decision"]["window_skipped_fraction"],
+        })  # fmt: skip
+        if enc is None and ref_pipe is None:
+            ref_pipe = res.pipeline
+    if ref_pipe is not None:
+        t0 = time.perf_counter()
+        for label, (acc, rec) in references(train, test, ref_pipe, seed).items():
+            rows.append({"dataset": name, "seed": seed, "method": label, "kind": "reference",
+                         "accuracy": acc, "accuracy_per_recording": rec,
+                         "seconds": time.perf_counter() - t0})  # fmt: skip
+    return rows
 
 
 def summarise(rows: list[dict]) -> list[dict]:
