@@ -233,6 +233,32 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_convert(args: argparse.Namespace) -> int:
+    from .app.runs import RunExistsError
+    from .core.files import write_npz_atomic
+    from .recordings import datasets_from_arrays, read_data_arrays
+
+    out = Path(args.out)
+    if out.exists() and not args.overwrite:
+        raise RunExistsError(f"{out} exists; pass --overwrite to replace it")
+    arrays = read_data_arrays(Path(args.source))
+    train, test = datasets_from_arrays(arrays, args.source, seed=0)  # checks the result
+    write_npz_atomic(out, arrays)
+    print(f"wrote {out}: X {list(arrays['X'].shape)} at {float(arrays['fs']):.4g} Hz, classes "
+          f"{', '.join(map(str, arrays['class_names']))} ({len(train) + len(test)} windows)")  # fmt: skip
+    return 0
+
+
+def _parse_convert(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = _command(sub, "convert", "recordings as they come (timestamped arrays, a folder of CSV / "
+                 ".npy files) -> one .npz in the documented format")  # fmt: skip
+    p.add_argument("source", help="an .npz, a folder of recordings or a generated dataset")
+    p.add_argument("--out", required=True, help=".npz file to write")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.set_defaults(func=cmd_convert)
+    return p
+
+
 def cmd_generate(args: argparse.Namespace) -> int:
     from .datasets_synth.generate import generate
 
@@ -455,8 +481,8 @@ def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 #: the sub-commands and their parsers (``python train.py`` passes anything else to ``train``)
 COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse_export,
-            "generate": _parse_generate, "sweep": _parse_sweep, "serve": _parse_serve,
-            "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
+            "convert": _parse_convert, "generate": _parse_generate, "sweep": _parse_sweep,
+            "serve": _parse_serve, "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:

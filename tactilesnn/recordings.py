@@ -47,20 +47,7 @@ def load_data_file(
     length (:func:`cut_windows`); they keep their recording's id, so scores are also accumulated
     per recording.
     """
-    path = Path(path)
-    if path.is_dir():
-        from .datasets_synth.generate import read_dataset_folder
-
-        arrays = read_dataset_folder(path)
-    elif not path.is_file():
-        raise FileNotFoundError(f"data file {path} does not exist")
-    else:
-        check_npz_size(path)  # from the headers, before any array is read
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                arrays = {k: np.asarray(f[k]) for k in f.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
-            raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    arrays = read_data_arrays(Path(path))
     train, test = datasets_from_arrays(arrays, path, seed, test_fraction)
     if window_s is None:
         if hop_s is not None:
@@ -121,6 +108,34 @@ def _names(values: object, what: str, path: Path | str) -> tuple[str, ...]:
         dup = sorted({n for n in names if names.count(n) > 1})
         raise ValueError(f"{path}: {what} holds duplicates {dup[:5]}")
     return names
+
+
+def read_data_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of the documented format from ``path``: an ``.npz`` (converted when it holds
+    timestamps instead of ``fs``), a folder written by ``tactilesnn generate``, or a folder of
+    recordings as they come (:mod:`tactilesnn.readers`)."""
+    from .readers import needs_reading, read_recordings
+
+    if path.is_dir():
+        if needs_reading(path):
+            arrays, conv = read_recordings(path)
+            log.info("read %s", conv.line())
+            return arrays
+        from .datasets_synth.generate import read_dataset_folder
+
+        return read_dataset_folder(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"data file {path} does not exist")
+    check_npz_size(path)  # from the headers, before any array is read
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: np.asarray(f[k]) for k in f.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path}: not a readable .npz file ({e})") from e
+    if needs_reading(path, set(arrays)):
+        arrays, conv = read_recordings(path, arrays)
+        log.info("read %s", conv.line())
+    return arrays
 
 
 def cut_windows(ds: WindowDataset, window_s: float, hop_s: float | None = None) -> WindowDataset:
@@ -235,15 +250,20 @@ def auto_window(path: Path) -> tuple[float, float] | None:
     """:func:`auto_cut` for the analog ``.npz`` at ``path`` (reads only headers and ``fs``)."""
     try:
         with zipfile.ZipFile(path) as z:
-            has_ids = "recording.npy" in z.namelist()
+            names = z.namelist()
+        has_ids = "recording.npy" in names
         shape = _npy_shape(path, "X.npy")
         with np.load(path, allow_pickle=False) as f:
-            fs = float(np.asarray(f["fs"]).reshape(-1)[0])
+            if "fs.npy" in names:
+                fs, samples = float(np.asarray(f["fs"]).reshape(-1)[0]), shape[-1]
+            else:  # timestamps instead of a rate (converted by the reader)
+                t = np.asarray(f["t"] if "t.npy" in names else f["timestamps"], np.float64)
+                fs, samples = 1.0 / float(np.median(np.diff(t, axis=-1))), t.shape[-1]
     except (OSError, KeyError, ValueError, IndexError, zipfile.BadZipFile):
         return None  # the loader reports what is wrong with the file
     if len(shape) != 3 or not np.isfinite(fs) or fs <= 0:
         return None
-    return auto_cut(shape[2], fs, has_ids)
+    return auto_cut(samples, fs, has_ids)
 
 
 def _npy_shape(path: Path, member: str) -> tuple[int, ...]:

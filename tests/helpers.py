@@ -27,3 +27,17 @@ def run_task(
     )
     res = train_run(RunSpec(source, config, Path(out), **run))
     return res.path, res.metrics
+
+
+def exported_model(tmp: Path, params: dict, epochs: int = 1, n_check: int = 8, **settings):
+    """A small hook-loop run exported to ``tmp/m.onnx``: ``(path, pipeline, test split)``."""
+    from tactilesnn.app.run import load_run
+    from tactilesnn.datasets_synth import HookLoopTask
+    from tactilesnn.export import export_pipeline
+
+    run, _ = run_task("hook_loop", params, PipelineConfig.from_flat(epochs=epochs, **settings),
+                      Path(tmp) / "r", progress=False)  # fmt: skip
+    pipe, _ = load_run(run)
+    test = HookLoopTask(**params).build()[1]
+    export_pipeline(pipe, Path(tmp) / "m.onnx", test.X[:n_check])
+    return Path(tmp) / "m.onnx", pipe, test

@@ -70,10 +70,14 @@ def test_unknown_names_are_refused(tmp_path, capsys):
 
 
 def test_train_py_is_the_same_cli():
-    out = subprocess.run(
-        [sys.executable, "train.py", "--help"], capture_output=True, text=True, check=True
-    ).stdout
-    assert "--encoder" in out and "--task" in out
+    def run(*argv):
+        return subprocess.run([sys.executable, "train.py", *argv], capture_output=True,
+                              text=True, check=True).stdout  # fmt: skip
+
+    assert "evaluate" in run("--help") and "bench" in run("--help")  # every command
+    assert "--encoder" in run("train", "--help") and "--task" in run("--epochs", "1", "--help")
+    assert "run_dir" in run("evaluate", "--help")
+    assert run("--version").startswith("tactilesnn ")
 
 
 def test_generate_trial_task_with_task_kw_and_faults(tmp_path, capsys):

@@ -296,21 +296,13 @@ json_values = st.recursive(
 def client(tmp_path_factory):
     from starlette.testclient import TestClient
 
-    from tactilesnn.app.run import load_run
-    from tactilesnn.datasets_synth import HookLoopTask
-    from tactilesnn.export import export_pipeline
     from tactilesnn.service.app import create_app
-    from tests.helpers import run_task
+    from tests.helpers import exported_model
 
     small = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
-    tmp = tmp_path_factory.mktemp("fuzz_svc")
-    run, _ = run_task("hook_loop", small, PipelineConfig.from_flat(epochs=1), tmp / "r",
-                       progress=False)  # fmt: skip
-    pipe, _ = load_run(run)
-    test = HookLoopTask(**small).build()[1]
-    export_pipeline(pipe, tmp / "m.onnx", test.X[:8])
+    path, _, test = exported_model(tmp_path_factory.mktemp("fuzz_svc"), small)
     with TestClient(
-        create_app(str(tmp / "m.onnx"), max_body_bytes=100_000), base_url="http://127.0.0.1"
+        create_app(str(path), max_body_bytes=100_000), base_url="http://127.0.0.1"
     ) as c:
         yield c, test
 

@@ -15,7 +15,7 @@ ROOT = Path(tactilesnn.__file__).resolve().parent
 #: bottom to top; a module is in the first layer with a matching prefix
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("core",)),
-    ("components", ("datasets_synth", "encoders", "models", "recordings")),
+    ("components", ("datasets_synth", "encoders", "models", "recordings", "readers")),
     ("pipeline", ("config", "pipeline", "trainer", "baselines")),
     ("training | export | service", ("training", "selection", "estimator", "export", "service")),
     ("application", ("app",)),

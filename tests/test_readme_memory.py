@@ -28,8 +28,10 @@ TASKS = ["texture", "stiffness_curvature", "material", "touch"]
 
 
 def readme_train_commands() -> dict[str, list[str]]:
-    """``tactilesnn train --task ...`` commands of the README's task table, by task name."""
-    text = (ROOT / "README.md").read_text().replace("\\\n", " ")
+    """``tactilesnn train --task ...`` commands of the documented task table (README and
+    docs/), by task name."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    text = "\n".join(p.read_text() for p in pages).replace("\\\n", " ")
     out = {}
     for line in text.splitlines():
         line = line.strip()

@@ -23,15 +23,23 @@ def write_json_atomic(path: Path, obj: object) -> None:
 
 
 def file_sha256(path: Path) -> str:
-    """SHA-256 of a file's bytes, or of ``manifest.json`` for a folder (a generated dataset's
-    manifest holds every shard's hash)."""
+    """SHA-256 of a file's bytes; of a folder: of its ``manifest.json`` when it has one (a
+    generated dataset's manifest holds every shard's hash), else of every file's relative name
+    and bytes (a folder of recordings)."""
     import hashlib
 
     path = Path(path)
     h = hashlib.sha256()
-    with open(path / "manifest.json" if path.is_dir() else path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
+    if path.is_dir() and not (path / "manifest.json").is_file():
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+    else:
+        files = [path / "manifest.json" if path.is_dir() else path]
+    for p in files:
+        if path.is_dir():
+            h.update(str(p.relative_to(path)).encode() + b"\0")
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
     return h.hexdigest()
 
 
@@ -56,3 +64,14 @@ def jsonable(o: object) -> object:
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``arrays`` as a compressed ``.npz`` at ``path`` (temporary file + rename)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp.npz")
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

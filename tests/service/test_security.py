@@ -11,27 +11,18 @@ import numpy as np
 import pytest
 from starlette.testclient import TestClient
 
-from tactilesnn.app.run import load_run
-from tactilesnn.config import PipelineConfig
-from tactilesnn.datasets_synth import HookLoopTask
-from tactilesnn.export import export_pipeline
 from tactilesnn.service.app import create_app
 from tactilesnn.service.live import page_html, page_script_js
 from tactilesnn.service.security import default_allowed_hosts
-from tests.helpers import run_task
+from tests.helpers import exported_model
 
 SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
 
 
 @pytest.fixture(scope="module")
 def model(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("sec")
-    run, _ = run_task("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp / "r",
-                       progress=False)  # fmt: skip
-    pipe, _ = load_run(run)
-    test = HookLoopTask(**SMALL).build()[1]
-    export_pipeline(pipe, tmp / "m.onnx", test.X[:8])
-    return str(tmp / "m.onnx"), test
+    path, _, test = exported_model(tmp_path_factory.mktemp("sec"), SMALL)
+    return str(path), test
 
 
 @pytest.fixture(scope="module")

@@ -49,3 +49,9 @@ def require_out(out, name: str):
     if out is None:
         raise ValueError(f"bench {name} needs --out DIR")
     return out
+
+
+def add_quick_and_overwrite(p, result: str) -> None:
+    """The ``--quick`` / ``--overwrite`` flags of the benchmarks that write ``result``."""
+    p.add_argument("--quick", action="store_true", help="a few small cases (as the tests run)")
+    p.add_argument("--overwrite", action="store_true", help=f"replace an existing {result}")

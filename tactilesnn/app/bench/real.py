@@ -31,42 +31,38 @@ import numpy as np
 
 from ...config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
 from ...datasets_synth import WindowDataset
-from ...recordings import auto_cut, cut_windows, datasets_from_arrays, load_data_file
+from ...recordings import auto_window, load_data_file
 
 log = logging.getLogger("tactilesnn")
 
 Loader = Callable[[Path, int], tuple[WindowDataset, WindowDataset]]
 
 
-def _braille(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
-    """iCub fingertip Braille A/B/C (``X [trials, samples, taxels]`` + timestamps ``t``)."""
-    path = root / "braille_icub_abc" / "braille_abc_icub.npz"
-    with np.load(path, allow_pickle=False) as f:
-        X, y, t = f["X"], f["y"], f["t"]
-        names = f["class_names"] if "class_names" in f.files else np.array(["A", "B", "C"])
-    fs = 1.0 / float(np.median(np.diff(t, axis=1)))
-    arrays = {
-        "X": np.ascontiguousarray(X.transpose(0, 2, 1), dtype=np.float32),
-        "y": y.astype(np.int64),
-        "fs": np.array(fs),
-        "class_names": names,
-        "channel_names": np.array([f"taxel{i}" for i in range(X.shape[2])]),
-    }
-    train, test = datasets_from_arrays(arrays, path, seed)
-    cut = auto_cut(X.shape[1], fs, has_recording_ids=False)  # as train --data cuts this file
-    if cut is None:
-        return train, test
-    return cut_windows(train, *cut), cut_windows(test, *cut)
+def _as_train_reads(rel: str) -> Loader:
+    """A shipped file or folder read as ``train --data`` reads it, as it comes (the reader's
+    conversion and the default cut: :func:`~tactilesnn.recordings.auto_window`)."""
 
+    def load(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
+        path = root / rel
+        cut = auto_window(path) or (None, None)
+        return load_data_file(path, seed, window_s=cut[0], hop_s=cut[1])
 
-def _st_mnist(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
-    return load_data_file(root / "st_mnist" / "st_mnist_events.npz", seed)
+    return load
 
 
 #: shipped real datasets: name -> (file that must exist under the root, loader, event data?)
 REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
-    "braille_icub_abc": ("braille_icub_abc/braille_abc_icub.npz", _braille, False),
-    "st_mnist": ("st_mnist/st_mnist_events.npz", _st_mnist, True),
+    "braille_icub_abc": (
+        "braille_icub_abc/braille_abc_icub.npz",
+        _as_train_reads("braille_icub_abc/braille_abc_icub.npz"),
+        False,
+    ),
+    "fabric_slide": ("fabric_slide/fabric", _as_train_reads("fabric_slide/fabric"), False),
+    "st_mnist": (
+        "st_mnist/st_mnist_events.npz",
+        _as_train_reads("st_mnist/st_mnist_events.npz"),
+        True,
+    ),
 }
 
 
@@ -204,7 +200,7 @@ def run(
         raise ValueError(f"unknown pipeline(s); choose from {[p[0] for p in PIPELINES]}")
     for name in names:
         rel, loader, events = known[name]
-        if rel is not None and not (data_root / rel).is_file():
+        if rel is not None and not (data_root / rel).exists():
             log.warning("bench real: %s not found under %s, skipped", rel, data_root)
             continue
         for seed in range(seeds):

@@ -342,8 +342,9 @@ HELP = "what skipping (activity gate, band restriction, early decision...) saves
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--quick", action="store_true", help="a few small cases (as the tests run)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing skip.json")
+    from . import add_quick_and_overwrite
+
+    add_quick_and_overwrite(p, "skip.json")
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:

@@ -280,8 +280,9 @@ HELP = "numerical stability: float32 vs float64 over the sensors' full range, lo
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--quick", action="store_true", help="a few small cases (as the tests run)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing stability.json")
+    from . import add_quick_and_overwrite
+
+    add_quick_and_overwrite(p, "stability.json")
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
