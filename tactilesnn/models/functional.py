@@ -24,9 +24,31 @@ Array contract: currents ``[T, batch, units]`` (time-major), states ``[batch, un
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
+
+
+class LIFState(NamedTuple):
+    """A LIF layer's state: membrane ``u [batch, units]`` (in units of the threshold) and, for a
+    recurrent layer, its last spikes ``s [batch, units]`` (None for a feed-forward layer)."""
+
+    u: Tensor
+    s: Tensor | None = None
+
+
+class LIState(NamedTuple):
+    """A leaky integrator's state: membrane ``v [batch, units]``."""
+
+    v: Tensor
+
+
+class SNNState(NamedTuple):
+    """The state of a hidden LIF layer and its readout (LIF spikes or leaky integrator)."""
+
+    hidden: LIFState
+    out: LIFState | LIState
 
 
 def decay_factor(dt_ms: float, tau_ms: float) -> float:

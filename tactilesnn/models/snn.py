@@ -32,6 +32,9 @@ from ..core.checks import check_choice, check_int, check_positive
 from ..core.spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model, seeded
 from .functional import (
+    LIFState,
+    LIState,
+    SNNState,
     class_lead,
     decay_factor,
     decide_by_margin,
@@ -173,12 +176,13 @@ class LIFLayer(nn.Module):
         self.beta = decay_factor(dt_ms, tau_mem_ms)
         self.theta, self.reset, self.surrogate, self.alpha = theta, reset, surrogate, alpha
 
-    def initial_state(self, batch: int, device=None, dtype=torch.float32):
+    def initial_state(self, batch: int, device=None, dtype=torch.float32) -> LIFState:
         u = torch.zeros(batch, self.fc.out_features, device=device, dtype=dtype)
-        return u if self.rec is None else (u, torch.zeros_like(u))
+        return LIFState(u, None if self.rec is None else torch.zeros_like(u))
 
-    def forward(self, x: torch.Tensor, state=None):
-        """``x [T, B, n_in]`` -> ``(spikes [T, B, n_out], state)``."""
+    def forward(self, x: torch.Tensor, state: LIFState | None = None) -> tuple[Tensor, LIFState]:
+        """``x [T, B, n_in]`` -> ``(spikes [T, B, n_out], state)``; pass the returned state
+        back to continue a stream where it stopped."""
         if x.ndim != 3 or x.shape[-1] != self.fc.in_features:
             raise ValueError(
                 f"expected input [T, batch, {self.fc.in_features}], got shape {tuple(x.shape)}"
@@ -188,17 +192,18 @@ class LIFLayer(nn.Module):
         cur = self.fc(x)  # all time steps in one matmul
         if self.rec is None:
             spikes, u = _LIFScan.apply(
-                cur, state, self.beta, self.theta, self.reset, self.surrogate, self.alpha
+                cur, state.u, self.beta, self.theta, self.reset, self.surrogate, self.alpha
             )
-            return spikes, u
-        u, s = state
+            return spikes, LIFState(u)
+        u = state.u
+        s = torch.zeros_like(u) if state.s is None else state.s
         out = []
         for c in cur.unbind(0):
             u = lif_integrate(u, c + self.rec(s), self.beta)
             s = _SpikeFn.apply(u - self.theta, self.surrogate, self.alpha)
             u = lif_reset(u, s.detach(), self.theta, self.reset == "subtract")
             out.append(s)
-        return torch.stack(out), (u, s)
+        return torch.stack(out), LIFState(u, s)
 
 
 class _SpikeFn(torch.autograd.Function):
@@ -223,13 +228,15 @@ class LeakyReadout(nn.Module):
         self.tau_mem_ms, self.dt_ms = float(tau_mem_ms), float(dt_ms)
         self.beta = decay_factor(dt_ms, tau_mem_ms)
 
-    def initial_state(self, batch: int, device=None, dtype=torch.float32) -> torch.Tensor:
-        return torch.zeros(batch, self.fc.out_features, device=device, dtype=dtype)
+    def initial_state(self, batch: int, device=None, dtype=torch.float32) -> LIState:
+        return LIState(torch.zeros(batch, self.fc.out_features, device=device, dtype=dtype))
 
-    def forward(self, x: torch.Tensor, state: torch.Tensor | None = None):
+    def forward(self, x: torch.Tensor, state: LIState | None = None) -> tuple[Tensor, LIState]:
+        """``x [T, B, n_in]`` -> ``(membrane [T, B, n_out], state)``."""
         cur = self.fc(x)
-        v = torch.zeros_like(cur[0]) if state is None else state
-        return li_scan(cur, v, self.beta)
+        v = torch.zeros_like(cur[0]) if state is None else state.v
+        trace, v = li_scan(cur, v, self.beta)
+        return trace, LIState(v)
 
 
 class SNNClassifier(nn.Module):
@@ -267,16 +274,18 @@ class SNNClassifier(nn.Module):
         else:
             self.out = LeakyReadout(n_hidden, n_classes, **kw)
 
-    def trajectory(self, x: torch.Tensor, state=None):
+    def trajectory(self, x: torch.Tensor, state: SNNState | None = None
+                   ) -> tuple[Tensor, SNNState]:  # fmt: skip
         """``x [T, B, n_in]`` -> ``(output activity [T, B, classes], state)``: the output
         layer's spikes (``count``) or membrane (``max`` / ``mean``) at every step."""
         h_state, o_state = (None, None) if state is None else state
         h, h_state = self.hidden(x, h_state)
         o, o_state = self.out(h, o_state)
-        return o, (h_state, o_state)
+        return o, SNNState(h_state, o_state)
 
-    def forward(self, x: torch.Tensor, state=None):
-        """``x [T, B, n_in]`` -> ``(scores [B, classes], state)`` (state: (hidden, out))."""
+    def forward(self, x: torch.Tensor, state: SNNState | None = None
+                ) -> tuple[Tensor, SNNState]:  # fmt: skip
+        """``x [T, B, n_in]`` -> ``(scores [B, classes], state)``."""
         o, state = self.trajectory(x, state)
         return reduce_readout(o, self.readout), state
 

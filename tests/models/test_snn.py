@@ -138,3 +138,21 @@ def test_fused_kernel_equals_pure_torch(monkeypatch, reset, kind):
     torch.testing.assert_close(fused[1], plain[1], atol=1e-5, rtol=1e-5)  # FMA rounding only
     torch.testing.assert_close(fused[2], plain[2], atol=1e-4, rtol=1e-4)  # f32 scan order
     torch.testing.assert_close(fused[3], plain[3], atol=1e-4, rtol=1e-4)
+
+
+def test_states_are_typed_and_carry_a_stream():
+    from tactilesnn.models.functional import LIFState, LIState, SNNState
+
+    torch.manual_seed(2)
+    for readout, recurrent in (("max", False), ("count", True)):
+        model = SNNClassifier(4, 8, 3, readout=readout, recurrent=recurrent)
+        x = (torch.rand(30, 2, 4) < 0.4).float()
+        with torch.no_grad():
+            whole, _ = model.trajectory(x)
+            a, st = model.trajectory(x[:11])
+            b, st2 = model.trajectory(x[11:], st)
+        assert isinstance(st, SNNState) and isinstance(st.hidden, LIFState)
+        assert isinstance(st.out, LIState if readout == "max" else LIFState)
+        assert (st.hidden.s is not None) == recurrent and st.hidden.u.shape == (2, 8)
+        torch.testing.assert_close(torch.cat([a, b]), whole)
+        assert st2.hidden._fields == ("u", "s")

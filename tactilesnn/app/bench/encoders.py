@@ -92,80 +92,84 @@ def shape_error(ref: np.ndarray, got: np.ndarray, edge: int) -> float:
     return float(np.abs(r - gain[None, :, None] * g_).max() / np.abs(r).max())
 
 
-def _peers(w: Workload, x: np.ndarray) -> dict[str, Callable[[int], Callable[[], np.ndarray]]]:
+Factory = Callable[[int], Callable[[], np.ndarray]]
+
+
+def _peers(w: Workload, x: np.ndarray) -> dict[str, Factory]:
     """Factories ``threads -> zero-arg function returning [B, C, F, T] magnitudes``."""
-    freqs = w.freqs()
-    flat = x.reshape(-1, x.shape[-1])
-    peers: dict[str, Callable[[int], Callable[[], np.ndarray]]] = {}
+    peers: dict[str, Factory] = {"pywt-cwt-fft": _pywt(w, x, "fft")}
+    if w.name != "W2":  # ~3 s per call (2.75 s measured here): too slow to repeat at W2
+        peers["pywt-cwt-conv"] = _pywt(w, x, "conv")
+    if importlib.util.find_spec("ssqueezepy"):
+        peers["ssqueezepy-cwt"] = _ssqueezepy(w, x)
+    if importlib.util.find_spec("fcwt"):
+        peers["fcwt"] = _fcwt(w, x)
+    return peers
+
+
+def _pywt(w: Workload, x: np.ndarray, method: str) -> Factory:
     import pywt
 
+    freqs, flat = w.freqs(), x.reshape(-1, x.shape[-1])
     scales = pywt.frequency2scale(CMOR, freqs / w.fs_hz)
 
-    def pywt_factory(method: str):
-        def make(threads: int):
-            def run():
-                c, _ = pywt.cwt(
-                    flat, scales, CMOR, sampling_period=1 / w.fs_hz, method=method, axis=-1
-                )
-                return np.abs(c).transpose(1, 0, 2).reshape(x.shape[0], x.shape[1], len(freqs), -1)
+    def make(threads: int):
+        def run():
+            c, _ = pywt.cwt(flat, scales, CMOR, sampling_period=1 / w.fs_hz, method=method, axis=-1)
+            return np.abs(c).transpose(1, 0, 2).reshape(x.shape[0], x.shape[1], len(freqs), -1)
 
-            return run
+        return run
 
-        return make
+    return make
 
-    peers["pywt-cwt-fft"] = pywt_factory("fft")
-    if w.name != "W2":  # ~3 s per call (2.75 s measured here): too slow to repeat at W2
-        peers["pywt-cwt-conv"] = pywt_factory("conv")
-    if importlib.util.find_spec("ssqueezepy"):
 
-        def ssq(threads: int):
-            os.environ["SSQ_PARALLEL"] = "1" if threads > 1 else "0"
-            from ssqueezepy import Wavelet, cwt
+def _ssqueezepy(w: Workload, x: np.ndarray) -> Factory:
+    freqs, flat = w.freqs(), x.reshape(-1, x.shape[-1])
 
-            wav = Wavelet("morlet")
-            # measured here: its default Morlet peaks at scale 2.1297 fs / f; scales must ascend
-            sc = (2.1297 * w.fs_hz / freqs)[::-1].copy()
-            rows32 = flat.astype(np.float32)
+    def ssq(threads: int):
+        os.environ["SSQ_PARALLEL"] = "1" if threads > 1 else "0"
+        from ssqueezepy import Wavelet, cwt
 
-            def run():
-                wx, _ = cwt(rows32, wav, scales=sc, fs=w.fs_hz, padtype="reflect")
-                mag = np.abs(np.asarray(wx))[..., ::-1, :]
-                return mag.reshape(x.shape[0], x.shape[1], len(freqs), -1)
+        wav = Wavelet("morlet")
+        # measured here: its default Morlet peaks at scale 2.1297 fs / f; scales must ascend
+        sc = (2.1297 * w.fs_hz / freqs)[::-1].copy()
+        rows32 = flat.astype(np.float32)
 
-            return run
+        def run():
+            wx, _ = cwt(rows32, wav, scales=sc, fs=w.fs_hz, padtype="reflect")
+            mag = np.abs(np.asarray(wx))[..., ::-1, :]
+            return mag.reshape(x.shape[0], x.shape[1], len(freqs), -1)
 
-        peers["ssqueezepy-cwt"] = ssq
-    if importlib.util.find_spec("fcwt"):
+        return run
 
-        def fc(threads: int):
-            import fcwt
+    return ssq
 
-            morl = fcwt.Morlet(2.0)  # keep a reference: fCWT segfaults if it is collected
-            scales_obj = fcwt.Scales(
-                morl,
-                fcwt.FCWT_LOGSCALES,
-                int(w.fs_hz),
-                float(freqs[0]),
-                float(freqs[-1]),
-                len(freqs),
-            )
-            engine = fcwt.FCWT(morl, threads, True, False)
-            rows = flat.astype(np.float32)
-            out = np.zeros((len(freqs), x.shape[-1]), dtype=np.complex64)
 
-            def run():
-                res = np.empty((rows.shape[0], len(freqs), x.shape[-1]), np.float32)
-                with _quiet_stdout():  # fCWT prints a notice per call from C
-                    for i, r in enumerate(rows):
-                        engine.cwt(r, scales_obj, out)
-                        res[i] = np.abs(out)[::-1]  # fCWT orders high -> low frequency
-                run.keep = (morl, scales_obj, engine)  # type: ignore[attr-defined]
-                return res.reshape(x.shape[0], x.shape[1], len(freqs), -1)
+def _fcwt(w: Workload, x: np.ndarray) -> Factory:
+    freqs, flat = w.freqs(), x.reshape(-1, x.shape[-1])
 
-            return run
+    def fc(threads: int):
+        import fcwt
 
-        peers["fcwt"] = fc
-    return peers
+        morl = fcwt.Morlet(2.0)  # keep a reference: fCWT segfaults if it is collected
+        scales_obj = fcwt.Scales(morl, fcwt.FCWT_LOGSCALES, int(w.fs_hz), float(freqs[0]),
+                                 float(freqs[-1]), len(freqs))  # fmt: skip
+        engine = fcwt.FCWT(morl, threads, True, False)
+        rows = flat.astype(np.float32)
+        out = np.zeros((len(freqs), x.shape[-1]), dtype=np.complex64)
+
+        def run():
+            res = np.empty((rows.shape[0], len(freqs), x.shape[-1]), np.float32)
+            with _quiet_stdout():  # fCWT prints a notice per call from C
+                for i, r in enumerate(rows):
+                    engine.cwt(r, scales_obj, out)
+                    res[i] = np.abs(out)[::-1]  # fCWT orders high -> low frequency
+            run.keep = (morl, scales_obj, engine)  # type: ignore[attr-defined]
+            return res.reshape(x.shape[0], x.shape[1], len(freqs), -1)
+
+        return run
+
+    return fc
 
 
 @contextlib.contextmanager

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import http.client
 import io
+import json
 import socket
 import statistics
 import threading
@@ -45,7 +46,113 @@ def _client(port: int, body: bytes, stop: float, lat: list, errors: list) -> Non
     conn.close()
 
 
+def _rss_bytes() -> int:
+    try:
+        for line in open("/proc/self/status"):
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return 0
+
+
+def _stalled(port: int, declared: int, sent: int, stop: float, errors: list) -> None:
+    """A client that declares ``declared`` body bytes, sends ``sent`` and stalls until ``stop``
+    (the service answers 408 after its body timeout, or 503 beyond its upload budget)."""
+    try:
+        conn = socket.create_connection(("127.0.0.1", port), timeout=60)
+        conn.sendall(b"POST /v1/classify HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+                     b"application/json\r\nContent-Length: %d\r\n\r\n" % declared)  # fmt: skip
+        chunk = b" " * (1 << 20)
+        for i in range(0, sent, len(chunk)):
+            conn.sendall(chunk[: min(len(chunk), sent - i)])
+        conn.settimeout(max(0.05, stop - time.perf_counter()))
+        try:
+            conn.recv(64)  # an early answer (503 / 408), or the case ends
+        except OSError:
+            pass
+        conn.close()
+    except OSError as e:
+        errors.append(type(e).__name__)
+
+
+def _big_json(port: int, body: bytes, stop: float, errors: list) -> None:
+    """A client posting ``body`` (a large JSON document) back to back until ``stop``."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    while time.perf_counter() < stop:
+        try:
+            conn.request("POST", "/v1/classify", body=body,
+                         headers={"Content-Type": "application/json"})  # fmt: skip
+            conn.getresponse().read()
+        except Exception as e:
+            errors.append(type(e).__name__)
+            conn.close()
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    conn.close()
+
+
+def _case(port: int, session, batch: int, clients: int, seconds: float, hostile: str) -> dict:
+    """Normal clients' latency for ``seconds`` beside the ``hostile`` ones (see :func:`run`)."""
+    x = np.random.default_rng(0).standard_normal((batch, len(session.channels), session.window))
+    buf = io.BytesIO()
+    np.save(buf, x.astype(np.float32), allow_pickle=False)
+    lat: list[float] = []
+    errors: list = []
+    hostile_errors: list = []
+    stop = time.perf_counter() + seconds
+    bad: list[threading.Thread] = []
+    if hostile.startswith("stalled"):
+        n, sent = (8, 7 << 20) if hostile == "stalled-8x7MB" else (120, 1 << 10)
+        bad = [threading.Thread(target=_stalled, args=(port, 8 << 20, sent, stop, hostile_errors))
+               for _ in range(n)]  # fmt: skip
+    elif hostile == "json-8MB":
+        rows = int((7.5 * 2**20) / (len(session.channels) * session.window * 12))
+        body = json.dumps({"windows": np.round(np.repeat(x[:1], max(1, rows), 0), 6).tolist()})
+        bad = [threading.Thread(target=_big_json, args=(port, body.encode(), stop, hostile_errors))]
+    rss0, held_max, rss_max = _rss_bytes(), 0, 0
+    for t in bad:
+        t.start()
+    good = [threading.Thread(target=_client, args=(port, buf.getvalue(), stop, lat, errors))
+            for _ in range(clients)]  # fmt: skip
+    t0 = time.perf_counter()
+    for t in good:
+        t.start()
+    while any(t.is_alive() for t in good):
+        held_max = max(held_max, session_uploads(port))
+        rss_max = max(rss_max, _rss_bytes())
+        time.sleep(0.1)
+    for t in (*good, *bad):
+        t.join()
+    wall = time.perf_counter() - t0
+    lat_ms = sorted(1000 * v for v in lat)
+    return {"batch": batch, "clients": clients, "hostile": hostile, "seconds": round(wall, 2),
+            "requests_per_s": len(lat) / wall, "windows_per_s": batch * len(lat) / wall,
+            "p50_ms": statistics.median(lat_ms) if lat_ms else None,
+            "p99_ms": lat_ms[int(0.99 * (len(lat_ms) - 1))] if lat_ms else None,
+            "errors": len(errors), "upload_bytes_held_max": held_max,
+            "rss_growth_mb": max(0, rss_max - rss0) / 2**20}  # fmt: skip
+
+
+def session_uploads(port: int) -> int:
+    """The service's ``upload_bytes_held`` (``/healthz``)."""
+    try:
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+        conn.request("GET", "/healthz")
+        held = json.loads(conn.getresponse().read()).get("upload_bytes_held", 0)
+        conn.close()
+        return int(held)
+    except (OSError, ValueError):
+        return 0
+
+
+#: the cases: windows per request and what else reaches the service meanwhile
+CASES = ((1, "none"), (32, "none"), (1, "stalled-8x7MB"), (1, "stalled-120x1KB"), (1, "json-8MB"))
+
+
 def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
+    """Throughput and latency of ``clients`` normal clients, alone and beside hostile ones:
+    8 uploads that send 7 MB of a declared 8 MB and stall, 120 that send 1 KB and stall, and a
+    client posting 8 MB JSON bodies back to back (parsed off the event loop)."""
     import uvicorn
 
     from ...service.app import create_app
@@ -53,60 +160,28 @@ def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     app = create_app(model)
     session = app.state.session
     port = _free_port()
-    server = uvicorn.Server(
-        uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
-    )
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
+                                           access_log=False, limit_concurrency=256))  # fmt: skip
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     while not server.started:
         time.sleep(0.05)
-    rng = np.random.default_rng(0)
-    rows = []
     try:
-        for batch in (1, 32):
-            x = rng.standard_normal((batch, len(session.channels), session.window)).astype(
-                np.float32
-            )
-            buf = io.BytesIO()
-            np.save(buf, x, allow_pickle=False)
-            lat: list[float] = []
-            errors: list = []
-            stop = time.perf_counter() + seconds
-            threads = [
-                threading.Thread(target=_client, args=(port, buf.getvalue(), stop, lat, errors))
-                for _ in range(clients)
-            ]
-            t0 = time.perf_counter()
-            for t in threads:
-                t.start()
-            for t in threads:
-                t.join()
-            wall = time.perf_counter() - t0
-            lat_ms = sorted(1000 * v for v in lat)
-            rows.append(
-                {
-                    "batch": batch,
-                    "clients": clients,
-                    "seconds": round(wall, 2),
-                    "requests_per_s": len(lat) / wall,
-                    "windows_per_s": batch * len(lat) / wall,
-                    "p50_ms": statistics.median(lat_ms) if lat_ms else None,
-                    "p99_ms": lat_ms[int(0.99 * (len(lat_ms) - 1))] if lat_ms else None,
-                    "errors": len(errors),
-                }
-            )
+        rows = [_case(port, session, batch, clients, seconds, hostile) for batch, hostile in CASES]
     finally:
         server.should_exit = True
         thread.join(timeout=15)
     lines = [
         f"load test: {clients} clients x {seconds:g} s per case, loopback, model {model}",
-        "| windows / request | requests/s | windows/s | p50 ms | p99 ms | errors |",
-        "|---|---|---|---|---|---|",
+        "| windows / request | beside | requests/s | windows/s | p50 ms | p99 ms | errors | "
+        "upload bytes held (max) | RSS growth MB |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['batch']} | {r['requests_per_s']:.0f} | {r['windows_per_s']:.0f} | "
-            f"{r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['errors']} |"
+            f"| {r['batch']} | {r['hostile']} | {r['requests_per_s']:.0f} | "
+            f"{r['windows_per_s']:.0f} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['errors']} | "
+            f"{r['upload_bytes_held_max']} | {r['rss_growth_mb']:.0f} |"
         )
     table = "\n".join(lines)
     print(table)

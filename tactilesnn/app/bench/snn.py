@@ -55,66 +55,77 @@ def reference_forward(model: Ours, x: torch.Tensor) -> torch.Tensor:
     return o
 
 
+def _snntorch_peer() -> nn.Module:
+    """snnTorch (Leaky, step loop)."""
+    import snntorch as snn
+
+    class SnnTorch(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.fc1, self.fc2 = nn.Linear(N_IN, N_H), nn.Linear(N_H, N_OUT)
+            self.lif1 = snn.Leaky(beta=BETA, threshold=1.0, reset_mechanism="subtract")
+            self.lif2 = snn.Leaky(beta=BETA, threshold=1.0, reset_mechanism="subtract")
+
+        def forward(self, x):
+            m1, m2 = self.lif1.init_leaky(), self.lif2.init_leaky()
+            out = []
+            for xt in x:
+                s1, m1 = self.lif1(self.fc1(xt), m1)
+                s2, m2 = self.lif2(self.fc2(s1), m2)
+                out.append(s2)
+            return torch.stack(out)
+
+    return SnnTorch()
+
+
+def _norse_peer() -> nn.Module:
+    """Norse (LIF)."""
+    import norse.torch as norse
+
+    class Norse(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            p = norse.LIFParameters(v_th=torch.tensor(1.0))
+            self.fc1, self.fc2 = nn.Linear(N_IN, N_H), nn.Linear(N_H, N_OUT)
+            self.lif1, self.lif2 = norse.LIF(p), norse.LIF(p)
+
+        def forward(self, x):
+            h, _ = self.lif1(self.fc1(x))
+            o, _ = self.lif2(self.fc2(h))
+            return o
+
+    return Norse()
+
+
+def _spikingjelly_peer() -> nn.Module:
+    """SpikingJelly (multi-step)."""
+    from spikingjelly.activation_based import functional, layer, neuron
+
+    class SJ(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.net = nn.Sequential(
+                layer.Linear(N_IN, N_H, step_mode="m"),
+                neuron.LIFNode(tau=1 / (1 - BETA), v_reset=None, step_mode="m", decay_input=False),
+                layer.Linear(N_H, N_OUT, step_mode="m"),
+                neuron.LIFNode(tau=1 / (1 - BETA), v_reset=None, step_mode="m", decay_input=False),
+            )
+
+        def forward(self, x):
+            functional.reset_net(self.net)
+            return self.net(x)
+
+    return SJ()
+
+
 def _peers(model: Ours) -> dict[str, nn.Module]:
-    peers: dict[str, nn.Module] = {}
-    if importlib.util.find_spec("snntorch"):
-        import snntorch as snn
-
-        class SnnTorch(nn.Module):
-            def __init__(self) -> None:
-                super().__init__()
-                self.fc1, self.fc2 = nn.Linear(N_IN, N_H), nn.Linear(N_H, N_OUT)
-                self.lif1 = snn.Leaky(beta=BETA, threshold=1.0, reset_mechanism="subtract")
-                self.lif2 = snn.Leaky(beta=BETA, threshold=1.0, reset_mechanism="subtract")
-
-            def forward(self, x):
-                m1, m2 = self.lif1.init_leaky(), self.lif2.init_leaky()
-                out = []
-                for xt in x:
-                    s1, m1 = self.lif1(self.fc1(xt), m1)
-                    s2, m2 = self.lif2(self.fc2(s1), m2)
-                    out.append(s2)
-                return torch.stack(out)
-
-        peers["snnTorch (Leaky, step loop)"] = SnnTorch()
-    if importlib.util.find_spec("norse"):
-        import norse.torch as norse
-
-        class Norse(nn.Module):
-            def __init__(self) -> None:
-                super().__init__()
-                p = norse.LIFParameters(v_th=torch.tensor(1.0))
-                self.fc1, self.fc2 = nn.Linear(N_IN, N_H), nn.Linear(N_H, N_OUT)
-                self.lif1, self.lif2 = norse.LIF(p), norse.LIF(p)
-
-            def forward(self, x):
-                h, _ = self.lif1(self.fc1(x))
-                o, _ = self.lif2(self.fc2(h))
-                return o
-
-        peers["Norse (LIF)"] = Norse()
-    if importlib.util.find_spec("spikingjelly"):
-        from spikingjelly.activation_based import functional, layer, neuron
-
-        class SJ(nn.Module):
-            def __init__(self) -> None:
-                super().__init__()
-                self.net = nn.Sequential(
-                    layer.Linear(N_IN, N_H, step_mode="m"),
-                    neuron.LIFNode(
-                        tau=1 / (1 - BETA), v_reset=None, step_mode="m", decay_input=False
-                    ),
-                    layer.Linear(N_H, N_OUT, step_mode="m"),
-                    neuron.LIFNode(
-                        tau=1 / (1 - BETA), v_reset=None, step_mode="m", decay_input=False
-                    ),
-                )
-
-            def forward(self, x):
-                functional.reset_net(self.net)
-                return self.net(x)
-
-        peers["SpikingJelly (multi-step)"] = SJ()
+    """The installed peers, each with our weights where its layout allows."""
+    makers = (
+        ("snntorch", "snnTorch (Leaky, step loop)", _snntorch_peer),
+        ("norse", "Norse (LIF)", _norse_peer),
+        ("spikingjelly", "SpikingJelly (multi-step)", _spikingjelly_peer),
+    )
+    peers = {label: make() for pkg, label, make in makers if importlib.util.find_spec(pkg)}
     for m in peers.values():  # same weights as ours where the layout allows
         lin = [mod for mod in m.modules() if isinstance(mod, nn.Linear)]
         with torch.no_grad():
