@@ -84,68 +84,71 @@ def _kind_name(kind: type | None) -> str:
     }[kind]
 
 
+#: the options of a run that are not pipeline settings
+RUN_OPTIONS: tuple[Option, ...] = (
+    Option(
+        "task",
+        "hook_loop",
+        "synthetic task to generate and train on (ignored with --data)",
+        choices=tuple(sorted(TASKS)),
+    ),
+    Option(
+        "data",
+        None,
+        "recordings .npz (X [N,C,S], y, fs, class_names; see README) or a "
+        "folder written by tactilesnn generate",
+    ),
+    Option(
+        "data_window_s",
+        None,
+        "with --data: cut each recording into windows of this many "
+        "seconds (scores are then also summed per recording); 0: one window per "
+        "recording; default: rows of >= 2 s and 256 samples without recording ids are cut "
+        "into 7 windows (a quarter of the row, every eighth), shorter rows are kept whole",
+        float,
+    ),
+    Option(
+        "data_hop_s",
+        None,
+        "with --data-window-s: seconds between window starts (default: half a window)",
+        float,
+    ),
+    Option(
+        "difficulty",
+        1.0,
+        "multiplier of noise, speed variation, Z ripple and texture irregularity",
+        float,
+    ),
+    Option(
+        "amplitude_spread",
+        1.0,
+        "multiplier of the force set-point range and coupling-gain spread",
+        float,
+    ),
+    Option(
+        "faults",
+        None,
+        'sensor faults for trial tasks, e.g. "dead=3;short=0-1@1e5;gain_sd=0.1;drift_per_s=0.01"',
+    ),
+    Option(
+        "task_kw",
+        None,
+        "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)",
+        repeated=True,
+    ),
+    Option(
+        "val_fraction",
+        0.0,
+        "fraction of training scans held out for early stopping / best weights",
+        float,
+    ),
+    Option("export", True, "write model.onnx (window -> scores) into the run folder", bool),
+)
+
+
 def run_options() -> tuple[Option, ...]:
     """The options of a run that are not pipeline settings."""
-    return (
-        Option(
-            "task",
-            "hook_loop",
-            "synthetic task to generate and train on (ignored with --data)",
-            choices=tuple(sorted(TASKS)),
-        ),
-        Option(
-            "data",
-            None,
-            "recordings .npz (X [N,C,S], y, fs, class_names; see README) or a "
-            "folder written by tactilesnn generate",
-        ),
-        Option(
-            "data_window_s",
-            None,
-            "with --data: cut each recording into windows of this many "
-            "seconds (scores are then also summed per recording); 0: one window per "
-            "recording; default: rows of >= 2 s and 256 samples without recording ids are cut "
-            "into 7 windows (a quarter of the row, every eighth), shorter rows are kept whole",
-            float,
-        ),
-        Option(
-            "data_hop_s",
-            None,
-            "with --data-window-s: seconds between window starts (default: half a window)",
-            float,
-        ),
-        Option(
-            "difficulty",
-            1.0,
-            "multiplier of noise, speed variation, Z ripple and texture irregularity",
-            float,
-        ),
-        Option(
-            "amplitude_spread",
-            1.0,
-            "multiplier of the force set-point range and coupling-gain spread",
-            float,
-        ),
-        Option(
-            "faults",
-            None,
-            "sensor faults for trial tasks, e.g. "
-            '"dead=3;short=0-1@1e5;gain_sd=0.1;drift_per_s=0.01"',
-        ),
-        Option(
-            "task_kw",
-            None,
-            "extra task parameter, repeatable (e.g. layout_name=mia14, n_samples=2000)",
-            repeated=True,
-        ),
-        Option(
-            "val_fraction",
-            0.0,
-            "fraction of training scans held out for early stopping / best weights",
-            float,
-        ),
-        Option("export", True, "write model.onnx (window -> scores) into the run folder", bool),
-    )
+    return RUN_OPTIONS
 
 
 def pipeline_options() -> tuple[Option, ...]:

@@ -282,6 +282,12 @@ def format_report(res: dict) -> str:
             f"{'same' if r['ort_gated_same_slots'] else 'DIFFERENT'} slots, "
             f"{r['ort_gated_max_diff_ms']:.1e} ms |"
         )
+    return "\n".join([*lines, *_sensor_lines(res), *_encoder_model_lines(res)])
+
+
+def _sensor_lines(res: dict) -> list[str]:
+    """The report's lines on what the sensor models skip."""
+    lines = []
     p = res["pvdf"]
     lines.append(
         f"PVDF sensor skipping: full {1000 * p['full_s']:.1f} ms, skip {1000 * p['skip_s']:.1f} ms "
@@ -314,6 +320,12 @@ def format_report(res: dict) -> str:
         f" ms vs {1000 * t['full_s']:.1f} ms ({t['speedup']:.1f}x), max difference "
         f"{t['max_diff_V']:.1e} V"
     )
+    return lines
+
+
+def _encoder_model_lines(res: dict) -> list[str]:
+    """The report's lines on band restriction and early decisions."""
+    lines = []
     b = res["band_restriction"]
     r = b["restricted"]
     lines.append(
@@ -335,7 +347,7 @@ def format_report(res: dict) -> str:
             f"{100 * e['full_window_accuracy']:.2f} % on the full window "
             f"({100 * e['agrees_with_full_window']:.1f} % same decision)"
         )
-    return "\n".join(lines)
+    return lines
 
 
 HELP = "what skipping (activity gate, band restriction, early decision...) saves, and its cost"
