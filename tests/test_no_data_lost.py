@@ -288,3 +288,14 @@ def test_toml_types_and_nesting_are_checked(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2 and match in err, (body[:30], err)
         assert "Traceback" not in err
+
+
+def test_a_load_failure_leaves_nothing_behind(tmp_path, capsys):
+    import numpy as np
+
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, X=np.zeros((4, 2, 50), np.float32), y=np.array([0, 1, 0, 1]))  # no fs, no t
+    out = tmp_path / "r"
+    assert main(["train", "--data", str(bad), "--out", str(out), "--quiet"]) == 2
+    assert "missing" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz"]

@@ -16,7 +16,6 @@ import functools
 import json
 import logging
 import platform
-import shutil
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,6 +41,7 @@ from .runs import (
     OutLock,
     RunWriter,
     default_run_dir,
+    read_marker,
     remove_owned,
     write_marker,
 )
@@ -201,9 +201,11 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
             res.metrics["encoder_selection_val_accuracy"] = selection
         _write_run(writer, spec, {**record, "pipeline": config.to_dict()}, res, train, test)
         path = writer.commit()
-        shutil.rmtree(partial, ignore_errors=True)  # the run is complete: its checkpoint is spent
+        remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")  # the run is complete
     except BaseException:
         writer.abort()
+        if read_marker(partial) is not None and not (partial / "checkpoint.json").is_file():
+            remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")  # nothing to resume
         raise
     if spec.export:  # after the run is safely written: an export failure never loses the run
         res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)
