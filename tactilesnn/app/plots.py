@@ -51,6 +51,7 @@ def plot_training(history: list[float], val_history: list[float], path: Path) ->
                 ms=3, label="validation error")  # fmt: skip
     ax.set_xlabel("epoch")
     ax.set_ylabel("error (%)")
+    ax.set_ylim(bottom=0)  # from zero: small errors look small
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
@@ -77,21 +78,20 @@ def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int 
                              squeeze=False)  # fmt: skip
     t_ms = np.arange(pipe.window) * 1000.0 / pipe.fs_hz
     for col, (x, s, sc, fm) in enumerate(zip(Xs, spikes, scores, maps, strict=True)):
-        truth = pipe.class_names[int(y[picks[col]])]
+        truth, guess = pipe.class_names[int(y[picks[col]])], pipe.class_names[int(sc.argmax())]
         ax = axes[0, col]
-        for ch in sel[:8]:
-            ax.plot(t_ms, x[ch], lw=0.7, label=pipe.channel_names[ch])
-        ax.set_title(f"true: {truth}", fontsize=9)
-        ax.set_xlabel("ms", fontsize=8)
-        if col == 0:
-            ax.set_ylabel("input")
-            ax.legend(fontsize=6, loc="upper right")
+        _plot_input(fig, ax, x[sel], t_ms, [pipe.channel_names[c] for c in sel], col == 0)
+        ax.set_title(f"true: {truth} · predicted: {guess}", fontsize=9,
+                     color="black" if truth == guess else "C3")  # fmt: skip
         r = 1
         if fm is not None:
             mag, freqs = fm
             ax = axes[r, col]
-            ax.imshow(np.log10(mag + 1e-6 * mag.max() + 1e-30), aspect="auto", origin="lower",
-                      extent=(0, t_ms[-1], 0, len(freqs)), cmap="magma")  # fmt: skip
+            im = ax.imshow(np.log10(mag + 1e-6 * mag.max() + 1e-30), aspect="auto",
+                           origin="lower", extent=(0, t_ms[-1], 0, len(freqs)), cmap="magma")  # fmt: skip
+            bar = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
+            bar.ax.tick_params(labelsize=6)
+            bar.set_label("log10 magnitude", fontsize=6)
             ticks = np.linspace(0, len(freqs) - 1, min(4, len(freqs))).astype(int)
             ax.set_yticks(ticks + 0.5, [f"{freqs[i]:.0f}" for i in ticks], fontsize=7)
             if col == 0:
@@ -116,3 +116,29 @@ def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int 
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+#: inputs of at most this many channels are drawn as lines (with a legend), more as an image
+MAX_LINES = 8
+
+
+def _plot_input(fig, ax, x: np.ndarray, t_ms: np.ndarray, names: list[str], first: bool) -> None:
+    """Every channel of one window ``x [channels, samples]`` (sensor units over ms): lines with
+    a legend for a few channels, an image with a colour bar (every channel) for more."""
+    if len(names) <= MAX_LINES:
+        for row, name in zip(x, names, strict=True):
+            ax.plot(t_ms, row, lw=0.7, label=name)
+        if first:
+            ax.legend(fontsize=6, loc="upper right")
+            ax.set_ylabel("input (sensor units)")
+    else:
+        im = ax.imshow(x, aspect="auto", origin="lower", cmap="viridis", interpolation="nearest",
+                       extent=(0, t_ms[-1], -0.5, len(names) - 0.5))  # fmt: skip
+        bar = fig.colorbar(im, ax=ax, fraction=0.05, pad=0.02)
+        bar.ax.tick_params(labelsize=6)
+        bar.set_label("sensor units", fontsize=6)
+        ticks = np.linspace(0, len(names) - 1, min(6, len(names))).astype(int)
+        ax.set_yticks(ticks, [names[i][:10] for i in ticks], fontsize=6)
+        if first:
+            ax.set_ylabel(f"all {len(names)} channels")
+    ax.set_xlabel("ms", fontsize=8)
