@@ -37,6 +37,22 @@ def select_channels(wanted: Sequence[str], available: Sequence[str]) -> list[int
     return [list(available).index(c) for c in wanted]
 
 
+#: float32 weights, their gradients and Adam's two moments
+TRAINING_BYTES_PER_PARAMETER = 16
+
+
+def parameter_count(*model_args: object) -> int:
+    """Parameters and buffers of the model ``build_model(*model_args)`` would build, counted
+    on torch's ``meta`` device (nothing allocated): the size is checked before the model
+    exists (a million channels would otherwise ask for tens of GB in its constructor)."""
+    try:
+        with torch.device("meta"):
+            model = build_model(*model_args)
+    except Exception:  # a model that cannot be built on meta: its own checks apply
+        return 0
+    return sum(t.numel() for t in (*model.parameters(), *model.buffers()))
+
+
 class SpikePipeline:
     """Encoder + model with scikit-learn-style ``fit`` / ``predict``; see the module docstring."""
 
@@ -57,10 +73,14 @@ class SpikePipeline:
         self.n_clock = config.clock_afferents
         self.n_afferents = self.encoder.n_afferents + self.n_clock
         self.max_spikes = self.encoder.max_spikes
-        self.model = build_model(
-            config.model, self.n_afferents, self.max_spikes, len(self.class_names),
-            self.duration_ms, seed=config.train.seed,
-        )  # fmt: skip
+        args = (config.model, self.n_afferents, self.max_spikes, len(self.class_names),
+                self.duration_ms)  # fmt: skip
+        check_allocation(self.encoder.bytes_per_window(),
+                         f"one window through the {config.encoder_type} encoder")  # fmt: skip
+        check_allocation(TRAINING_BYTES_PER_PARAMETER * parameter_count(*args),
+                         f"the {config.model_type} model for {self.n_afferents} afferents "
+                         f"({len(self.channel_idx)} channels; select fewer with 'channels')")  # fmt: skip
+        self.model = build_model(*args, seed=config.train.seed)
 
     # ------------------------------------------------------------------ encoding
     def validate(self, X: np.ndarray) -> np.ndarray:

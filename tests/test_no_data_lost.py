@@ -299,3 +299,18 @@ def test_a_load_failure_leaves_nothing_behind(tmp_path, capsys):
     assert main(["train", "--data", str(bad), "--out", str(out), "--quiet"]) == 2
     assert "missing" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz"]
+
+
+def test_a_model_too_large_for_memory_is_refused_before_it_is_built(tmp_path, monkeypatch, capsys):
+    import numpy as np
+
+    import tactilesnn.core.checks as checks
+
+    monkeypatch.setattr(checks, "memory_limit_bytes", lambda: 4 << 30)
+    wide = tmp_path / "wide.npz"
+    np.savez(wide, X=np.random.default_rng(0).random((6, 200_000, 2), np.float32),
+             y=np.array([0, 1] * 3), fs=np.array(100.0), class_names=np.array(["a", "b"]))  # fmt: skip
+    rc = main(["train", "--data", str(wide), "--out", str(tmp_path / "r"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "select fewer with 'channels'" in err and "GiB" in err
+    assert not (tmp_path / "r").exists() and not (tmp_path / "r.partial").exists()
