@@ -540,6 +540,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileExistsError, FileNotFoundError, ExportError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except ImportError as e:  # an optional extra that is not installed (nir, distributed...)
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     except OSError as e:  # a full disk, a read-only folder, a permission: the machine's, not ours
         print(f"error: {e.strerror or e} ({e.filename or 'while writing'}); nothing partial "
               "was left under the output's name", file=sys.stderr)  # fmt: skip

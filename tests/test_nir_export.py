@@ -77,3 +77,15 @@ def test_tempotron_is_refused_and_recurrent_snn_exports(tmp_path, capsys):
     assert ("lif1", "rec") in g.edges and ("rec", "lif1") in g.edges
     with pytest.raises(FileExistsError):
         export_pipeline(pipe, run / "model.onnx", np.zeros((1, 2, 100), np.float32))
+
+
+def test_missing_nir_extra_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    import sys
+
+    cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    monkeypatch.setitem(sys.modules, "nir", None)  # as if the extra were not installed
+    rc = main(["export", str(run), "--format", "nir", "--out", str(tmp_path / "m.nir")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "pip install 'tactilesnn[nir]'" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
