@@ -301,13 +301,18 @@ def flat_settings() -> dict[str, FlatSetting]:
         for comp in reg.names():
             cfg_cls = reg.config_class(comp)
             choices = getattr(cfg_cls, "CHOICES", {})
+            first: dict[str, str] = {}  # field -> its first (primary) flat name
             for flag, fld in cfg_cls.FLAGS.items():
+                text = cfg_cls.HELP.get(fld, "")
+                if fld in first:  # a later name of the same field: an alias
+                    text = f"alias of --{first[fld].replace('_', '-')}"
+                first.setdefault(fld, flag)
                 if flag in out:  # several components share the name (e.g. n_bands)
                     out[flag] = out[flag]._replace(components=(*out[flag].components, comp))
                 else:
                     c = choices.get(fld)
-                    out[flag] = FlatSetting(kind, (comp,), _field_default(cfg_cls, fld),
-                                            cfg_cls.HELP.get(fld, ""), tuple(c) if c else None)  # fmt: skip
+                    out[flag] = FlatSetting(kind, (comp,), _field_default(cfg_cls, fld), text,
+                                            tuple(c) if c else None)  # fmt: skip
     return out
 
 

@@ -128,3 +128,13 @@ def test_flat_toml_keys_outside_train_are_checked_too(tmp_path, capsys):
     bad.write_text("epochz = 3\n[train]\nepochs = 1\n")
     assert main(["train", "--config", str(bad), "--out", str(tmp_path / "x")]) == 2
     assert "unknown setting 'epochz'" in capsys.readouterr().err
+
+
+def test_tempotron_settings_have_prefixed_names_and_the_old_ones_as_aliases():
+    from tactilesnn.config import flat_settings
+
+    new = PipelineConfig.from_flat(model="tempotron", tempotron_lr=0.01, tempotron_tau_ms=12.0)
+    old = PipelineConfig.from_flat(model="tempotron", lr=0.01, tau_ms=12.0)
+    assert new == old and new.model.lr == 0.01 and new.model.tau_ms == 12.0
+    assert flat_settings()["lr"].help == "alias of --tempotron-lr"
+    assert "alias" not in flat_settings()["tempotron_lr"].help

@@ -313,12 +313,20 @@ class TempotronConfig:
     lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
 
     FLAGS: ClassVar[dict[str, str]] = {
+        "tempotron_tau_ms": "tau_ms",
+        "tempotron_tau_s_ms": "tau_s_ms",
+        "tempotron_theta": "theta",
+        "tempotron_train": "learning",
+        "tempotron_lr": "lr",
+        "tempotron_adam_lr": "adam_lr",
+        "tempotron_momentum": "momentum",
+        "tempotron_margin": "margin",
+        "tempotron_lr_decay": "lr_decay",
+        # the names of earlier versions, kept as aliases
         "tau_ms": "tau_ms",
         "tau_s_ms": "tau_s_ms",
         "theta": "theta",
-        "tempotron_train": "learning",
         "lr": "lr",
-        "tempotron_adam_lr": "adam_lr",
         "momentum": "momentum",
         "margin": "margin",
         "lr_decay": "lr_decay",
