@@ -133,8 +133,8 @@ def test_flat_toml_keys_outside_train_are_checked_too(tmp_path, capsys):
 def test_tempotron_settings_have_prefixed_names_and_the_old_ones_as_aliases():
     from tactilesnn.config import flat_settings
 
-    new = PipelineConfig.from_flat(model="tempotron", tempotron_lr=0.01, tempotron_tau_ms=12.0)
-    old = PipelineConfig.from_flat(model="tempotron", lr=0.01, tau_ms=12.0)
-    assert new == old and new.model.lr == 0.01 and new.model.tau_ms == 12.0
+    new = PipelineConfig.from_flat(model="tempotron", tempotron_lr=0.01, tempotron_tau_ms=120.0)
+    old = PipelineConfig.from_flat(model="tempotron", lr=0.01, tau_ms=120.0)
+    assert new == old and new.model.lr == 0.01 and new.model.tau_ms == 120.0
     assert flat_settings()["lr"].help == "alias of --tempotron-lr"
     assert "alias" not in flat_settings()["tempotron_lr"].help
