@@ -139,3 +139,26 @@ def test_every_flag_of_every_command_has_help_with_its_default_and_choices():
             if a.option_strings and a.default is not None and a.default is not False:
                 # SUPPRESS: a pipeline setting, whose help names the component's default
                 assert "default" in p.formatter_class(name)._get_help_string(a), f"{name} {flag}"
+
+
+def test_without_out_the_run_folder_is_named_after_what_was_trained(tmp_path, monkeypatch,
+                                                                    capsys):  # fmt: skip
+    import re
+
+    rng = np.random.default_rng(0)
+    y = np.arange(24) % 2
+    t = np.arange(128) / 100.0
+    X = np.sin(2 * np.pi * np.where(y == 0, 3.0, 9.0)[:, None, None] * t) + 0.1 * rng.normal(
+        size=(24, 2, 128))  # fmt: skip
+    np.savez(tmp_path / "d.npz", X=X.astype(np.float32), y=y, fs=np.array(100.0),
+             class_names=np.array(["slow", "fast"]))  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--data", "d.npz", "--epochs", "2", "--quiet", "--no-export"]) == 0
+    chosen = re.search(r"encoder chosen on held-out training recordings: (\w+)",
+                       capsys.readouterr().out).group(1)  # fmt: skip
+    (run,) = (tmp_path / "runs").iterdir()
+    assert run.name.startswith(f"d-{chosen}-readout-")
+    assert main(["train", "--epochs", "1", "--quiet", "--no-export", "--task-kw", "n_planar=4",
+                 "--task-kw", "n_concave=2", "--task-kw", "n_convex=2", "--task-kw",
+                 "n_test=2"]) == 0  # fmt: skip
+    assert any(p.name.startswith("hook_loop-gwt-tempotron-") for p in (tmp_path / "runs").iterdir())

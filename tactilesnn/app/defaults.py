@@ -98,11 +98,12 @@ def data_window(settings: dict[str, Any]) -> tuple[float | None, float | None]:
 
 def run_spec(
     settings: dict[str, Any],
-    out: Path,
+    out: Path | None,
     toml: dict[str, Any] | None = None,
     **run: Any,
 ) -> RunSpec:
-    """Settings -> :class:`~tactilesnn.app.run.RunSpec` for ``out``. ``settings``: run options
+    """Settings -> :class:`~tactilesnn.app.run.RunSpec` for ``out`` (None: a folder under
+    ``runs/`` named after what is trained). ``settings``: run options
     (missing ones take their defaults) and the pipeline settings given; ``toml``: a
     ``--config`` file's pipeline settings; ``run``: ``overwrite``, ``resume``, ``progress``,
     ``config_text`` of the RunSpec."""
@@ -119,7 +120,7 @@ def run_spec(
     else:
         task = settings["task"]
         source = TaskSource(task, {**task_params(task, settings), "seed": config.seed})
-    return RunSpec(source, config, Path(out), export=bool(settings["export"]),
+    return RunSpec(source, config, None if out is None else Path(out), export=bool(settings["export"]),
                    val_fraction=float(settings["val_fraction"]), select_encoders=select, **run)  # fmt: skip
 
 
