@@ -56,6 +56,27 @@ def load_data_file(
     return cut_windows(train, window_s, hop_s), cut_windows(test, window_s, hop_s)
 
 
+#: channels (taxels x polarities for events) a recordings file may hold
+MAX_CHANNELS = 1 << 20
+#: polarities of an event file
+MAX_POLARITIES = 16
+
+
+def check_sizes(shape: tuple[int, ...], path: Path | str) -> None:
+    """Refuse an ``X`` with no window, no sample, or more channels / polarities than any
+    sensor has, before anything is built from its sizes (names, encoders)."""
+    if len(shape) not in (3, 4):
+        return  # the reader names the expected layouts
+    if shape[0] == 0 or shape[-1] == 0 or 0 in shape[1:-1]:
+        raise ValueError(f"{path}: X holds no data (shape {tuple(shape)})")
+    if len(shape) == 4 and shape[2] > MAX_POLARITIES:
+        raise ValueError(f"{path}: {shape[2]} polarities (at most {MAX_POLARITIES}); event files "
+                         "are X [N, taxels, polarity, bins]")  # fmt: skip
+    channels = int(np.prod(shape[1:-1], dtype=np.float64))
+    if channels > MAX_CHANNELS:
+        raise ValueError(f"{path}: {channels} channels (at most {MAX_CHANNELS})")
+
+
 #: members of an .npz file a reader looks at; more is not a recordings file
 MAX_MEMBERS = 1024
 #: longest class or channel name (characters)
@@ -166,6 +187,8 @@ def datasets_from_arrays(
     arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2
 ) -> tuple[WindowDataset, WindowDataset]:
     """:func:`load_data_file` on arrays already in memory (``path`` names them in errors)."""
+    if "X" in arrays:
+        check_sizes(np.shape(arrays["X"]), path)
     if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
         arrays = events_as_channels(arrays, path)
     if any(k.startswith("X@") for k in arrays):

@@ -156,3 +156,20 @@ def test_a_generated_folder_is_data_whose_scans_never_straddle_the_split(tmp_pat
         load_data_file(out, seed=0)
     with pytest.raises(FileNotFoundError, match="not a generated dataset"):
         load_data_file(tmp_path, seed=0)
+
+
+def test_sizes_no_sensor_has_are_refused_before_anything_is_built(tmp_path):
+    import numpy as np
+
+    from tactilesnn.recordings import load_data_file
+
+    cases = {"empty events": np.zeros((0, 24773, 18770, 0), np.float32),
+             "polarities": np.zeros((2, 3, 40, 10), np.float32),
+             "channels": np.zeros((2, (1 << 20) + 1, 2), np.uint8)}  # fmt: skip
+    for what, X in cases.items():
+        path = tmp_path / f"{what}.npz"
+        np.savez(
+            path, X=X, y=np.array([0, 1]), fs=np.array(100.0), class_names=np.array(["a", "b"])
+        )
+        with pytest.raises(ValueError, match=r"no data|polarities|channels"):
+            load_data_file(path, seed=0)
