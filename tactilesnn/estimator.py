@@ -25,7 +25,7 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 
-from .config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
+from .config import DATA_ENCODER_CANDIDATES, DEFAULT_ENCODER, PipelineConfig, data_file_defaults
 from .core.checks import check_float32_range
 from .core.data import WindowDataset
 from .encoders import ENCODERS
@@ -34,6 +34,10 @@ from .pipeline import SpikePipeline
 from .selection import median_power_frequency, select_encoder
 from .trainer import Trainer
 from .training import split_validation
+
+#: ``encoder=AUTO``: chosen among the data-file candidates on held-out training windows (not a
+#: registered name: a mode of the estimator, as of ``train --data``)
+AUTO = "auto"
 
 
 class SpikeClassifier(ClassifierMixin, BaseEstimator):
@@ -57,7 +61,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
 
     def __init__(
         self,
-        encoder: str = "auto",
+        encoder: str = AUTO,
         model: str = "readout",
         encoder_params: dict | None = None,
         model_params: dict | None = None,
@@ -107,7 +111,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.fs_hz_ = data.fs_hz
         config = self._config(data)
         self.encoder_selection_: dict[str, float] | None = None
-        if self.encoder == "auto" and data.X.ndim == 3:
+        if self.encoder == AUTO and data.X.ndim == 3:
             config, self.encoder_selection_ = select_encoder(config, data,
                                                              DATA_ENCODER_CANDIDATES)  # fmt: skip
         fit_set, val_set = split_validation(data, float(self.val_fraction), config.seed)
@@ -164,7 +168,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         """The pipeline settings: ``train --data``'s defaults, then this estimator's."""
         defaults = data_file_defaults(events=data.X.ndim == 4)
         flat = {k: v for k, v in defaults.items() if k not in ("encoder", "model")}
-        encoder = self.encoder if self.encoder != "auto" else defaults.get("encoder", "gwt")
+        encoder = self.encoder if self.encoder != AUTO else defaults.get("encoder", DEFAULT_ENCODER)
         d = PipelineConfig.from_flat(encoder=encoder, model=self.model, **flat).to_dict()
         fitted = getattr(ENCODERS.config_class(encoder), "data_defaults", None)
         if fitted is not None and data.X.ndim == 3:  # bands that follow the rate and spectrum
