@@ -13,8 +13,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from .app.options import Option, pipeline_options, run_options, train_options
 from .datasets_synth import TASKS
 
@@ -317,29 +315,15 @@ def cmd_demo_stream(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from .service.app import serve
+    from .service.command import run
 
-    if not (args.stream_ttl_s > 0 and np.isfinite(args.stream_ttl_s)):
-        raise ValueError(f"--stream-ttl-s must be a positive number, got {args.stream_ttl_s}")
-    serve(args.model, host=args.host, port=args.port, threads=args.threads,
-          stream_ttl_s=args.stream_ttl_s, allowed_hosts=args.allowed_hosts)  # fmt: skip
-    return 0
+    return run(args)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
     from .app.bench import benchmark
 
     return benchmark(args.name).main(Path(args.out) if args.out else None, args)
-
-
-def _port(text: str) -> int:
-    try:
-        port = int(text)
-    except ValueError:
-        port = -1
-    if not 1 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"port must be an integer in 1-65535, got {text!r}")
-    return port
 
 
 def _resume_hint(args: argparse.Namespace, argv: list[str]) -> str:
@@ -435,16 +419,11 @@ def _parse_sweep(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only)")
-    p.add_argument("model", help="model.onnx written by train or export")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    p.add_argument("--port", type=_port, default=8000, help="TCP port (1-65535)")
-    p.add_argument("--threads", type=int, default=0, help="onnxruntime intra-op threads")
-    p.add_argument("--stream-ttl-s", type=float, default=300.0,
-                   help="drop a stream after this many seconds without a chunk")  # fmt: skip
-    p.add_argument("--allowed-hosts", nargs="+", default=[], metavar="NAME",
-                   help="extra host names browsers may use to reach the service (DNS-rebinding "
-                        "guard; loopback names are always allowed; '*' turns the check off)")  # fmt: skip
+    from .service.command import add_arguments
+
+    p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only; without "
+                 "torch: python -m tactilesnn.service)")  # fmt: skip
+    add_arguments(p)
     p.set_defaults(func=cmd_serve)
     return p
 

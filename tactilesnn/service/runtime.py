@@ -94,10 +94,15 @@ def _check_float32(arr: np.ndarray, name: str) -> None:
         raise InputError(str(e)) from e
 
 
-def _with_spikes_output(path: str) -> bytes:
+def _with_spikes_output(path: str) -> bytes | str:
     """The model with its encoder's spike times (the value ``spikes`` that feeds the model part)
-    also a graph output, so a live view can show the raster the model saw."""
-    import onnx  # only for the live view: plain inference needs onnxruntime alone
+    also a graph output, so a live view can show the raster the model saw; without the ``onnx``
+    package (a torch-free deployment may lack it) the graph as it is (the live page then shows
+    no raster)."""
+    try:
+        import onnx  # only for the live view: plain inference needs onnxruntime alone
+    except ImportError:
+        return str(path)
 
     model = onnx.load(str(path))
     produced = {o for n in model.graph.node for o in n.output}

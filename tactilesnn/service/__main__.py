@@ -1,0 +1,7 @@
+"""``python -m tactilesnn.service MODEL``: the service without torch installed."""
+
+import sys
+
+from .command import main
+
+sys.exit(main())
