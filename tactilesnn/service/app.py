@@ -331,7 +331,8 @@ class Service:
         for r in results if live else ():
             window, spikes = r.pop("window"), r.pop("spikes")
             self.hub.publish(window_event(sid, r, window, spikes, session.fs_hz,
-                                          session.class_names, session.window // 2))  # fmt: skip
+                                          session.class_names, session.window // 2,
+                                          session.channels))  # fmt: skip
         return JSONResponse({"stream": sid, "results": results})
 
     async def page(self, request: Request) -> HTMLResponse:

@@ -30,6 +30,21 @@ function drawSignal(ev) {
     });
     g.stroke();
   });
+  // legend: each drawn channel's name in its colour (inserted as canvas text, never as HTML)
+  // (top right, clear of the scale labels on the left)
+  g.font = "10px sans-serif";
+  const labels = (ev.channels || []).map((name) => String(name).slice(0, 16));
+  const more = ev.n_channels > ev.signal.length ?
+    `(first ${ev.signal.length} of ${ev.n_channels})` : "";
+  const widths = labels.map((l) => g.measureText(l).width + 8);
+  let lx = Math.max(L + 60, c.width - 6 - widths.reduce((a, b) => a + b, 0) -
+                    (more ? g.measureText(more).width : 0));
+  labels.forEach((label, i) => {
+    g.fillStyle = COLORS[i % COLORS.length];
+    g.fillText(label, lx, 10);
+    lx += widths[i];
+  });
+  if (more) { g.fillStyle = "#555"; g.fillText(more, lx, 10); }
   g.fillStyle = "#555"; g.font = "11px sans-serif";
   g.fillText((hi * ev.signal_scale).toPrecision(3), 0, 12);
   g.fillText((lo * ev.signal_scale).toPrecision(3), 0, H + 6);

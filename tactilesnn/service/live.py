@@ -56,8 +56,10 @@ def window_event(
     fs_hz: float,
     class_names: list[str],
     hop: int,
+    channels: list[str] | None = None,
 ) -> dict:
-    """The live event of one classified window (see the module docstring)."""
+    """The live event of one classified window (see the module docstring); ``channels``: the
+    window's channel names (the legend of the input plot: the first ``MAX_CHANNELS`` drawn)."""
     n = window.shape[1]
     step = max(1, int(np.ceil(n / MAX_POINTS)))
     signal = np.asarray(window[:MAX_CHANNELS, ::step], np.float64)
@@ -78,6 +80,8 @@ def window_event(
         "class": result["class"],
         "scores": [round(float(v), 5) for v in result["scores"]],
         "class_names": class_names,
+        "channels": list(channels or [])[:MAX_CHANNELS],
+        "n_channels": int(window.shape[0]),
         "signal": np.round(signal / scale, 4).tolist(),
         "signal_scale": scale,
         "signal_dt_ms": 1000.0 * step / fs_hz,

@@ -72,7 +72,8 @@ def test_event_contents_against_references():
     spikes = np.full((3, 2), np.inf, np.float32)
     spikes[0, 0], spikes[2, 1] = 12.5, 400.0
     ev = window_event("s", {"window_index": 4, "class": "a", "scores": [0.1, 0.9]}, x, spikes,
-                      fs, ["a", "b"], 50)  # fmt: skip
+                      fs, ["a", "b"], 50, ["static", "dynamic"])  # fmt: skip
+    assert ev["channels"] == ["static", "dynamic"] and ev["n_channels"] == 2
     assert ev["raster"] == [[0, 12.5], [2, 400.0]] and ev["n_afferents"] == 3
     assert ev["t_s"] == pytest.approx(1.0) and ev["duration_ms"] == pytest.approx(500.0)
     np.testing.assert_allclose(np.asarray(ev["signal"]) * ev["signal_scale"], x, atol=1e-4)
