@@ -233,9 +233,11 @@ def plot_front(rows: list[dict], path: Path) -> None:
     done = [r for r in rows if "test_accuracy" in r]
     if not done:
         return
+    varied = _varied(rows)
     pts = [{"test_error": 1 - r["test_accuracy"], "test_error_ci95": r["test_accuracy_ci95"],
             "train_s": (r.get("fit_seconds") or 0) + (r.get("encode_seconds") or 0),
-            "label": r["trial"]} for r in done]  # fmt: skip
+            "label": ", ".join(f"{k}={_cell(r['settings'].get(k, ''))}" for k in varied)[:40]
+            or r["trial"]} for r in done]  # fmt: skip
     pareto_front(pts, cost_key="train_s")
     for r, p in zip(done, pts, strict=True):
         r["pareto_front"] = p["front"]
@@ -245,14 +247,20 @@ def plot_front(rows: list[dict], path: Path) -> None:
     os.replace(tmp, path)
 
 
+def _varied(rows: list[dict]) -> list[str]:
+    """The settings that differ between trials (what the table's columns and the picture's
+    labels name)."""
+    return sorted({k for r in rows for k, v in r["settings"].items()
+                   if any(o["settings"].get(k) != v for o in rows)})  # fmt: skip
+
+
 def _cell(value: object) -> str:
     return ", ".join(map(str, value)) if isinstance(value, list | tuple) else str(value)
 
 
 def results_table(rows: list[dict]) -> str:
     """Markdown table: varied settings, test accuracy +- 95 % CI, fit and encode seconds."""
-    varied = sorted({k for r in rows for k, v in r["settings"].items()
-                     if any(o["settings"].get(k) != v for o in rows)})  # fmt: skip
+    varied = _varied(rows)
     head = ["trial", *varied, "test accuracy", "fit s", "encode s", "front"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
