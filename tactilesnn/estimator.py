@@ -104,8 +104,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             return self._fit(X, y, fs_hz, groups, channel_names)
 
     def _fit(self, X, y, fs_hz, groups, channel_names) -> SpikeClassifier:
-        data = self._dataset(X, y, fs_hz, groups, channel_names)
-        self.classes_ = np.asarray(self._labels)
+        data, labels = self._dataset(X, y, fs_hz, groups, channel_names)
+        self.classes_ = labels
         self.n_features_in_ = int(np.prod(data.X.shape[1:]))
         self.channel_names_ = data.channel_names
         self.fs_hz_ = data.fs_hz
@@ -129,12 +129,12 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.temperature_ = _temperature(pipe.scores(calib[0]).numpy(), np.asarray(calib[1]))
         return self
 
-    def _dataset(self, X, y, fs_hz, groups, channel_names) -> WindowDataset:
+    def _dataset(self, X, y, fs_hz, groups, channel_names) -> tuple[WindowDataset, np.ndarray]:
+        """The training windows and the class labels, as the user gives them (``classes_``)."""
         if isinstance(X, WindowDataset):
             if y is not None:
                 raise ValueError("fit(WindowDataset) takes its labels from the dataset; pass no y")
-            self._labels = np.asarray(X.class_names)
-            return X
+            return X, np.asarray(X.class_names)
         if y is None:
             raise ValueError(f"{type(self).__name__} requires y to be passed, but the target y is "
                              "None (or pass a WindowDataset, which holds its labels)")  # fmt: skip
@@ -156,13 +156,13 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             raise ValueError(f"X has {len(arr)} windows but y has {len(y_idx)} labels")
         if labels.size < 2:
             raise ValueError(f"y holds {labels.size} class; a classifier needs at least two")
-        self._labels = labels
         names = _channel_names(channel_names, arr.shape[1])
         scan = np.arange(len(arr)) if groups is None else np.unique(groups, return_inverse=True)[1]
         if len(scan) != len(arr):
             raise ValueError(f"groups has {len(scan)} entries for {len(arr)} windows")
-        return WindowDataset(arr, y_idx.astype(np.int64), scan.astype(np.int64), float(fs),
+        data = WindowDataset(arr, y_idx.astype(np.int64), scan.astype(np.int64), float(fs),
                              tuple(str(c) for c in labels), names)  # fmt: skip
+        return data, labels
 
     def _config(self, data: WindowDataset) -> PipelineConfig:
         """The pipeline settings: ``train --data``'s defaults, then this estimator's."""

@@ -259,7 +259,6 @@ class Service:
             return await loop.run_in_executor(self.parser_pool(), _parse_to_array, body, ctype, key)
         except BrokenProcessPool as e:  # the body crashed the parser: a new one for the next
             self.close()
-            self._parser = None
             raise HTTPError(400, "the body could not be parsed") from e
 
     def parser_pool(self):
@@ -274,8 +273,10 @@ class Service:
         return self._parser
 
     def close(self) -> None:
+        """Stop the parser process (a new one starts on the next large body)."""
         if self._parser is not None:
             self._parser.shutdown(wait=False, cancel_futures=True)
+            self._parser = None
 
     async def _read(self, request: Request, limit: int, counted: list[int]) -> bytes:
         """The body, at most ``limit`` bytes (413), its size beyond the budget's free bytes
