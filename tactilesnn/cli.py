@@ -105,11 +105,11 @@ def cmd_train(args: argparse.Namespace) -> int:
                     config_text=file.text if file else None)  # fmt: skip
     result = train_run(spec)
     m, encoder = result.metrics, result.config.encoder_type
-    if "encoder_selection_val_accuracy" in m:
-        held = ", ".join(
-            f"{k} {100 * v:.1f} %" for k, v in m["encoder_selection_val_accuracy"].items()
-        )
-        print(f"encoder chosen on held-out training recordings: {encoder} ({held})")
+    if "encoder_selection" in m:
+        sel = m["encoder_selection"]
+        held = ", ".join(f"{k} {100 * v['per_window']:.1f} %" for k, v in sel["scores"].items())
+        print(f"encoder chosen on held-out training recordings: {encoder} (per window: {held}; "
+              f"{sel['fit_windows']} + {sel['val_windows']} windows, {sel['seconds']:.0f} s)")  # fmt: skip
     print(
         f"{spec.source.label} {encoder}+{result.config.model_type}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "

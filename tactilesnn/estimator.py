@@ -110,7 +110,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.channel_names_ = data.channel_names
         self.fs_hz_ = data.fs_hz
         config = self._config(data)
-        self.encoder_selection_: dict[str, float] | None = None
+        self.encoder_selection_: dict[str, Any] | None = None
         if self.encoder == AUTO and data.X.ndim == 3:
             config, self.encoder_selection_ = select_encoder(config, data,
                                                              DATA_ENCODER_CANDIDATES)  # fmt: skip

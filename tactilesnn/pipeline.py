@@ -1,4 +1,4 @@
-"""Spike pipeline: channel selection -> encoder -> clock afferents -> model.
+"""Spike pipeline: channel selection -> encoder (+ level code) -> clock afferents -> model.
 
 It only composes registered components (:mod:`tactilesnn.encoders`, :mod:`tactilesnn.models`);
 training lives in :class:`tactilesnn.trainer.Trainer`. Array contract: ``X`` ``[N, channels,
@@ -20,6 +20,7 @@ from .config import PipelineConfig
 from .core.checks import as_float_array, check_allocation, check_finite, check_float32_range
 from .core.spikes import clock_times
 from .encoders import build_encoder
+from .encoders.level import LevelCode
 from .models import build_model
 from .trainer import Trainer
 
@@ -70,8 +71,11 @@ class SpikePipeline:
         self.channel_idx = select_channels(config.channels, self.channel_names)
         self.duration_ms = 1000.0 * self.window / self.fs_hz
         self.encoder = build_encoder(config.encoder, self.fs_hz, self.window, len(self.channel_idx))
+        self.level = (LevelCode(len(self.channel_idx), config.level_neurons, self.duration_ms)
+                      if config.level_neurons else None)  # fmt: skip
+        self.n_level = self.level.n_afferents if self.level is not None else 0
         self.n_clock = config.clock_afferents
-        self.n_afferents = self.encoder.n_afferents + self.n_clock
+        self.n_afferents = self.encoder.n_afferents + self.n_level + self.n_clock
         self.max_spikes = self.encoder.max_spikes
         args = (config.model, self.n_afferents, self.max_spikes, len(self.class_names),
                 self.duration_ms)  # fmt: skip
@@ -107,18 +111,38 @@ class SpikePipeline:
         return arr[:, self.channel_idx]
 
     def calibrate(self, X: np.ndarray) -> None:
-        """Fit the encoder's data-dependent state (e.g. the LIF code's level) on training X."""
-        self.encoder.fit(self.encoder_input(X))
+        """Fit the encoder's data-dependent state (e.g. the LIF code's level) and the level
+        code's ranks on training X."""
+        x = self.encoder_input(X)
+        self.encoder.fit(x)
+        if self.level is not None:
+            self.level.fit(x)
 
     def encode(self, X: np.ndarray, progress: bool = False) -> torch.Tensor:
-        """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent), clock last."""
+        """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent): the encoder's,
+        the level code's (one slot each), the clock's."""
         n = np.shape(X)[0] if np.ndim(X) == 3 else 0
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
-        spikes = self.encoder.encode(self.encoder_input(X), progress=progress)
+        x = self.encoder_input(X)
+        spikes = self.encoder.encode(x, progress=progress)
+        if self.level is not None:
+            spikes = torch.cat([spikes, self.level_spikes(x)], dim=1)
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
             spikes = torch.cat([spikes, clock.expand(spikes.shape[0], -1, -1)], dim=1)
         return spikes
+
+    @torch.no_grad()
+    def level_spikes(self, x: np.ndarray, budget_bytes: int = 1 << 26) -> torch.Tensor:
+        """The level code of windows ``[N, C, W]`` as ``[N, level afferents, k]`` (first slot),
+        in batches of at most ``budget_bytes`` (the window, its deviations and a float32 copy)."""
+        assert self.level is not None
+        batch = max(1, budget_bytes // (12 * x.shape[1] * x.shape[2]))
+        out = torch.full((len(x), self.n_level, self.max_spikes), math.inf)
+        for i in range(0, len(x), batch):
+            chunk = torch.from_numpy(np.ascontiguousarray(x[i : i + batch], dtype=np.float32))
+            out[i : i + batch, :, 0] = self.level(chunk)
+        return out
 
     # ------------------------------------------------------------------ inference
     def scores(self, spikes: torch.Tensor) -> torch.Tensor:
@@ -142,20 +166,24 @@ class SpikePipeline:
         )
 
     # ------------------------------------------------------------------ persistence
+    def parts(self) -> tuple[str, ...]:
+        """The attributes whose ``state_dict`` is the pipeline's learned state."""
+        return ("encoder", "level", "model") if self.level is not None else ("encoder", "model")
+
     def weights(self) -> dict[str, np.ndarray]:
         """Arrays that, with the config, rebuild the trained pipeline (no pickle)."""
         out = {}
-        for part in ("encoder", "model"):
+        for part in self.parts():
             for k, v in getattr(self, part).state_dict().items():
                 out[f"{part}.{k}"] = v.detach().cpu().numpy().copy()
         return out
 
     def load_weights(self, arrays: dict[str, np.ndarray], legacy: bool = False) -> None:
         """Restore :meth:`weights`; ``legacy``: arrays written before the component layer."""
-        for part in ("encoder", "model"):
+        for part in self.parts():
             module = getattr(self, part)
             state = {k[len(part) + 1 :]: v for k, v in arrays.items() if k.startswith(part + ".")}
-            if legacy:
+            if legacy and part != "level":
                 state = module.upgrade_state(state)
             current = module.state_dict()
             # buffers added in later versions keep their neutral constructed value

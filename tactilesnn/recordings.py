@@ -6,7 +6,9 @@ Format: ``X`` ``[N, channels, samples]`` float (the sensor's units), ``y`` ``[N]
 scores are also accumulated per recording) and ``split`` ``[N]`` (0 = train, 1 = test). Read with
 ``allow_pickle=False``. Event data: ``X`` ``[N, taxels, polarity, bins]`` (events per bin) with
 ``bin_ms`` instead of ``fs`` (see :func:`events_as_channels`; train with ``--encoder events``) and
-optionally ``grid`` ``[rows, cols]`` (row-major taxels; a square taxel count is taken as square).
+optionally ``grid`` ``[rows, cols]`` (row-major taxels; a square taxel count is taken as square) or
+``taxel_xy`` ``[taxels, 2]`` (mm, any layout and order: placed on a grid by
+:func:`~tactilesnn.core.layout.place_on_grid`).
 Sensors at other sampling rates in the same recordings: ``X@<name>`` ``[N, channels, samples]``
 with ``fs@<name>`` (and optionally ``channel_names@<name>``) covering the same time span; they are
 resampled to ``fs`` and appended as channels ``<name>:<channel>`` (see :func:`merge_streams`).
@@ -22,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation, check_finite, check_float32_range, check_positive
+from .core.layout import check_taxel_xy, place_on_grid
 from .datasets_synth import WindowDataset
 
 log = logging.getLogger("tactilesnn")
@@ -301,6 +304,28 @@ def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
         return tuple(read(f)[0])
 
 
+def event_layout(path: Path) -> tuple[str, tuple[int, ...]] | None:
+    """``(grid "ROWSxCOLS", cells)`` of an event file's taxels: from its ``taxel_xy`` ``[taxels, 2]``
+    (mm) when given (:func:`~tactilesnn.core.layout.place_on_grid`: any layout, any order), else
+    ``(event_grid(path), ())`` (the taxels fill the grid row by row), else None."""
+    try:
+        shape = _npy_shape(path, "X.npy")
+        with zipfile.ZipFile(path) as z:
+            has_xy = "taxel_xy.npy" in z.namelist()
+        if has_xy:
+            check_allocation(16 * shape[1], "taxel_xy")
+            xy = np.load(path, allow_pickle=False)["taxel_xy"]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None  # the loader reports what is wrong with the file
+    if len(shape) != 4:
+        return None
+    if has_xy:
+        rows, cols, cells = place_on_grid(check_taxel_xy(xy, shape[1], f"{path}: taxel_xy"))
+        return f"{rows}x{cols}", tuple(int(c) for c in cells)
+    grid = event_grid(path)
+    return (grid, ()) if grid is not None else None
+
+
 def event_grid(path: Path) -> str | None:
     """``"ROWSxCOLS"`` of an event file's taxels: its ``grid`` ``[2]`` if given (rows x cols must
     equal the taxels), else a square when the taxel count is one (>= 4), else None."""
@@ -434,6 +459,8 @@ def events_as_channels(arrays: dict[str, np.ndarray], path: Path) -> dict[str, n
         pol_names = [str(c) for c in np.atleast_1d(arrays["polarity_names"])]
         if len(pol_names) != pols:
             raise ValueError(f"{path}: polarity_names must name the {pols} polarities")
+    if "taxel_xy" in arrays:
+        check_taxel_xy(arrays["taxel_xy"], taxels, f"{path}: taxel_xy")
     out["X"] = X.reshape(n, taxels * pols, bins)
     out["channel_names"] = np.array([f"{t}:{p}" for t in taxel_names for p in pol_names])
     return out

@@ -124,10 +124,29 @@ def test_encoder_selection_picks_the_code_that_keeps_what_separates_the_classes(
     X = ((1 + 2 * y)[:, None, None] * shape).astype(np.float32)
     train = WindowDataset(X, y, np.arange(60), 200.0, ("lo", "hi"), ("ch0",))
     cfg = PipelineConfig.from_flat(channels=("all",), model="readout", epochs=10)
-    best, scores = select_encoder(cfg, train, ("gwt", "stft", "lif"))
+    best, report = select_encoder(cfg, train, ("gwt", "stft", "lif"))
+    scores = {k: v["per_window"] for k, v in report["scores"].items()}
     assert best.encoder_type == "lif" and set(scores) == {"gwt", "stft", "lif"}
     assert scores["lif"] > 0.9 and scores["lif"] > max(scores["gwt"], scores["stft"]) + 0.2
     assert best.model == cfg.model and best.train == cfg.train  # only the encoder changes
+    # the calibrated level code gives the window-normalised codes the level back
+    _, report = select_encoder(cfg.replace(level_neurons=4), train, ("gwt", "stft"))
+    assert min(v["per_window"] for v in report["scores"].values()) > 0.9
+
+
+def test_selection_subset_takes_whole_recordings_of_every_class_up_to_the_cap() -> None:
+    from tactilesnn.datasets_synth import WindowDataset
+    from tactilesnn.selection import selection_subset
+
+    scan = np.repeat(np.arange(40), 5)  # 40 recordings of 5 windows, 4 classes
+    y = scan % 4
+    data = WindowDataset(
+        np.zeros((200, 1, 8), np.float32), y, scan, 100.0, ("a", "b", "c", "d"), ("x",)
+    )
+    sub = selection_subset(data, 52, seed=0)
+    assert sub.y.size == 50 and np.bincount(sub.y).tolist() == [15, 15, 10, 10]
+    assert all((sub.scan == s).sum() == 5 for s in np.unique(sub.scan))  # whole recordings
+    assert selection_subset(data, 500, seed=0) is data
 
 
 def test_a_generated_folder_is_data_whose_scans_never_straddle_the_split(tmp_path: Path) -> None:

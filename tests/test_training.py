@@ -115,10 +115,14 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     m = json.loads((out / "metrics.json").read_text())
     cfg = json.loads((out / "config.json").read_text())
     assert m["n_test_windows"] == 9 * 7 and m["n_test_recordings"] == 9
-    assert set(m["encoder_selection_val_accuracy"]) == {"gwt", "stft", "lif"}
-    assert cfg["pipeline"]["encoder"]["type"] == max(
-        m["encoder_selection_val_accuracy"], key=m["encoder_selection_val_accuracy"].get
+    sel = m["encoder_selection"]
+    assert (
+        set(sel["scores"]) == {"gwt", "stft", "lif"}
+        and sel["chosen"] == cfg["pipeline"]["encoder"]["type"]
     )
+    # ranked by what is printed: per window, then per recording
+    key = {k: (v["per_window"], v.get("per_recording", 0.0)) for k, v in sel["scores"].items()}
+    assert sel["chosen"] == max(key, key=key.get) and sel["seconds"] > 0
     assert m["test_accuracy_per_recording"] == 1.0 and m["test_accuracy"] > 0.85
     # whole rows and an explicit encoder: no cut, no selection
     out = tmp_path / "braille_run"
@@ -129,7 +133,7 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     assert rc == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["n_test_windows"] == 9 and m["test_accuracy"] > 1 / 3  # above chance on 3 letters
-    assert "encoder_selection_val_accuracy" not in m
+    assert "encoder_selection" not in m
     assert main(["evaluate", str(out), "--data", str(data), "--all", "--quiet", "--json"]) == 0
     got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert got["n"] == 45

@@ -3,7 +3,8 @@
 :func:`run_spec`: settings (command-line flags, a TOML ``--config``, a sweep trial) -> a
 :class:`~tactilesnn.app.run.RunSpec`. With ``data`` (a user's file) the defaults follow the file:
 every channel, the ``readout`` model, the ``events`` encoder for event files (the ``csnn`` model
-when their taxels form a grid), long recordings cut into windows, and the encoder chosen among
+when their taxels form a grid or have positions, ``taxel_xy``), long recordings cut into windows,
+and the encoder chosen among
 :data:`~tactilesnn.config.DATA_ENCODER_CANDIDATES` on held-out training recordings
 (:func:`~tactilesnn.app.select.select_encoder`) unless the settings name one.
 """
@@ -25,7 +26,7 @@ from ..config import (
 )
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.base import task_parameters
-from ..recordings import auto_window, event_grid, is_event_file
+from ..recordings import auto_window, event_layout, is_event_file
 from .options import run_options, train_options
 from .run import FileSource, RunSpec, TaskSource
 
@@ -71,9 +72,9 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
     if data:
         events = is_event_file(Path(data))
         owners = flat_settings()
-        for key, value in data_file_defaults(
-            events, event_grid(Path(data)) if events else None
-        ).items():
+        layout = event_layout(Path(data)) if events else None
+        grid, cells = layout if layout is not None else (None, ())
+        for key, value in data_file_defaults(events, grid, cells).items():
             # a default setting of the default model (or encoder) only goes with that component
             part = owners[key].part if key in owners else None
             if key not in given and part not in given:

@@ -198,7 +198,7 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
         )
         res.metrics["train_error_history"] = res.history
         if selection is not None:
-            res.metrics["encoder_selection_val_accuracy"] = selection
+            res.metrics["encoder_selection"] = selection
         _write_run(writer, spec, {**record, "pipeline": config.to_dict()}, res, train, test)
         path = writer.commit()
         remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")  # the run is complete

@@ -4,46 +4,82 @@ For event sensors (ON/OFF taxels, a neuromorphic skin) the data are already spik
 format is the package's usual one, ``[N, channels, bins]`` at ``fs = 1000 / bin_ms``, holding the
 number of events per bin (channel = taxel x polarity; :func:`tactilesnn.recordings.load_data_file`
 reads ``[N, taxels, polarity, bins]`` event files into it). Each channel is one afferent; bin ``i``
-is time ``i * bin_ms``, a count of ``n`` is ``n`` spikes there, and each afferent keeps its first
-``max_spikes`` spike times. Nothing is fitted; non-integer or negative counts are refused.
+is time ``i * bin_ms``, a count of ``n`` is ``n`` spikes there. Non-integer or negative counts are
+refused. Which spikes fill an afferent's ``max_spikes`` slots (``keep``):
+
+* ``"spread"`` (default): every ``m``-th event, ``m`` fitted per afferent so that its median count
+  over the training windows in which it fires fits the slots (``m = 1`` where it already fits, as on
+  ST-MNIST's 100-bin trials). The slots then span the whole trial whatever its length and rate;
+* ``"first"``: the first ``max_spikes`` events. A fixed budget fits one data set: on 250-325-bin
+  fingertip trials it dropped 62-72 % of the events and kept ~0.6 s of a 5 s touch.
+
+Prescaling keeps the event at which the running count crosses each multiple of ``m``
+(``floor(cum / m)`` per bin), so the kept times are exact, and the same arithmetic is the graph.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int
+from ..core.checks import check_choice, check_int
 from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
+
+KEEPS = ("spread", "first")
+#: counts stay exact in float32 while a window's events per afferent are below 2^24
+COUNT_LIMIT = 2**24
 
 
 @dataclass(frozen=True)
 class EventsConfig:
     max_spikes: int = 16
+    keep: str = "spread"
 
-    FLAGS: ClassVar[dict[str, str]] = {"events_max_spikes": "max_spikes"}
-    HELP: ClassVar[dict[str, str]] = {"max_spikes": "spike times kept per afferent (channel)"}
+    FLAGS: ClassVar[dict[str, str]] = {"events_max_spikes": "max_spikes", "events_keep": "keep"}
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"keep": KEEPS}
+    HELP: ClassVar[dict[str, str]] = {
+        "max_spikes": "spike times kept per afferent (channel)",
+        "keep": "spread (default): every m-th event (m fitted per afferent) so the slots span the "
+        "trial; first: the first max_spikes",
+    }
 
     def __post_init__(self) -> None:
         check_int(self.max_spikes, "max_spikes", 1)
+        check_choice(self.keep, "keep", KEEPS)
 
 
 class _EventsGraph(nn.Module):
-    def __init__(self, dt_ms: float, k: int) -> None:
+    def __init__(self, dt_ms: float, k: int, every: Tensor) -> None:
         super().__init__()
         self.dt, self.k = float(dt_ms), int(k)
+        self.register_buffer("every", every.clone().view(1, -1, 1))
+        self.prescale = bool((every > 1).any())
 
     def forward(self, x: Tensor) -> Tensor:
-        return first_spike_times(x.clamp(min=0.0).round(), self.dt, self.k)
+        counts = x.clamp(min=0.0).round()
+        if self.prescale:  # events at which the running count passes a multiple of m
+            cum = torch.cumsum(counts, dim=-1)
+            counts = torch.floor(cum / self.every) - torch.floor((cum - counts) / self.every)
+        return first_spike_times(counts, self.dt, self.k)
 
 
 @register_encoder("events", EventsConfig)
 class EventsEncoder(SpikeEncoder):
     """Event counts per bin -> spike times, one afferent per channel; see the module docstring."""
+
+    needs_fit = True
+    #: runs written before the prescaler load with every = 1 (the first max_spikes events)
+    optional_state: ClassVar[tuple[str, ...]] = ("every",)
+
+    def __init__(self, config: EventsConfig, fs_hz: float, window: int, n_channels: int) -> None:
+        super().__init__(config, fs_hz, window, n_channels)
+        self.register_buffer("every", torch.ones(n_channels))
 
     @property
     def n_afferents(self) -> int:
@@ -60,13 +96,27 @@ class EventsEncoder(SpikeEncoder):
                 "the events encoder takes event counts per bin (non-negative integers); "
                 "use an analog encoder (gwt, stft, lif, delta) for sampled signals"
             )
+        if self.config.keep == "spread" and arr.size:
+            self.every.copy_(torch.from_numpy(self._fit_every(arr)))
         return super().fit(X)
+
+    def _fit_every(self, X: np.ndarray, n_max: int = 4096) -> np.ndarray:
+        """Per afferent: median count over the (up to ``n_max``) training windows in which it
+        fires, over the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
+        idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
+        counts = np.asarray(X[idx], dtype=np.float64).sum(-1)  # [n, C]
+        active = np.where(counts > 0, counts, np.nan)
+        with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nan_to_num(np.nanmedian(active, axis=0), nan=0.0)
+        k = self.config.max_spikes
+        return np.clip(np.ceil(med / k), 1, COUNT_LIMIT // k).astype(np.float32)
 
     def bytes_per_window(self) -> int:
         return 4 * self.n_channels * self.window * 4
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        return _EventsGraph(1000.0 / self.fs_hz, self.config.max_spikes)(x)
+        return self.onnx_module()(x)
 
     def onnx_module(self) -> nn.Module:
-        return _EventsGraph(1000.0 / self.fs_hz, self.config.max_spikes)
+        return _EventsGraph(1000.0 / self.fs_hz, self.config.max_spikes, self.every)

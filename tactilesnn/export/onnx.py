@@ -46,7 +46,8 @@ class ExportError(RuntimeError):
 
 
 class PipelineEncoderGraph(nn.Module):
-    """Window -> channel selection -> the encoder's own graph -> clock afferents appended."""
+    """Window -> channel selection -> the encoder's own graph -> level code and clock
+    afferents appended."""
 
     def __init__(self, pipe: SpikePipeline) -> None:
         super().__init__()
@@ -54,13 +55,22 @@ class PipelineEncoderGraph(nn.Module):
         # every channel of the window, in order: no selection node (a copy of the window)
         self.select = list(pipe.channel_idx) != list(range(len(pipe.channel_names)))
         self.encoder = pipe.encoder.onnx_module()
+        self.with_level = pipe.level is not None
+        self.level = pipe.level if pipe.level is not None else nn.Identity()
+        self.pad = pipe.max_spikes - 1
         clock = clock_times(pipe.n_clock, pipe.max_spikes, pipe.duration_ms)
         self.register_buffer("clock", clock)
         self.with_clock = pipe.n_clock > 0
         self.clock_like_slice = pipe.encoder.n_afferents >= pipe.n_clock
 
     def forward(self, x: Tensor) -> Tensor:
-        s = self.encoder(torch.index_select(x, 1, self.channel_idx) if self.select else x)
+        x = torch.index_select(x, 1, self.channel_idx) if self.select else x
+        s = self.encoder(x)
+        if self.with_level:
+            level = self.level(x).unsqueeze(-1)
+            if self.pad > 0:
+                level = nn.functional.pad(level, (0, self.pad), value=float("inf"))
+            s = torch.cat([s, level], dim=1)
         if self.with_clock:
             # expand_as a slice of the same size: one Expand (expand(b, -1, -1) traces to 8 nodes)
             n, k = self.clock.shape

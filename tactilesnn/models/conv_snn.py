@@ -11,7 +11,10 @@ class score. The convolutions are applied to all steps at once; only the membran
 
 ``grid = "auto"``: a square grid of ``n x n`` taxels with 2 or 1 polarities, the one that leaves
 the fewest afferents over (at most 16, e.g. clock afferents; ties: 2 polarities); otherwise set
-``"ROWSxCOLS"``.
+``"ROWSxCOLS"``. Taxels that do not fill a grid in row-major order (an irregular layout, a subset,
+any order) give ``cells``: taxel ``i`` sits in row-major cell ``cells[i]`` of the grid, the other
+cells stay at zero (:func:`~tactilesnn.core.layout.place_on_grid` derives both from the taxels'
+positions; ``train --data`` does so for an event file with ``taxel_xy``).
 """
 
 from __future__ import annotations
@@ -44,9 +47,11 @@ class ConvSNNConfig:
     lr: float = 0.003
     shift: int = 1
     dropout: float = 0.2
+    cells: tuple[int, ...] = ()
 
     FLAGS: ClassVar[dict[str, str]] = {
         "csnn_grid": "grid",
+        "csnn_cells": "cells",
         "csnn_shift": "shift",
         "csnn_dropout": "dropout",
         "csnn_channels": "channels",
@@ -65,11 +70,19 @@ class ConvSNNConfig:
         "lr": "Adam learning rate",
         "shift": "training only: each sample's grid moved by up to this many taxels (0 = off)",
         "dropout": "training only: dropout on the second layer's spikes",
+        "cells": "row-major grid cell of each taxel, in taxel order (empty: the taxels fill the grid "
+        "row by row)",
     }
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "cells", tuple(int(c) for c in self.cells))
         if self.grid != "auto":
-            parse_grid(self.grid)
+            rows, cols = parse_grid(self.grid)
+            if self.cells and (min(self.cells) < 0 or max(self.cells) >= rows * cols
+                               or len(set(self.cells)) != len(self.cells)):  # fmt: skip
+                raise ValueError(f"cells must be distinct cells of the {self.grid} grid")
+        elif self.cells:
+            raise ValueError("cells need an explicit grid (ROWSxCOLS)")
         check_int(self.channels, "channels", 1)
         check_positive(self.dt_ms, "dt_ms")
         check_positive(self.tau_ms, "tau_ms")
@@ -87,14 +100,17 @@ def parse_grid(text: str) -> tuple[int, int]:
     return int(parts[0]), int(parts[1])
 
 
-def grid_layout(n_afferents: int, grid: str) -> tuple[int, int, int, int]:
-    """``(polarities, rows, cols, extra afferents)`` of the spike input; ValueError if none fits."""
+def grid_layout(n_afferents: int, grid: str, taxels: int = 0) -> tuple[int, int, int, int]:
+    """``(polarities, rows, cols, extra afferents)`` of the spike input (``taxels``: how many
+    afferent taxels sit on the grid; 0 = every cell); ValueError if none fits."""
     if grid != "auto":
         rows, cols = parse_grid(grid)
+        taxels = taxels or rows * cols
         for pol in (2, 1):
-            if pol * rows * cols <= n_afferents and n_afferents - pol * rows * cols <= MAX_EXTRA:
-                return pol, rows, cols, n_afferents - pol * rows * cols
-        raise ValueError(f"a {rows}x{cols} grid does not match {n_afferents} afferents")
+            if pol * taxels <= n_afferents and n_afferents - pol * taxels <= MAX_EXTRA:
+                return pol, rows, cols, n_afferents - pol * taxels
+        raise ValueError(f"{taxels} taxels on a {rows}x{cols} grid do not match {n_afferents} "
+                         "afferents")  # fmt: skip
     fits = []
     for pol in (2, 1):
         side = math.isqrt(n_afferents // pol)
@@ -128,9 +144,16 @@ class _ConvSNNCore(nn.Module):
     """The network on a raster ``[steps, B, A]``; ``scan`` is the membrane recurrence."""
 
     def __init__(self, layout: tuple[int, int, int, int], channels: int, n_classes: int,
-                 beta: float) -> None:  # fmt: skip
+                 beta: float, cells: tuple[int, ...] = ()) -> None:  # fmt: skip
         super().__init__()
         self.pol, self.rows, self.cols, self.extra = layout
+        self.taxels = len(cells) or self.rows * self.cols
+        # cell -> its taxel, or the appended zero taxel for an empty cell (one Gather in ONNX)
+        index = torch.full((self.rows * self.cols,), self.taxels, dtype=torch.long)
+        if cells:
+            index[torch.as_tensor(cells, dtype=torch.long)] = torch.arange(len(cells))
+        self.register_buffer("cell_taxel", index, persistent=False)
+        self.scatter = bool(cells)
         self.conv1 = nn.Conv2d(self.pol, channels, 3, padding=1)
         self.conv2 = nn.Conv2d(channels, 2 * channels, 3, padding=1)
         self.pool = (min(2, self.rows), min(2, self.cols))
@@ -142,7 +165,11 @@ class _ConvSNNCore(nn.Module):
 
     def conv_input(self, raster: Tensor, shift: int = 0) -> Tensor:
         steps, batch = raster.shape[0], raster.shape[1]
-        g = raster[:, :, : self.pol * self.rows * self.cols]
+        g = raster[:, :, : self.pol * self.taxels]
+        if self.scatter:
+            g = g.reshape(steps, batch, self.taxels, self.pol)
+            g = torch.cat([g, g.new_zeros(steps, batch, 1, self.pol)], dim=2)
+            g = torch.index_select(g, 2, self.cell_taxel)
         g = g.reshape(steps, batch, self.rows, self.cols, self.pol).permute(0, 1, 4, 2, 3)
         if shift:
             g = random_shift(g, shift)
@@ -155,7 +182,7 @@ class _ConvSNNCore(nn.Module):
         return self.conv2(x).reshape(steps, batch, self.n2)
 
     def readout_input(self, s2: Tensor, raster: Tensor) -> Tensor:
-        extra = raster[:, :, self.pol * self.rows * self.cols :]
+        extra = raster[:, :, self.pol * self.taxels :]
         return self.out(torch.cat([s2, extra], dim=-1))
 
 
@@ -173,10 +200,10 @@ class ConvSNNModel(SpikeModel):
     def __init__(self, config: ConvSNNConfig, n_afferents: int, max_spikes: int, n_classes: int,
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
-        layout = grid_layout(n_afferents, config.grid)
+        layout = grid_layout(n_afferents, config.grid, len(config.cells))
         beta = decay_factor(config.dt_ms, config.tau_ms)
         with seeded(seed):  # the layers draw their initial weights from the global RNG
-            self.core = _ConvSNNCore(layout, config.channels, n_classes, beta)
+            self.core = _ConvSNNCore(layout, config.channels, n_classes, beta, config.cells)
         self.steps = raster_steps(duration_ms, config.dt_ms)
 
     def raster(self, spikes: Tensor) -> Tensor:

@@ -6,7 +6,12 @@ exp(-(t - t_ak) / tau) H(t - t_ak)`` is read, in closed form, at ``n_times`` ins
 ``t_j = (j + 1) D / n_times`` across the window. The class scores are a linear map of ``log1p`` of
 those ``afferents x n_times`` traces, each standardised by its mean and standard deviation over
 the training set (fitted by :meth:`LIReadout.prepare`, kept as buffers, so saved and exported),
-trained with Adam on cross-entropy plus ``weight_decay`` times the squared weights. Cost per
+trained with Adam on cross-entropy plus a penalty on the squared weights: ``weight_decay`` at
+:data:`PRIOR_WINDOWS` training windows, scaled by ``PRIOR_WINDOWS / N`` for ``N`` (a fixed prior
+against a data term that grows with the data, as in a MAP estimate; sklearn's ``C`` works alike).
+A constant penalty underfit large files: FabricSlide (5,238 training windows) LIF + readout, seed 0,
+98.40 % per window at 0.03, 99.30 % at 0.003, 99.41 % at 0.0003, while iCub Braille (190) was
+tuned at 0.03. Cost per
 window is ``O(afferents x spikes x n_times x classes)``: linear in the inputs (the exact
 tempotron's ``V_max`` holds pairwise lags, quadratic in them), and the softmax trains 20-50
 classes as easily as 2.
@@ -31,6 +36,9 @@ from torch import Tensor, nn
 from ..core.checks import check_int, check_positive, check_range
 from .base import SpikeModel, register_model, seeded
 
+#: training windows at which the penalty is ``weight_decay`` (see the module docstring)
+PRIOR_WINDOWS = 256
+
 
 @dataclass(frozen=True)
 class ReadoutConfig:
@@ -49,7 +57,8 @@ class ReadoutConfig:
         "tau_ms": "leaky-integrator time constant of the readout traces (ms; 0 = the window)",
         "n_times": "instants across the window at which the traces are read",
         "lr": "Adam learning rate of the readout",
-        "weight_decay": "L2 penalty on the readout weights (their inputs are standardised)",
+        "weight_decay": "L2 penalty on the readout weights (their inputs are standardised) at 256 "
+        "training windows, scaled by 256 / N for N",
     }
 
     def __post_init__(self) -> None:
@@ -94,6 +103,7 @@ class LIReadout(SpikeModel):
         # feature scaling, fitted on the training spikes by prepare()
         self.register_buffer("feat_mean", torch.zeros(n_in))
         self.register_buffer("feat_scale", torch.ones(n_in))
+        self.penalty = float(config.weight_decay)  # set from the training set's size by prepare()
 
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
@@ -109,6 +119,7 @@ class LIReadout(SpikeModel):
         n = spikes.shape[0]
         if n == 0:
             return
+        self.penalty = self.config.weight_decay * PRIOR_WINDOWS / n
         total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
         total_sq = torch.zeros_like(total)
         batch = self.batch_size(spikes)
@@ -129,7 +140,7 @@ class LIReadout(SpikeModel):
 
     def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
         ce = nn.functional.cross_entropy(self.scores(spikes), y)
-        return ce + self.config.weight_decay * self.linear.weight.pow(2).sum()
+        return ce + self.penalty * self.linear.weight.pow(2).sum()
 
     def learning_rate(self) -> float:
         return self.config.lr

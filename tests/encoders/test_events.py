@@ -87,3 +87,34 @@ def test_real_st_mnist_events_pass_through_exactly():
     np.testing.assert_array_equal(np.isfinite(got).sum(-1), n_events)  # every event, once
     b, a, j = np.argwhere(np.isfinite(got))[0]
     assert x[b, a, int(got[b, a, j])] == 1  # at its bin (1 ms bins)
+
+
+def test_spread_keeps_every_mth_event_so_long_trials_fill_the_slots():
+    # afferent 0 fires 40 events over 200 bins in every training window, afferent 1 fires 3
+    X = np.zeros((10, 3, 200), np.float32)
+    X[:, 0, ::5] = 1
+    X[:, 1, [10, 20, 30]] = 1
+    enc = build_encoder(EventsConfig(max_spikes=8), 1000.0, 200, 3).fit(X)
+    assert enc.every.tolist() == [5.0, 1.0, 1.0]  # ceil(40 / 8); fits; silent
+    got = enc.encode(X[:1]).numpy()[0]
+    # every 5th event: the 5th, 10th ... 40th, at bins 20, 45, ..., 195 (1 ms bins)
+    np.testing.assert_array_equal(got[0], np.arange(20, 200, 25, dtype=np.float32))
+    np.testing.assert_array_equal(got[1, :3], [10.0, 20.0, 30.0])
+    first = build_encoder(EventsConfig(max_spikes=8, keep="first"), 1000.0, 200, 3).fit(X)
+    np.testing.assert_array_equal(first.encode(X[:1]).numpy()[0, 0], np.arange(0, 40, 5))
+
+
+def test_spread_counts_several_events_in_one_bin():
+    x = np.zeros((1, 1, 6), np.float32)
+    x[0, 0] = [
+        3,
+        0,
+        1,
+        4,
+        0,
+        2,
+    ]  # running count 3, 3, 4, 8, 8, 10: multiples of 2 at bins 0, 2, 3, 5
+    enc = build_encoder(EventsConfig(max_spikes=8), 1000.0, 6, 1)
+    enc.fit(x)  # median 10 events / 8 slots -> every 2nd
+    assert enc.every.item() == 2.0
+    np.testing.assert_array_equal(enc.encode(x).numpy()[0, 0, :5], [0.0, 2.0, 3.0, 3.0, 5.0])

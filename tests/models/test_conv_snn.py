@@ -20,8 +20,15 @@ def test_grid_layout_from_the_afferents():
     assert grid_layout(12, "4x3") == (1, 4, 3, 0)
     with pytest.raises(ValueError, match="square taxel grid"):
         grid_layout(3, "auto")
-    with pytest.raises(ValueError, match="does not match"):
+    with pytest.raises(ValueError, match="do not match"):
         grid_layout(200, "4x3")
+    assert grid_layout(85, "10x10", taxels=40) == (2, 10, 10, 5)  # 40 taxels placed on cells
+    with pytest.raises(ValueError, match="distinct cells"):
+        ConvSNNConfig(grid="2x2", cells=(0, 0))
+    with pytest.raises(ValueError, match="distinct cells"):
+        ConvSNNConfig(grid="2x2", cells=(0, 4))
+    with pytest.raises(ValueError, match="explicit grid"):
+        ConvSNNConfig(cells=(0, 1))
     with pytest.raises(ValueError, match="ROWSxCOLS"):
         ConvSNNConfig(grid="ten by ten")
 

@@ -83,19 +83,23 @@ def synthetic_datasets() -> dict[str, tuple[str | None, Loader, bool]]:
     return {f"synth:{t}": (None, _synthetic(t), False) for t in sorted(TASKS)}
 
 
-#: spike pipelines: (label, encoder or None for the --data default, model, data it applies to)
+#: spike pipelines: (label, encoder or None for the --data default, model, data it applies to,
+#: settings over the --data defaults)
 PIPELINES = (
-    ("default+tempotron", None, "tempotron", "any"),
-    ("default+readout", None, "readout", "any"),
-    ("default+snn", None, "snn", "any"),
-    ("lif+readout", "lif", "readout", "analog"),  # a level converter: not for event counts
-    ("events+csnn", "events", "csnn", "events"),  # convolutions need a taxel grid
+    ("default+tempotron", None, "tempotron", "any", {}),
+    ("default+readout", None, "readout", "any", {}),
+    ("default+snn", None, "snn", "any", {}),
+    ("lif+readout", "lif", "readout", "analog", {}),  # a level converter: not for event counts
+    # convolutions need a taxel grid, every afferent on it (as train --data gives a grid file)
+    ("events+csnn", "events", "csnn", "events", {"level_neurons": 0}),
 )
 
 
-def default_config(events: bool, encoder: str | None, model: str, seed: int) -> PipelineConfig:
-    """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S`` would use."""
-    flat = {**data_file_defaults(events), "model": model, "seed": seed}
+def default_config(events: bool, encoder: str | None, model: str, seed: int,
+                   settings: dict | None = None) -> PipelineConfig:  # fmt: skip
+    """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S [settings]`` would
+    use."""
+    flat = {**data_file_defaults(events), "model": model, "seed": seed, **(settings or {})}
     if encoder is not None:
         flat["encoder"] = encoder
     return PipelineConfig.from_flat(flat, strict=True)
@@ -226,10 +230,10 @@ def _one_split(name: str, seed: int, train, test, events: bool, chosen: list, ep
              train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
     rows: list[dict] = []
     ref_pipe = None
-    for label, enc, model, applies in chosen:
+    for label, enc, model, applies, settings in chosen:
         if applies == ("analog" if events else "events"):
             continue
-        cfg = default_config(events, enc, model, seed)
+        cfg = default_config(events, enc, model, seed, settings)
         if epochs is not None:
             cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
         t0 = time.perf_counter()

@@ -1,0 +1,123 @@
+"""Calibrated level code: each channel's window level as a population of latency spikes.
+
+The scalogram latency codes divide each window by its own peak (gain invariance), and the LIF
+converters resolve a level only to within one of their graded thresholds, so what a linear model
+reads from a window's channel means (absolute level: contact force, a fabric's thickness, a
+taxel's baseline; event rate for event sensors) is gone before the model sees it. This stage puts
+it back, for any encoder, calibrated on the training windows so it follows the data's own scale:
+
+* per channel and window two statistics (``STATS``): ``mean`` (the level, in the sensor's units)
+  and ``log_sd`` (``ln`` of the standard deviation over the window's samples: activity, over any
+  number of decades);
+* each statistic through the channel's empirical distribution function on the training windows
+  (``quantiles`` knots, piecewise linear between them): ``u`` in [0, 1], the value's rank among
+  the training windows. Ranks make the code independent of units and offsets; a value outside the
+  training range clamps to 0 or 1;
+* ``u`` into ``neurons`` Gaussian receptive fields (Bohte et al. 2002) with centres evenly spread
+  over [0, 1] and width ``1 / (neurons - 1)``: response ``r = exp(-((u - c) / w)^2 / 2)``, spike at
+  ``t = duration * (1 - r)`` ms, silent below ``r = 0.1`` (within 2.1 field spacings: three to
+  five fields fire per value, fewer at the ends).
+
+Output: spike times ``[batch, channels * 2 * neurons]`` float32, ms from the window start
+(neuron index = (channel * 2 + statistic) * neurons + field), ``+inf`` = silent. The pipeline
+appends them after the encoder's afferents (one slot each) when ``level_neurons > 0``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+STATS = ("mean", "log_sd")
+#: a receptive field's response below this is no spike
+SILENT_BELOW = 0.1
+#: the log_sd floor, relative to the channel's median training sd (a flat window is not -inf)
+SD_FLOOR = 1e-6
+#: the least knot spacing, as a fraction of the statistic's training range
+MIN_GAP = 1e-3
+
+
+def window_stats(x: Tensor, centre: Tensor, sd_floor: Tensor) -> Tensor:
+    """Window ``[B, C, W]`` -> ``[B, C, 2]``: mean - centre, ln(sd + floor) (``centre`` and
+    ``sd_floor`` ``[C]``). The centre (a channel's typical level) comes off first: a float32 sum of
+    raw counts near 20,000 would round away level differences of a few thousandths."""
+    x = x - centre.view(1, -1, 1)
+    mean = x.mean(-1, keepdim=True)
+    dev = x - mean
+    sd = (dev * dev).mean(-1, keepdim=True).sqrt()
+    return torch.cat([mean, torch.log(sd + sd_floor.view(1, -1, 1))], -1)
+
+
+class LevelCode(nn.Module):
+    """Channels' window statistics -> calibrated population latency code (module docstring)."""
+
+    def __init__(self, n_channels: int, neurons: int, duration_ms: float, quantiles: int = 32):
+        super().__init__()
+        if neurons < 2:
+            raise ValueError(f"level_neurons must be 0 (off) or at least 2, got {neurons}")
+        self.n_channels, self.neurons, self.duration_ms = (
+            int(n_channels),
+            int(neurons),
+            float(duration_ms),
+        )
+        # float64 state and arithmetic: a window at a value many training windows share (a silent
+        # channel at the sd floor) sits on a steep stretch of the rank function, where float32
+        # rounding in another runtime moved spikes by whole knot intervals (26 ms, measured)
+        f64 = torch.float64
+        self.register_buffer("knots", torch.zeros(n_channels, len(STATS), quantiles + 1, dtype=f64))
+        self.register_buffer("sd_floor", torch.ones(n_channels, dtype=f64))
+        self.register_buffer("centre", torch.zeros(n_channels, dtype=f64))
+        self.register_buffer("centres", torch.linspace(0.0, 1.0, neurons))
+        self.width = 1.0 / (neurons - 1)
+        self.silent_below = SILENT_BELOW
+        #: afferents of the code (a plain attribute: the module is scripted inside LIF graphs)
+        self.n_afferents = self.n_channels * len(STATS) * self.neurons
+
+    @torch.jit.unused
+    def fit(self, X: np.ndarray, n_max: int = 4096) -> LevelCode:
+        """Knots from (up to ``n_max``, evenly spaced) training windows ``[N, C, W]``."""
+        arr = np.asarray(X)
+        idx = np.linspace(0, len(arr) - 1, min(len(arr), n_max)).round().astype(int)
+        x = np.asarray(arr[idx], dtype=np.float64)
+        centre = np.median(x.mean(-1), axis=0)  # [C]
+        x = x - centre[:, None]
+        mean = x.mean(-1)
+        sd = x.std(-1)
+        scale = np.median(sd, axis=0) + np.median(np.abs(mean), axis=0) + np.abs(centre)
+        floor = np.where(scale > 0, SD_FLOOR * scale, 1e-30)
+        stats = np.stack([mean, np.log(sd + floor)], -1)  # [n, C, 2]
+        q = np.linspace(0.0, 1.0, self.knots.shape[-1])
+        knots = np.quantile(stats, q, axis=0).transpose(1, 2, 0)  # [C, 2, K+1]
+        # knots at least MIN_GAP of the range apart: where many windows share a value (silent
+        # channels at the sd floor) tied knots make a step at that value, and a float32 rounding
+        # of it in another runtime would jump a whole knot interval
+        span = knots[..., -1:] - knots[..., :1]
+        gap = np.maximum(
+            np.maximum(MIN_GAP * span, 1e-6 * np.abs(knots).max(-1, keepdims=True)), 1e-30
+        )
+        steps = np.maximum(np.diff(knots, axis=-1), gap)
+        knots = np.concatenate([knots[..., :1], knots[..., :1] + np.cumsum(steps, -1)], -1)
+        self.knots.copy_(torch.from_numpy(knots))
+        self.sd_floor.copy_(torch.from_numpy(floor))
+        self.centre.copy_(torch.from_numpy(centre))
+        return self
+
+    def ranks(self, x: Tensor) -> Tensor:
+        """Window ``[B, C, W]`` -> each statistic's training rank ``[B, C, 2]`` in [0, 1]
+        (float64)."""
+        v = window_stats(x.double(), self.centre, self.sd_floor).unsqueeze(-1)  # [B, C, 2, 1]
+        lo, hi = self.knots[..., :-1], self.knots[..., 1:]
+        frac = ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
+        return frac.mean(-1)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """Window ``[B, C, W]`` -> spike times ``[B, C * 2 * neurons]`` (ms, inf = silent)."""
+        u = self.ranks(x).unsqueeze(-1)  # [B, C, 2, 1]
+        z = (u - self.centres.double()) / self.width
+        r = torch.exp(-0.5 * z * z)
+        t = self.duration_ms * (1.0 - r)
+        t = torch.where(r < self.silent_below, math.inf, t).flatten(1)
+        return t.float()
