@@ -25,7 +25,13 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 
-from .config import DATA_ENCODER_CANDIDATES, DEFAULT_ENCODER, PipelineConfig, data_file_defaults
+from .config import (
+    DATA_ENCODER_CANDIDATES,
+    DATA_LEVEL_NEURONS,
+    DEFAULT_ENCODER,
+    PipelineConfig,
+    data_file_defaults,
+)
 from .core.checks import check_float32_range
 from .core.data import WindowDataset
 from .encoders import ENCODERS
@@ -53,6 +59,9 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
     channels : ``"all"`` or channel names to use (names given to ``fit`` or ``ch0, ch1...``).
     epochs : training epochs (None: the model's default).
     batch_size, clock_afferents, seed : as ``tactilesnn train``.
+    level_neurons : receptive fields of the calibrated level code appended to the encoder's
+        spikes (:mod:`tactilesnn.encoders.level`; 0 = off, needed by models that map every
+        afferent onto a taxel grid, such as ``csnn``).
     val_fraction : windows (whole groups) held out of training for best-weight selection and
         the probability calibration (0: both on the training windows).
     fs_hz : sampling rate (Hz) when ``fit`` is not given one (``fit``'s wins).
@@ -69,6 +78,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         epochs: int | None = None,
         batch_size: int = 32,
         clock_afferents: int = 5,
+        level_neurons: int = DATA_LEVEL_NEURONS,
         val_fraction: float = 0.0,
         seed: int = 0,
         fs_hz: float | None = None,
@@ -82,6 +92,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.epochs = epochs
         self.batch_size = batch_size
         self.clock_afferents = clock_afferents
+        self.level_neurons = level_neurons
         self.val_fraction = val_fraction
         self.seed = seed
         self.fs_hz = fs_hz
@@ -178,6 +189,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         d["model"].update(self.model_params or {})
         d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
         d["clock_afferents"] = self.clock_afferents
+        d["level_neurons"] = self.level_neurons
         d["train"].update(batch_size=self.batch_size, seed=self.seed,
                           **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
         return PipelineConfig.from_dict(d)

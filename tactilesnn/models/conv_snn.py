@@ -110,7 +110,8 @@ def grid_layout(n_afferents: int, grid: str, taxels: int = 0) -> tuple[int, int,
             if pol * taxels <= n_afferents and n_afferents - pol * taxels <= MAX_EXTRA:
                 return pol, rows, cols, n_afferents - pol * taxels
         raise ValueError(f"{taxels} taxels on a {rows}x{cols} grid do not match {n_afferents} "
-                         "afferents")  # fmt: skip
+                         f"afferents (at most {MAX_EXTRA} beyond the grid, e.g. clock afferents; "
+                         "set level_neurons 0)")  # fmt: skip
     fits = []
     for pol in (2, 1):
         side = math.isqrt(n_afferents // pol)
@@ -120,7 +121,8 @@ def grid_layout(n_afferents: int, grid: str, taxels: int = 0) -> tuple[int, int,
         extra, pol, side = min(fits, key=lambda f: (f[0], -f[1]))
         return pol, side, side, extra
     raise ValueError(
-        f"{n_afferents} afferents do not form a square taxel grid; set --csnn-grid ROWSxCOLS"
+        f"{n_afferents} afferents do not form a square taxel grid (at most {MAX_EXTRA} beyond it, "
+        "e.g. clock afferents; level-code afferents need level_neurons 0); set --csnn-grid ROWSxCOLS"
     )
 
 

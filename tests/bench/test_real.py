@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from tactilesnn.app.bench import real
 from tactilesnn.recordings import load_data_file
@@ -30,11 +31,13 @@ def test_bench_real_table_json_png_and_references(tmp_path):
         "logreg_logspec",
         "logreg_peaknorm_wave",
         "rf_counts",
+        "rf_summary",
+        "logreg_amplitude",
         "mlp_spikes",
     }
     assert {r["seed"] for r in res["rows"]} == {0, 1}
     saved = json.loads((tmp_path / "out" / "real.json").read_text())
-    assert len(saved["summary"]) == 5
+    assert len(saved["summary"]) == 7
     assert (tmp_path / "out" / "real.png").stat().st_size > 0
     md = (tmp_path / "out" / "real.md").read_text()
     assert "braille_icub_abc" in md and "vs best reference" in md
@@ -46,6 +49,15 @@ def test_bench_real_table_json_png_and_references(tmp_path):
     assert spike["encoder"] in ("gwt", "stft", "lif")  # chosen on held-out training recordings
     assert all(0.0 <= s["per_recording_mean"] <= 1.0 for s in res["summary"])
     assert all(s["gap_measured_on"] == "per recording" for s in res["summary"])
+    # the spike row is judged per window and per recording and against the amplitude baseline
+    row = next(s for s in res["summary"] if s["kind"] == "spike")
+    amp = next(s for s in res["summary"] if s["method"] == "logreg_amplitude")
+    best = max(s["mean"] for s in res["summary"] if s["kind"] == "reference")
+    assert row["gap_window_points"] == pytest.approx(100 * (row["mean"] - best))
+    assert row["above_amplitude_baseline"] == (row["mean"] >= amp["mean"])
+    assert row["meets_goal"] == (row["gap_window_points"] >= -2 and row["gap_recording_points"] >= -1
+                                 and row["above_amplitude_baseline"])  # fmt: skip
+    assert ("met" if row["meets_goal"] else "short") in md
 
 
 def test_bench_real_reports_per_recording_scores(tmp_path, monkeypatch):
