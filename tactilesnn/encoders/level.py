@@ -13,14 +13,24 @@ it back, for any encoder, calibrated on the training windows so it follows the d
   (``quantiles`` knots, piecewise linear between them): ``u`` in [0, 1], the value's rank among
   the training windows. Ranks make the code independent of units and offsets; a value outside the
   training range clamps to 0 or 1;
-* ``u`` into ``neurons`` Gaussian receptive fields (Bohte et al. 2002) with centres evenly spread
-  over [0, 1] and width ``1 / (neurons - 1)``: response ``r = exp(-((u - c) / w)^2 / 2)``, spike at
-  ``t = duration * (1 - r)`` ms, silent below ``r = 0.1`` (within 2.1 field spacings: three to
-  five fields fire per value, fewer at the ends).
+* ``u`` into ``neurons`` latency neurons: an ON / OFF pair, ``t = duration * (1 - u)`` and
+  ``t = duration * u`` ms (the higher the value the earlier ON fires, the later OFF; both always
+  fire, so a linear readout of their traces can weigh channels' levels against each other), and
+  beyond the pair ``neurons - 2`` Gaussian receptive fields (Bohte et al. 2002), centres evenly
+  over [0, 1], width one spacing: response ``r = exp(-((u - c) / w)^2 / 2)``, spike at
+  ``t = duration * (1 - r)``, silent below ``r = 0.1``.
+
+Why the pair first (LIF + readout, seed 0, per window, fields only -> pair only): a synthetic
+22-channel file whose classes differ in a pattern of levels 98.00 -> 99.50 % (the amplitude-only
+baseline: 100 %; four fields resolve each channel too coarsely for the differences between
+channels), FabricSlide 99.41 -> 99.68 % (baseline 99.63 %); iCub Braille, seeds 0-2, 97.88 ->
+96.83 % (+-4 points on 63 windows). Pair plus two fields: 99.71 / 99.36 / 96.30 % at 2.5x the
+afferents.
 
 Output: spike times ``[batch, channels * 2 * neurons]`` float32, ms from the window start
-(neuron index = (channel * 2 + statistic) * neurons + field), ``+inf`` = silent. The pipeline
-appends them after the encoder's afferents (one slot each) when ``level_neurons > 0``.
+(neuron index = (channel * 2 + statistic) * neurons + j: ON, OFF, then the fields), ``+inf`` =
+silent. The pipeline appends them after the encoder's afferents (one slot each) when
+``level_neurons > 0``.
 """
 
 from __future__ import annotations
@@ -70,8 +80,11 @@ class LevelCode(nn.Module):
         self.register_buffer("knots", torch.zeros(n_channels, len(STATS), quantiles + 1, dtype=f64))
         self.register_buffer("sd_floor", torch.ones(n_channels, dtype=f64))
         self.register_buffer("centre", torch.zeros(n_channels, dtype=f64))
-        self.register_buffer("centres", torch.linspace(0.0, 1.0, neurons))
-        self.width = 1.0 / (neurons - 1)
+        fields = neurons - 2
+        self.register_buffer("centres", torch.linspace(0.0, 1.0, fields) if fields > 1 else
+                             torch.full((fields,), 0.5))  # fmt: skip
+        self.fields = fields
+        self.width = 1.0 / (fields - 1) if fields > 1 else 0.5
         self.silent_below = SILENT_BELOW
         #: afferents of the code (a plain attribute: the module is scripted inside LIF graphs)
         self.n_afferents = self.n_channels * len(STATS) * self.neurons
@@ -116,8 +129,10 @@ class LevelCode(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """Window ``[B, C, W]`` -> spike times ``[B, C * 2 * neurons]`` (ms, inf = silent)."""
         u = self.ranks(x).unsqueeze(-1)  # [B, C, 2, 1]
-        z = (u - self.centres.double()) / self.width
-        r = torch.exp(-0.5 * z * z)
-        t = self.duration_ms * (1.0 - r)
-        t = torch.where(r < self.silent_below, math.inf, t).flatten(1)
-        return t.float()
+        t = torch.cat([self.duration_ms * (1.0 - u), self.duration_ms * u], -1)  # ON, OFF
+        if self.fields > 0:
+            z = (u - self.centres.double()) / self.width
+            r = torch.exp(-0.5 * z * z)
+            fields = torch.where(r < self.silent_below, math.inf, self.duration_ms * (1.0 - r))
+            t = torch.cat([t, fields], -1)
+        return t.flatten(1).float()

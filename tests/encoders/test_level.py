@@ -36,9 +36,11 @@ def _reference(code: LevelCode, X: np.ndarray, train: np.ndarray) -> np.ndarray:
     for c in range(v.shape[1]):
         for s in range(2):
             u[:, c, s] = np.interp(v[:, c, s], knots[:, c, s], np.linspace(0, 1, knots.shape[0]))
-    centres = np.linspace(0, 1, code.neurons)
-    r = np.exp(-0.5 * ((u[..., None] - centres) * (code.neurons - 1)) ** 2)
-    t = np.where(r < SILENT_BELOW, np.inf, code.duration_ms * (1 - r))
+    D, fields = code.duration_ms, code.neurons - 2
+    pair = np.stack([D * (1 - u), D * u], -1)
+    centres = np.linspace(0, 1, fields)
+    r = np.exp(-0.5 * ((u[..., None] - centres) * (fields - 1)) ** 2)
+    t = np.concatenate([pair, np.where(r < SILENT_BELOW, np.inf, D * (1 - r))], -1)
     return t.reshape(len(x), -1)
 
 
@@ -47,24 +49,34 @@ def test_level_code_matches_a_float64_reference():
     code = LevelCode(3, 5, 250.0).fit(train)
     got = code(torch.from_numpy(test)).numpy()
     ref = _reference(code, test, train)
-    assert got.shape == (80, 3 * 2 * 5) and got.dtype == np.float32
+    assert got.shape == (80, 3 * 2 * 5) and got.dtype == np.float32  # ON, OFF and 3 fields
     both = np.isfinite(ref) & np.isfinite(got)
     # silence may differ only at the threshold; times agree within float32 rounding of a rank
     assert (np.isfinite(ref) != np.isfinite(got)).mean() < 0.01
     assert np.abs(got[both] - ref[both]).max() < 0.05  # ms of a 250 ms window
 
 
-def test_each_value_fires_a_few_neighbouring_fields_and_ranks_order_latencies():
+def test_on_off_pair_orders_latencies_by_rank_and_fields_fire_near_the_value():
     train = _windows(seed=0)
-    code = LevelCode(3, 8, 100.0).fit(train)
-    t = code(torch.from_numpy(train)).numpy().reshape(len(train), 3, 2, 8)
-    fired = np.isfinite(t).sum(-1)
-    assert fired.min() >= 3 and fired.max() <= 5  # within 2.1 spacings of the value
-    # the lowest-mean window of channel 1 fires field 0 first, the highest field 7
+    code = LevelCode(3, 10, 100.0).fit(train)  # the pair and 8 fields
+    t = code(torch.from_numpy(train)).numpy().reshape(len(train), 3, 2, 10)
+    assert np.isfinite(t[..., :2]).all()  # the pair always fires
+    fired = np.isfinite(t[..., 2:]).sum(-1)
+    assert fired.min() >= 3 and fired.max() <= 5  # fields within 2.1 spacings of the value
+    # channel 1: the highest mean fires ON first and OFF last, the lowest the reverse
     lo, hi = train[:, 1].mean(-1).argmin(), train[:, 1].mean(-1).argmax()
-    assert t[lo, 1, 0, 0] == pytest.approx(0.0, abs=1e-3) and t[hi, 1, 0, 7] == pytest.approx(
+    assert t[hi, 1, 0, 0] == pytest.approx(0.0, abs=1e-3) and t[hi, 1, 0, 1] == pytest.approx(100.0)
+    assert t[lo, 1, 0, 1] == pytest.approx(0.0, abs=1e-3) and t[lo, 1, 0, 2] == pytest.approx(
         0.0, abs=1e-3
     )
+    order = np.argsort(train[:, 1].mean(-1))
+    assert (np.diff(t[order, 1, 0, 0]) <= 1e-3).all()  # ON: later for lower levels
+
+
+def test_two_neurons_are_the_pair_alone():
+    code = LevelCode(3, 2, 50.0).fit(_windows(seed=0))
+    t = code(torch.from_numpy(_windows(n=20, seed=3))).numpy().reshape(20, 3, 2, 2)
+    np.testing.assert_allclose(t.sum(-1), 50.0, atol=1e-4)  # ON + OFF = the window
 
 
 def test_outside_the_training_range_clamps_and_nothing_is_nan():
