@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .config import PipelineConfig
-from .core.data import WindowDataset
+from .core.data import WindowDataset, evenly_spaced
 from .encoders import ENCODERS
 from .training import fit_and_evaluate, split_validation
 
@@ -20,7 +20,7 @@ log = logging.getLogger("tactilesnn")
 def median_power_frequency(X: np.ndarray, fs_hz: float, n_max: int = 256) -> float:
     """Frequency (Hz) below which half the power of (up to ``n_max``) windows lies, each
     channel's mean removed, summed over channels and windows."""
-    idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
+    idx = evenly_spaced(len(X), n_max)
     x = np.asarray(X[idx], dtype=np.float64)
     x = x - x.mean(-1, keepdims=True)
     power = (np.abs(np.fft.rfft(x, axis=-1)) ** 2).sum(axis=(0, 1))

@@ -64,3 +64,9 @@ class WindowDataset:
             y=np.concatenate([self.y, other.y]),
             scan=np.concatenate([self.scan, other.scan]),
         )
+
+
+def evenly_spaced(n: int, n_max: int) -> np.ndarray:
+    """Indices of at most ``n_max`` of ``n`` items, evenly spaced from the first to the last (a
+    subsample of training windows that fitting statistics is bounded by)."""
+    return np.linspace(0, n - 1, min(n, n_max)).round().astype(int)

@@ -28,6 +28,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int
+from ..core.data import evenly_spaced
 from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
 
@@ -103,7 +104,7 @@ class EventsEncoder(SpikeEncoder):
     def _fit_every(self, X: np.ndarray, n_max: int = 4096) -> np.ndarray:
         """Per afferent: median count over the (up to ``n_max``) training windows in which it
         fires, over the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
-        idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
+        idx = evenly_spaced(len(X), n_max)
         counts = np.asarray(X[idx], dtype=np.float64).sum(-1)  # [n, C]
         active = np.where(counts > 0, counts, np.nan)
         with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1

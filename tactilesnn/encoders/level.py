@@ -41,6 +41,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..core.data import evenly_spaced
+
 STATS = ("mean", "log_sd")
 #: a receptive field's response below this is no spike
 SILENT_BELOW = 0.1
@@ -93,7 +95,7 @@ class LevelCode(nn.Module):
     def fit(self, X: np.ndarray, n_max: int = 4096) -> LevelCode:
         """Knots from (up to ``n_max``, evenly spaced) training windows ``[N, C, W]``."""
         arr = np.asarray(X)
-        idx = np.linspace(0, len(arr) - 1, min(len(arr), n_max)).round().astype(int)
+        idx = evenly_spaced(len(arr), n_max)
         x = np.asarray(arr[idx], dtype=np.float64)
         centre = np.median(x.mean(-1), axis=0)  # [C]
         x = x - centre[:, None]

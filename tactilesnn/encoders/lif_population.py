@@ -33,6 +33,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
+from ..core.data import evenly_spaced
 from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes
 
@@ -175,7 +176,7 @@ class LIFPopulationEncoder(SpikeEncoder):
     def _fit_every(self, X: np.ndarray, n_max: int = 64) -> Tensor:
         """Prescaler per afferent: median spike count over (up to ``n_max``) training windows
         divided by the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
-        idx = np.linspace(0, len(X) - 1, min(len(X), n_max)).round().astype(int)
+        idx = evenly_spaced(len(X), n_max)
         ones = torch.ones(self.n_afferents, dtype=torch.float64)
         x = torch.from_numpy(np.asarray(X[idx], dtype=np.float64))
         k = self.config.max_spikes
