@@ -46,7 +46,8 @@ from ..core.data import evenly_spaced
 STATS = ("mean", "log_sd")
 #: a receptive field's response below this is no spike
 SILENT_BELOW = 0.1
-#: the log_sd floor, relative to the channel's median training sd (a flat window is not -inf)
+#: the log_sd floor, relative to the channel's scale (median training sd + median |level|): a flat
+#: window's log sd is finite
 SD_FLOOR = 1e-6
 #: the least knot spacing, as a fraction of the statistic's training range
 MIN_GAP = 1e-3
@@ -54,8 +55,8 @@ MIN_GAP = 1e-3
 
 def window_stats(x: Tensor, centre: Tensor, sd_floor: Tensor) -> Tensor:
     """Window ``[B, C, W]`` -> ``[B, C, 2]``: mean - centre, ln(sd + floor) (``centre`` and
-    ``sd_floor`` ``[C]``). The centre (a channel's typical level) comes off first: a float32 sum of
-    raw counts near 20,000 would round away level differences of a few thousandths."""
+    ``sd_floor`` ``[C]``). The centre (a channel's typical level) comes off first, so the sums are
+    of small deviations (raw counts sit near 20,000 where level differences are thousandths)."""
     x = x - centre.view(1, -1, 1)
     mean = x.mean(-1, keepdim=True)
     dev = x - mean
@@ -70,11 +71,8 @@ class LevelCode(nn.Module):
         super().__init__()
         if neurons < 2:
             raise ValueError(f"level_neurons must be 0 (off) or at least 2, got {neurons}")
-        self.n_channels, self.neurons, self.duration_ms = (
-            int(n_channels),
-            int(neurons),
-            float(duration_ms),
-        )
+        self.n_channels, self.neurons = int(n_channels), int(neurons)
+        self.duration_ms = float(duration_ms)
         # float64 state and arithmetic: a window at a value many training windows share (a silent
         # channel at the sd floor) sits on a steep stretch of the rank function, where float32
         # rounding in another runtime moved spikes by whole knot intervals (26 ms, measured)
@@ -83,8 +81,10 @@ class LevelCode(nn.Module):
         self.register_buffer("sd_floor", torch.ones(n_channels, dtype=f64))
         self.register_buffer("centre", torch.zeros(n_channels, dtype=f64))
         fields = neurons - 2
-        self.register_buffer("centres", torch.linspace(0.0, 1.0, fields) if fields > 1 else
-                             torch.full((fields,), 0.5))  # fmt: skip
+        centres = torch.full((fields,), 0.5, dtype=f64)  # one field: in the middle
+        if fields > 1:
+            centres = torch.linspace(0.0, 1.0, fields, dtype=f64)
+        self.register_buffer("centres", centres)
         self.fields = fields
         self.width = 1.0 / (fields - 1) if fields > 1 else 0.5
         self.silent_below = SILENT_BELOW
@@ -133,7 +133,7 @@ class LevelCode(nn.Module):
         u = self.ranks(x).unsqueeze(-1)  # [B, C, 2, 1]
         t = torch.cat([self.duration_ms * (1.0 - u), self.duration_ms * u], -1)  # ON, OFF
         if self.fields > 0:
-            z = (u - self.centres.double()) / self.width
+            z = (u - self.centres) / self.width
             r = torch.exp(-0.5 * z * z)
             fields = torch.where(r < self.silent_below, math.inf, self.duration_ms * (1.0 - r))
             t = torch.cat([t, fields], -1)
