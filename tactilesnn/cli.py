@@ -505,13 +505,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
-    from .core.perf import tune_allocator
+    from .core.perf import fit_threads, tune_allocator
 
     tune_allocator()
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(message)s",
     )
+    threads = fit_threads()
+    if threads is not None:
+        logging.getLogger("tactilesnn").info(
+            "other processes are running: %d compute thread(s) (OMP_NUM_THREADS or "
+            "TACTILESNN_THREADS choose)", threads)  # fmt: skip
     from .export.onnx import ExportError
 
     try:

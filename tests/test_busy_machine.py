@@ -15,3 +15,36 @@ def test_spin_count_is_bounded_unless_the_user_set_one():
     env = {k: v for k, v in os.environ.items() if k != "GOMP_SPINCOUNT"}
     assert _spin(env) == "10000"
     assert _spin({**env, "GOMP_SPINCOUNT": "300000"}) == "300000"
+
+
+def test_threads_follow_the_cpus_left_by_running_processes(monkeypatch):
+    import torch
+
+    from tactilesnn.core.perf import fit_threads
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv("TACTILESNN_THREADS", raising=False)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        assert fit_threads(cpus=2, others=2) == 1 and torch.get_num_threads() == 1
+        assert fit_threads(cpus=4, others=1) == 3
+        assert fit_threads(cpus=2, others=0) == 2
+        assert fit_threads(cpus=2, others=0) is None  # already so
+        monkeypatch.setenv("TACTILESNN_THREADS", "1")
+        assert fit_threads(cpus=8, others=0) == 1
+        monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's choice wins
+        assert fit_threads(cpus=2, others=5) is None and torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_runnable_processes_are_read_from_the_kernel_count(tmp_path):
+    from tactilesnn.core.perf import other_runnable
+
+    f = tmp_path / "loadavg"
+    f.write_text("2.01 1.77 1.32 3/80 19343\n")
+    assert other_runnable(samples=3, gap_s=0, path=str(f)) == 2  # itself not counted
+    f.write_text("garbage\n")
+    assert other_runnable(samples=1, path=str(f)) is None
+    assert other_runnable(samples=1, path=str(tmp_path / "none")) is None

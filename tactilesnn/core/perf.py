@@ -1,4 +1,5 @@
-"""Process-level performance settings, applied explicitly by the CLI and benchmarks.
+"""Process-level performance settings, applied explicitly by the CLI and benchmarks: the allocator
+(below) and the compute threads (:func:`fit_threads`).
 
 Large tensors freed by one time step of a simulation and allocated again by the next are, with
 glibc's defaults, returned to the OS and page-faulted back in (~1.7 us per 4 KB page here): for the
@@ -42,3 +43,54 @@ def tune_allocator(threshold_bytes: int = 1 << 30) -> bool:
     )
     _done = ok
     return ok
+
+
+def other_runnable(
+    samples: int = 5, gap_s: float = 0.02, path: str = "/proc/loadavg"
+) -> int | None:
+    """Processes runnable now besides this one (median of ``samples`` reads of the kernel's
+    running count, ``/proc/loadavg`` field 4), or None where the kernel does not say."""
+    import statistics
+    import time
+
+    counts = []
+    for i in range(samples):
+        try:
+            with open(path) as f:
+                counts.append(int(f.read().split()[3].split("/")[0]))
+        except (OSError, ValueError, IndexError):
+            return None
+        if i + 1 < samples:
+            time.sleep(gap_s)
+    return max(0, int(statistics.median(counts)) - 1)  # the reader itself is running
+
+
+def fit_threads(cpus: int | None = None, others: int | None = None) -> int | None:
+    """Size torch's intra-op threads to the CPUs left by processes already running: ``cpus``
+    (default: this process's affinity) minus ``others`` (default: :func:`other_runnable`), at
+    least 1. Threads that wait at every parallel barrier for a sibling the scheduler gave away
+    cost more than they bring: the default training beside two CPU-bound processes on 2 CPUs took
+    40.6 s with 2 threads and 26.7 s with 1 (alone: 14.6 and 17.8 s; ``tactilesnn bench busy``).
+    A thread count the user set (``OMP_NUM_THREADS``, ``TACTILESNN_THREADS``) is left alone.
+    Returns the count set, or None if unchanged."""
+    if "OMP_NUM_THREADS" in os.environ:
+        return None
+    import torch
+
+    wanted = os.environ.get("TACTILESNN_THREADS")
+    if wanted is not None:
+        n = int(wanted)
+    else:
+        if cpus is None:
+            try:
+                cpus = len(os.sched_getaffinity(0))
+            except AttributeError:
+                cpus = os.cpu_count() or 1
+        others = other_runnable() if others is None else others
+        if others is None:
+            return None
+        n = max(1, min(cpus, cpus - others))
+    if n == torch.get_num_threads():
+        return None
+    torch.set_num_threads(n)
+    return n

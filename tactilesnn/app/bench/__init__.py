@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, str] = {
     "pareto": "pareto",
     "stability": "stability",
     "skip": "skip",
+    "busy": "busy",
 }
 
 

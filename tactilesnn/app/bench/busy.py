@@ -1,0 +1,120 @@
+"""Speed on a busy machine: ``tactilesnn bench busy``.
+
+The default training (``tactilesnn train --no-export``, a fresh process each time) timed alone and
+beside ``--neighbours`` CPU-bound processes (pure-Python loops, as other users' jobs or a sweep's
+other trials are), in alternating rounds; medians of the wall times and their ratio. With ``n``
+neighbours on ``c`` usable CPUs a fair scheduler leaves the job ``c / (n + c)`` of the machine at
+worst, so a ratio near ``(n + c) / c`` is the share lost, and much more than that is time wasted
+(threads spinning at barriers, oversubscription: the 12.5x of issue 30 for a 2x share). The
+neighbours are started and stopped by the benchmark (their process group killed), so nothing is
+left running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HELP = "the default training alone and beside CPU-bound neighbours: wall times and their ratio"
+
+#: a CPU-bound neighbour: a pure-Python loop (holds its core, no threads)
+NEIGHBOUR = [sys.executable, "-c", "while True:\n    pass"]
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (affinity mask; the count where the platform has none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def train_command(out: Path, epochs: int | None = None) -> list[str]:
+    """``tactilesnn train`` with the defaults into ``out`` (no export: the training is timed)."""
+    cmd = [sys.executable, "-c", "import sys; from tactilesnn.cli import main; sys.exit(main())",
+           "train", "--out", str(out), "--quiet", "--no-export"]  # fmt: skip
+    return cmd + (["--epochs", str(epochs)] if epochs else [])
+
+
+def timed(cmd: list[str]) -> float:
+    """Wall seconds of ``cmd`` (RuntimeError with its error output if it fails)."""
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(cmd[:3])}... failed ({done.returncode}): {done.stderr[-500:]}"
+        )
+    return time.perf_counter() - t0
+
+
+def beside(cmd: list[str], neighbours: int) -> float:
+    """Wall seconds of ``cmd`` while ``neighbours`` CPU-bound processes run; they are stopped
+    (process group killed) however ``cmd`` ends."""
+    procs = [subprocess.Popen(NEIGHBOUR, start_new_session=True) for _ in range(neighbours)]
+    try:
+        time.sleep(0.5)  # the neighbours hold their cores before the job starts
+        return timed(cmd)
+    finally:
+        for p in procs:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+
+def run(
+    out: Path | None = None,
+    neighbours: int = 2,
+    rounds: int = 2,
+    epochs: int | None = None,
+    command: list[str] | None = None,
+) -> dict:
+    """Alternating rounds of (alone, beside) -> medians, ratio and the fair-share ratio.
+    ``command``: the job to time (default: the default training into a temporary folder)."""
+    if neighbours < 1 or rounds < 1:
+        raise ValueError("neighbours and rounds must be at least 1")
+    alone, busy = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            for kind, times in (("alone", alone), ("beside", busy)):
+                cmd = command or train_command(Path(tmp) / f"run-{r}-{kind}", epochs)
+                times.append(timed(cmd) if kind == "alone" else beside(cmd, neighbours))
+                print(f"round {r + 1}: {kind} {times[-1]:.1f} s", flush=True)
+    cpus = usable_cpus()
+    res = {
+        "cpus": cpus,
+        "neighbours": neighbours,
+        "rounds": rounds,
+        "alone_s": alone,
+        "beside_s": busy,
+        "alone_median_s": statistics.median(alone),
+        "beside_median_s": statistics.median(busy),
+        "fair_share_ratio": (neighbours + cpus) / cpus,
+    }
+    res["ratio"] = res["beside_median_s"] / res["alone_median_s"]
+    print(f"alone {res['alone_median_s']:.1f} s, beside {neighbours} CPU-bound neighbours "
+          f"{res['beside_median_s']:.1f} s: {res['ratio']:.2f}x (a fair share of {cpus} CPUs: "
+          f"{res['fair_share_ratio']:.2f}x)")  # fmt: skip
+    if out is not None:
+        from . import write_result
+
+        write_result(out, "busy.json", res)
+    return res
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--neighbours", type=int, default=2, help="CPU-bound processes beside the job")
+    p.add_argument("--rounds", type=int, default=2, help="alternating (alone, beside) rounds")
+    p.add_argument(
+        "--epochs", type=int, default=None, help="training epochs (default: the default's)"
+    )
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    run(out, neighbours=options.neighbours, rounds=options.rounds, epochs=options.epochs)
+    return 0

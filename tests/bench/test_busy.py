@@ -1,0 +1,66 @@
+"""bench busy: alone / beside rounds, the ratio, and no neighbour left running."""
+
+import os
+import sys
+
+import pytest
+
+from tactilesnn.app.bench import busy
+
+
+def _running(pids):
+    alive = []
+    for pid in pids:
+        try:
+            os.kill(pid, 0)
+            alive.append(pid)
+        except ProcessLookupError:
+            pass
+    return alive
+
+
+def test_rounds_ratio_and_neighbours_stopped(tmp_path, monkeypatch):
+    started = []
+    real_popen = busy.subprocess.Popen
+
+    def popen(*a, **kw):
+        p = real_popen(*a, **kw)
+        if a and a[0] == busy.NEIGHBOUR:  # (subprocess.run also opens the timed job)
+            started.append(p.pid)
+        return p
+
+    monkeypatch.setattr(busy.subprocess, "Popen", popen)
+    job = [sys.executable, "-c", "sum(range(10**6))"]
+    res = busy.run(tmp_path, neighbours=2, rounds=2, command=job)
+    assert len(res["alone_s"]) == len(res["beside_s"]) == 2 and len(started) == 4
+    assert res["ratio"] == pytest.approx(res["beside_median_s"] / res["alone_median_s"])
+    assert res["fair_share_ratio"] == (2 + res["cpus"]) / res["cpus"]
+    assert (tmp_path / "busy.json").is_file()
+    assert not _running(started)  # every neighbour killed
+
+
+def test_a_failing_job_is_reported_and_neighbours_still_stopped(monkeypatch):
+    started = []
+    real_popen = busy.subprocess.Popen
+
+    def popen(*a, **kw):
+        started.append(real_popen(*a, **kw))
+        return started[-1]
+
+    monkeypatch.setattr(busy.subprocess, "Popen", popen)
+    with pytest.raises(RuntimeError, match="failed"):
+        busy.beside([sys.executable, "-c", "raise SystemExit(3)"], 1)
+    assert not _running([p.pid for p in started])
+
+
+def test_the_default_command_trains_the_default_pipeline(tmp_path):
+    cmd = busy.train_command(tmp_path / "r", epochs=1)
+    assert cmd[3:] == [
+        "train",
+        "--out",
+        str(tmp_path / "r"),
+        "--quiet",
+        "--no-export",
+        "--epochs",
+        "1",
+    ]
