@@ -1,11 +1,16 @@
 """Suite-wide settings. Under CI (``CI=1``, set by ``.ci/run``) hypothesis draws the same
 examples on every run, so a landing is judged on a fixed set; elsewhere each run explores new
-ones (that is how the lying-header case of ``test_fuzz_hostile.py`` was found)."""
+ones (that is how the lying-header case of ``test_fuzz_hostile.py`` was found).
+
+The CLI fits torch's threads to the CPUs other processes leave (``core/perf.py``); tests that
+compare two in-process runs bit for bit need one count throughout, so the suite fixes it."""
 
 import os
 
+import torch
 from hypothesis import settings
 
+os.environ.setdefault("TACTILESNN_THREADS", str(torch.get_num_threads()))
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")

@@ -71,7 +71,8 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
     least 1. Threads that wait at every parallel barrier for a sibling the scheduler gave away
     cost more than they bring: the default training beside two CPU-bound processes on 2 CPUs took
     40.6 s with 2 threads and 26.7 s with 1 (alone: 14.6 and 17.8 s; ``tactilesnn bench busy``).
-    A thread count the user set (``OMP_NUM_THREADS``, ``TACTILESNN_THREADS``) is left alone.
+    A thread count the user set (``OMP_NUM_THREADS``, ``TACTILESNN_THREADS``) is left alone; set
+    one for bit-identical reruns (float sums split over threads round differently).
     Returns the count set, or None if unchanged."""
     if "OMP_NUM_THREADS" in os.environ:
         return None
