@@ -135,9 +135,10 @@ class SpikePipeline:
     @torch.no_grad()
     def level_spikes(self, x: np.ndarray, budget_bytes: int = 1 << 26) -> torch.Tensor:
         """The level code of windows ``[N, C, W]`` as ``[N, level afferents, k]`` (first slot),
-        in batches of at most ``budget_bytes`` (the window, its deviations and a float32 copy)."""
+        in batches of at most ``budget_bytes`` (the float32 window, its float64 copy and
+        deviations)."""
         assert self.level is not None
-        batch = max(1, budget_bytes // (12 * x.shape[1] * x.shape[2]))
+        batch = max(1, budget_bytes // (28 * x.shape[1] * x.shape[2]))
         out = torch.full((len(x), self.n_level, self.max_spikes), math.inf)
         for i in range(0, len(x), batch):
             chunk = torch.from_numpy(np.ascontiguousarray(x[i : i + batch], dtype=np.float32))
