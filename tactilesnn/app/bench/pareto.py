@@ -406,6 +406,7 @@ def plot(
                         textcoords="offset points")  # fmt: skip
     ax.set_xscale("log")
     ax.set_yscale("log")
+    log_ticks(ax)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("test error (%)")
     ax.set_title(title, fontsize=9)
@@ -413,6 +414,18 @@ def plot(
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def log_ticks(ax) -> None:
+    """Log axes labelled at 1, 2 and 5 of each decade as plain numbers, minor ticks unlabelled:
+    matplotlib's default labels every minor tick of an axis spanning less than a decade, and
+    those labels ran into each other (``2x10^-1 3x10^-1 ...``)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(NullFormatter())
 
 
 def load(path: Path) -> dict:
