@@ -4,8 +4,8 @@ A sensor whose taxels do not form a grid (an iCub fingertip's triangle, a finger
 taxels, a subset of an array in any order) is placed on the coarsest grid that keeps every taxel in
 its own cell: pitch from the layout's own spacing (the median distance from each taxel to its
 nearest neighbour, widened while no two taxels share a cell: :func:`grid_pitch`; nothing is tuned
-to a sensor), each taxel in the cell nearest its position, a taxel
-whose cell is taken moved to the nearest free cell. The grid is then an image a convolutional model
+to a sensor), each taxel in the cell nearest its position, a taxel whose cell is taken moved to
+the nearest free cell. The grid is then an image a convolutional model
 reads, empty cells at zero. Pure NumPy.
 """
 
@@ -73,17 +73,15 @@ def place_on_grid(xy: object) -> tuple[int, int, np.ndarray]:
     cells = np.empty(len(arr), np.int64)
     # taxels nearest their cell centre first, so a displaced taxel is the worse-fitting one
     err = np.linalg.norm(rel / pitch - ij, axis=1)
-    rr, cc = np.mgrid[0:rows, 0:cols]
     for i in np.argsort(err, kind="stable"):
         r, c = ij[i]
         if taken[r, c]:  # the nearest free cell to the taxel's position
-            pos = rel[i] / pitch
-            d = np.where(taken, np.inf, (rr - pos[0]) ** 2 + (cc - pos[1]) ** 2)
-            if not np.isfinite(d).any():  # grid full: grow a row
+            if taken.all():  # grid full: grow a row
                 taken = np.vstack([taken, np.zeros((1, cols), bool)])
                 rows += 1
-                rr, cc = np.mgrid[0:rows, 0:cols]
-                d = np.where(taken, np.inf, (rr - pos[0]) ** 2 + (cc - pos[1]) ** 2)
+            rr, cc = np.mgrid[0:rows, 0:cols]
+            pos = rel[i] / pitch
+            d = np.where(taken, np.inf, (rr - pos[0]) ** 2 + (cc - pos[1]) ** 2)
             r, c = np.unravel_index(int(np.argmin(d)), taken.shape)
         taken[r, c] = True
         cells[i] = r * cols + c

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -63,3 +64,15 @@ def first_spike_times(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) 
         time = torch.gather(t.expand_as(cum), -1, first)
         slots.append(torch.where(hit[..., -1:], time, torch.full_like(time, math.inf)))
     return torch.cat(slots, dim=-1)
+
+
+#: spike counts stay exact in float32 (and the exported graphs) while every x slots <= 2^24
+COUNT_LIMIT = 2**24
+
+
+def keep_every(median_count: np.ndarray, slots: int) -> np.ndarray:
+    """Prescaler per afferent: keep every ``m``-th spike, ``m = ceil(median count / slots)`` in
+    ``[1, 2^24 / slots]``, so a typical window's spikes fill the slots and span the window
+    (float32, as the encoders' buffers)."""
+    m = np.ceil(np.asarray(median_count, dtype=np.float64) / slots)
+    return np.clip(m, 1, COUNT_LIMIT // slots).astype(np.float32)

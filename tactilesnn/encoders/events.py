@@ -29,12 +29,10 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int
 from ..core.data import evenly_spaced
-from ..core.spikes import first_spike_times
+from ..core.spikes import first_spike_times, keep_every
 from .base import SpikeEncoder, register_encoder
 
 KEEPS = ("spread", "first")
-#: counts stay exact in float32 while a window's events per afferent are below 2^24
-COUNT_LIMIT = 2**24
 
 
 @dataclass(frozen=True)
@@ -110,8 +108,7 @@ class EventsEncoder(SpikeEncoder):
         with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1
             warnings.simplefilter("ignore", RuntimeWarning)
             med = np.nan_to_num(np.nanmedian(active, axis=0), nan=0.0)
-        k = self.config.max_spikes
-        return np.clip(np.ceil(med / k), 1, COUNT_LIMIT // k).astype(np.float32)
+        return keep_every(med, self.config.max_spikes)
 
     def bytes_per_window(self) -> int:
         return 4 * self.n_channels * self.window * 4

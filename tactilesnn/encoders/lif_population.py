@@ -34,13 +34,12 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
+from ..core.spikes import keep_every
 from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes
 
 NORMS = ("train", "window")
 KEEPS = ("spread", "first")
-#: spike counts stay exact in the float32 exported graph while every x max_spikes <= 2^24
-COUNT_LIMIT = 2**24
 log = logging.getLogger("tactilesnn")
 
 
@@ -179,10 +178,10 @@ class LIFPopulationEncoder(SpikeEncoder):
         idx = evenly_spaced(len(X), n_max)
         ones = torch.ones(self.n_afferents, dtype=torch.float64)
         x = torch.from_numpy(np.asarray(X[idx], dtype=np.float64))
-        k = self.config.max_spikes
         _, count = self.graph().double().spikes(x, 1, ones)
-        med = count.median(dim=0).values
-        return torch.clamp(torch.ceil(med / k), 1, COUNT_LIMIT // k).float()
+        return torch.from_numpy(
+            keep_every(count.median(dim=0).values.numpy(), self.config.max_spikes)
+        )
 
     def upgrade_state(self, state: dict) -> dict:
         if "lif_ref" in state:  # the pipeline's attribute before this class existed
