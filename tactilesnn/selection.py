@@ -42,8 +42,7 @@ def selection_subset(data: WindowDataset, cap: int, seed: int) -> WindowDataset:
     if data.y.size <= cap:
         return data
     rng = np.random.default_rng([seed, 104729])
-    groups, first = np.unique(data.scan, return_index=True)
-    sizes = np.bincount(np.searchsorted(groups, data.scan), minlength=groups.size)
+    groups, first, sizes = np.unique(data.scan, return_index=True, return_counts=True)
     queues = [list(rng.permutation(np.flatnonzero(data.y[first] == c))) for c in np.unique(data.y)]
     keep, total = [], 0
     while any(queues):
