@@ -280,6 +280,26 @@ def cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_tasks(args: argparse.Namespace) -> int:
+    from .datasets_synth import get_task
+
+    for name in sorted(TASKS):
+        task = get_task(name)
+        classes = task.class_names
+        shown = ", ".join(classes[:6]) + (", ..." if len(classes) > 6 else "")
+        doc = (type(task).__doc__ or "").strip().splitlines()[0]
+        print(f"{name}: {doc}\n  {len(classes)} classes ({shown}); {len(task.channel_names)} "
+              f"channels at {task.fs_hz:g} Hz, {task.window}-sample windows; "
+              f"{task.n_samples} samples by default; units: {getattr(task, 'units', '-')}")  # fmt: skip
+    return 0
+
+
+def _parse_tasks(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = _command(sub, "tasks", "list the synthetic tasks (classes, channels, rate, window, units)")
+    p.set_defaults(func=cmd_tasks)
+    return p
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     from .app.sweep import run_sweep
 
@@ -460,7 +480,8 @@ def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 #: the sub-commands and their parsers (``python train.py`` passes anything else to ``train``)
 COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse_export,
-            "convert": _parse_convert, "generate": _parse_generate, "sweep": _parse_sweep,
+            "convert": _parse_convert, "generate": _parse_generate, "tasks": _parse_tasks,
+            "sweep": _parse_sweep,
             "serve": _parse_serve, "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
 
 

@@ -162,3 +162,13 @@ def test_without_out_the_run_folder_is_named_after_what_was_trained(tmp_path, mo
                  "--task-kw", "n_concave=2", "--task-kw", "n_convex=2", "--task-kw",
                  "n_test=2"]) == 0  # fmt: skip
     assert any(p.name.startswith("hook_loop-gwt-tempotron-") for p in (tmp_path / "runs").iterdir())
+
+
+def test_tasks_lists_every_registered_task(capsys):
+    from tactilesnn.datasets_synth import TASKS
+
+    assert main(["tasks"]) == 0
+    out = capsys.readouterr().out
+    for name in TASKS:
+        assert f"\n{name}: " in f"\n{out}"
+    assert "3 classes (a, b, c); 12 channels at 93.3 Hz" in out

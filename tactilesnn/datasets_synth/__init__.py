@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 from .base import TASKS, Task, WindowDataset, get_task, register_task
-from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
-from .faults import Faults, parse_faults
 
 # the registry's list of shipped tasks: importing a task module registers it
+from .braille_task import BrailleTask
+from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .faults import Faults, parse_faults
 from .hook_loop import HookLoopTask
 from .teng_tasks import MaterialTask, StiffnessCurvatureTask
 from .texture_task import TextureTask
@@ -14,6 +15,7 @@ from .touch_task import TouchModalityTask
 
 __all__ = [
     "TASKS",
+    "BrailleTask",
     "CapacitivePiezoParams",
     "CapacitivePiezoStack",
     "Faults",

@@ -22,6 +22,7 @@ BENCHMARKS: dict[str, str] = {
     "stability": "stability",
     "skip": "skip",
     "busy": "busy",
+    "sim2real": "sim2real",
 }
 
 

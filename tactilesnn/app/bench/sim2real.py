@@ -1,0 +1,409 @@
+"""``tactilesnn bench sim2real``: the Braille task's synthetic slides against the real iCub file.
+
+The real recordings (``braille_icub_abc``: 45 slides, 12 taxels, A / B / C; never copied into the
+repository) and slides of the ``braille`` task rendered at the real file's rate and length are
+treated alike: both cut into windows as ``train --data`` cuts the real file, both through the
+``train --data`` defaults (the encoder chosen once on the synthetic training set, the ``readout``
+model).
+
+1. **Signal statistics** per taxel, real next to synthetic: rest level (median of the first 10 %
+   of the slide), range (99th - 1st percentile), peak time (when the taxel's rise above rest is
+   largest, seconds from mid-slide) and the power spectrum (log power in 6 bands). The synthetic
+   taxels are put in the real file's order by matching these statistics (Hungarian assignment on
+   standardised rest, range and peak time, no labels used): the file does not say which of its
+   12 channels is which pad.
+2. **Synthetic only**: trained on ``--synthetic`` rendered slides, tested on all 45 real ones
+   (mean and sd over ``--seeds`` render + training seeds).
+3. **Few-shot**: ``k`` real slides per class (``--shots``, ``--draws`` random draws each) for
+   training, the other real slides for testing; without synthetic data, and with the synthetic
+   slides added to the training set (the real windows repeated to half of it: joint training).
+4. **Randomisation knobs**: each of the task's knobs switched off and doubled (the others at
+   their defaults), synthetic-only accuracy on the real file, the change against the defaults.
+
+Writes ``sim2real.json``, ``sim2real.md`` and ``sim2real.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from dataclasses import replace
+from itertools import pairwise
+from pathlib import Path
+
+import numpy as np
+
+from ...core.data import WindowDataset
+
+log = logging.getLogger("tactilesnn")
+
+REAL_FILE = "braille_icub_abc/braille_abc_icub.npz"
+#: the braille task's randomisation knobs (each also a field of BrailleTask)
+KNOBS = ("gain_spread", "offset_counts", "drift_counts", "speed_spread", "force_spread",
+         "position_mm", "taxel_noise")  # fmt: skip
+SPECTRUM_BANDS_HZ = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
+
+
+def load_real(root: Path) -> WindowDataset:
+    """The real file's whole slides ``[45, 12, samples]`` as the reader converts them."""
+    from ...recordings import read_data_arrays
+
+    a = read_data_arrays(Path(root) / REAL_FILE)
+    X = np.asarray(a["X"], np.float32)
+    names = tuple(str(n) for n in a["class_names"])
+    return WindowDataset(X, np.asarray(a["y"], np.int64), np.arange(len(X), dtype=np.int64),
+                         float(a["fs"]), names, tuple(f"ch{i}" for i in range(X.shape[1])))  # fmt: skip
+
+
+def render_synthetic(real: WindowDataset, n: int, seed: int, progress: bool = False,
+                     **knobs: float) -> WindowDataset:  # fmt: skip
+    """``n`` slides of the ``braille`` task at the real file's rate and length, letters named
+    as the real classes (``A`` -> ``a``); recording ids from 10^6 up."""
+    from tqdm.auto import tqdm
+
+    from ...datasets_synth import get_task
+
+    letters = "".join(c.lower() for c in real.class_names)
+    samples = real.X.shape[-1]
+    task = get_task("braille", seed=seed, n_samples=max(n, 2 * len(letters)), letters=letters,
+                    fs_frames_hz=real.fs_hz, duration_s=samples / real.fs_hz, **knobs)  # fmt: skip
+    X = np.empty((n, len(task.channel_names), samples), np.float32)
+    y = np.empty(n, np.int64)
+    rise = np.empty(n)
+    for i in tqdm(range(n), desc="render braille", disable=not progress):
+        X[i], y[i], info = task.sample(i)
+        rise[i] = info["force_rise_N"]
+    ds = WindowDataset(X, y, 10**6 + np.arange(n, dtype=np.int64), real.fs_hz,
+                       real.class_names, real.channel_names)  # fmt: skip
+    return ds, rise
+
+
+def real_force_rise(root: Path) -> np.ndarray | None:
+    """Per real slide: the rise (N) of the arm's force over the letter (robot state columns 6-8
+    read as a force vector in N: its norm's peak minus its median over the first 10 %)."""
+    with np.load(Path(root) / REAL_FILE, allow_pickle=False) as f:
+        if "robot_state" not in f.files:
+            return None
+        r = np.asarray(f["robot_state"], np.float64)
+    if r.ndim != 3 or r.shape[-1] < 9:
+        return None
+    norm = np.linalg.norm(r[..., 6:9], axis=-1)
+    return norm.max(1) - np.median(norm[:, : max(2, norm.shape[1] // 10)], 1)
+
+
+# ---------------------------------------------------------------- signal statistics
+def taxel_stats(X: np.ndarray, fs_hz: float) -> dict[str, np.ndarray]:
+    """Per taxel (medians over slides): ``rest``, ``range``, ``peak_s`` (from mid-slide); and
+    ``spectrum``: mean log10 power (counts^2 / Hz) per band of :data:`SPECTRUM_BANDS_HZ`."""
+    X = np.asarray(X, np.float64)
+    s = X.shape[-1]
+    rest = np.median(X[..., : max(2, s // 10)], axis=-1)  # [N, C]
+    rng_ = np.percentile(X, 99, axis=-1) - np.percentile(X, 1, axis=-1)
+    rise = X - rest[..., None]
+    peak = (rise.argmax(-1) - s / 2) / fs_hz
+    peak = np.where(rise.max(-1) > 0, peak, np.nan)
+    f = np.fft.rfftfreq(s, 1 / fs_hz)
+    p = np.abs(np.fft.rfft(X - X.mean(-1, keepdims=True), axis=-1)) ** 2 / (s * fs_hz)
+    edges = SPECTRUM_BANDS_HZ
+    bands = [p[..., (f >= lo) & (f < hi)].mean(-1) for lo, hi in pairwise(edges)]
+    spec = np.log10(np.maximum(np.mean(bands, axis=(1, 2)), 1e-12))
+    # a taxel that never rises above rest has no peak time (0: mid-slide)
+    seen = ~np.isnan(peak)
+    peak_med = np.array([np.median(peak[seen[:, c], c]) if seen[:, c].any() else 0.0
+                         for c in range(peak.shape[1])])  # fmt: skip
+    return {"rest": np.median(rest, 0), "range": np.median(rng_, 0), "peak_s": peak_med,
+            "spectrum": spec}  # fmt: skip
+
+
+def match_taxels(real: dict[str, np.ndarray], synth: dict[str, np.ndarray]) -> np.ndarray:
+    """For each real channel, the synthetic channel that plays its part (Hungarian assignment
+    on the standardised rest level, range and peak time; no labels used)."""
+    from scipy.optimize import linear_sum_assignment
+
+    feats = []
+    for key in ("rest", "range", "peak_s"):
+        both = np.concatenate([real[key], synth[key]])
+        sd = both.std() or 1.0
+        feats.append((real[key][:, None] - synth[key][None, :]) / sd)
+    cost = np.sqrt(sum(f**2 for f in feats))
+    rows, cols = linear_sum_assignment(cost)
+    return cols[np.argsort(rows)]
+
+
+def reorder(ds: WindowDataset, order: np.ndarray) -> WindowDataset:
+    return replace(ds, X=np.ascontiguousarray(ds.X[:, order]))
+
+
+# ---------------------------------------------------------------- fits
+def cut(ds: WindowDataset) -> WindowDataset:
+    """Windows as ``train --data`` cuts the real file (:func:`~tactilesnn.recordings.auto_cut`)."""
+    from ...recordings import auto_cut, cut_windows
+
+    c = auto_cut(ds.X.shape[-1], ds.fs_hz, False)
+    return ds if c is None else cut_windows(ds, *c)
+
+
+def concat(*parts: WindowDataset) -> WindowDataset:
+    a = parts[0]
+    return replace(a, X=np.concatenate([p.X for p in parts]), y=np.concatenate([p.y for p in parts]),
+                   scan=np.concatenate([p.scan for p in parts]))  # fmt: skip
+
+
+def fit_score(
+    cfg, train: WindowDataset, test: WindowDataset, progress: bool
+) -> tuple[float, float]:
+    """Accuracy per window and per slide of ``cfg`` fitted on ``train``, tested on ``test``."""
+    from ...training import fit_and_evaluate
+
+    m = fit_and_evaluate(cfg, train, test, progress=progress).metrics
+    return float(m["test_accuracy"]), float(
+        m.get("test_accuracy_per_recording") or m["test_accuracy"]
+    )
+
+
+def base_config(synth_windows: WindowDataset, seed: int, epochs: int | None):
+    """The ``train --data`` defaults, the encoder chosen on the synthetic training windows."""
+    from ...config import DATA_ENCODER_CANDIDATES
+    from ...selection import select_encoder
+    from .real import default_config
+
+    cfg = default_config(False, None, "readout", seed)
+    if epochs is not None:
+        cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
+    cfg, report = select_encoder(cfg, synth_windows, DATA_ENCODER_CANDIDATES)
+    return cfg, report["chosen"]
+
+
+def with_seed(cfg, seed: int):
+    return cfg.replace(train=replace(cfg.train, seed=seed))
+
+
+def few_shot_split(
+    real: WindowDataset, k: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Slide indices: ``k`` per class for training (random), the rest for testing."""
+    train = np.concatenate([rng.choice(np.flatnonzero(real.y == c), k, replace=False)
+                            for c in range(len(real.class_names))])  # fmt: skip
+    return np.sort(train), np.setdiff1d(np.arange(real.y.size), train)
+
+
+def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
+        shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
+        knob_synthetic: int = 150, epochs: int | None = None, progress: bool = True) -> dict:  # fmt: skip
+    t_start = time.perf_counter()
+    real = load_real(data_root)
+    real_stats = taxel_stats(real.X, real.fs_hz)
+    result: dict = {"real_file": REAL_FILE, "real_slides": int(real.y.size), "fs_hz": real.fs_hz,
+                    "synthetic_slides": synthetic}  # fmt: skip
+
+    # 1. statistics and the taxel correspondence (from seed 0's slides)
+    synth0, synth_rise = render_synthetic(real, synthetic, 0, progress)
+    synth_stats = taxel_stats(synth0.X, real.fs_hz)
+    rise = real_force_rise(data_root)
+    result["force_rise_N"] = {
+        name: {"real": None if rise is None else float(np.median(rise[real.y == c])),
+               "synthetic": float(np.median(synth_rise[synth0.y == c]))}
+        for c, name in enumerate(real.class_names)
+    }  # fmt: skip
+    order = match_taxels(real_stats, synth_stats)
+    matched = {k: v[order] if k != "spectrum" else v for k, v in synth_stats.items()}
+    result["statistics"] = {"real": {k: v.tolist() for k, v in real_stats.items()},
+                            "synthetic_matched": {k: v.tolist() for k, v in matched.items()},
+                            "taxel_order": order.tolist(),
+                            "spectrum_bands_hz": list(SPECTRUM_BANDS_HZ)}  # fmt: skip
+    real_w = cut(real)
+
+    # 2. synthetic only, every seed; the encoder chosen on seed 0's synthetic windows
+    cfg, chosen = base_config(cut(reorder(synth0, order)), 0, epochs)
+    result["encoder"] = chosen
+    rows = []
+    for seed in range(seeds):
+        synth = synth0 if seed == 0 else render_synthetic(real, synthetic, seed, progress)[0]
+        for name, o in (("matched", order), ("file order", np.arange(12))):
+            acc = fit_score(with_seed(cfg, seed), cut(reorder(synth, o)), real_w, progress)
+            rows.append({"seed": seed, "taxels": name, "accuracy": acc[0], "per_slide": acc[1]})
+    result["synthetic_only"] = rows
+
+    # 3. few-shot with and without the synthetic slides
+    synth_w = cut(reorder(synth0, order))
+    shots_rows = []
+    for k in shots:
+        for d in range(draws):
+            tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
+            real_tr = cut(real.subset(np.isin(np.arange(real.y.size), tr)))
+            real_te = cut(real.subset(np.isin(np.arange(real.y.size), te)))
+            reps = max(1, round(synth_w.y.size / real_tr.y.size))
+            joint = concat(synth_w, *([real_tr] * reps))
+            c = with_seed(cfg, d)
+            for arm, train in (("real only", real_tr), ("synthetic + real", joint)):
+                acc = fit_score(c, train, real_te, progress)
+                shots_rows.append({"k": k, "draw": d, "arm": arm, "accuracy": acc[0],
+                                   "per_slide": acc[1], "test_slides": int(te.size)})  # fmt: skip
+    result["few_shot"] = shots_rows
+
+    # 4. randomisation knobs (synthetic only, seed 0, knob_synthetic slides)
+    from ...datasets_synth import TASKS
+
+    defaults = {f: getattr(TASKS["braille"](), f) for f in KNOBS}
+    knob_rows = []
+    base = fit_score(
+        cfg, cut(reorder(render_synthetic(real, knob_synthetic, 0)[0], order)), real_w, progress
+    )
+    knob_rows.append({"knob": "defaults", "value": None, "accuracy": base[0], "per_slide": base[1]})
+    for knob in knobs:
+        for scale in (0.0, 2.0):
+            kw = {knob: defaults[knob] * scale}
+            if knob == "force_spread":
+                kw[knob] = min(kw[knob], 0.9)
+            s = render_synthetic(real, knob_synthetic, 0, **kw)[0]
+            acc = fit_score(cfg, cut(reorder(s, order)), real_w, progress)
+            knob_rows.append({"knob": knob, "value": kw[knob], "accuracy": acc[0], "per_slide": acc[1],
+                              "change_points": 100 * (acc[0] - base[0])})  # fmt: skip
+    result["knobs"] = knob_rows
+    result["seconds"] = time.perf_counter() - t_start
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "sim2real.json").write_text(json.dumps(result, indent=2))
+    text = table(result)
+    (out / "sim2real.md").write_text(text)
+    plot(real, synth0, order, result, out / "sim2real.png")
+    print(text)
+    return result
+
+
+# ---------------------------------------------------------------- report
+def _ms(values: list[float]) -> str:
+    v = 100 * np.asarray(values)
+    return f"{v.mean():.1f} +- {v.std(ddof=1) if v.size > 1 else 0.0:.1f}"
+
+
+def table(r: dict) -> str:
+    st = r["statistics"]
+    lines = [f"Real: {r['real_slides']} slides of {r['real_file']} ({r['fs_hz']:.2f} Hz); synthetic: "
+             f"{r['synthetic_slides']} braille slides per seed; encoder {r['encoder']} + readout.", "",
+             "| taxel (real order) | rest real / synth | range real / synth | peak s real / synth |",
+             "|---|---|---|---|"]  # fmt: skip
+    re_, sy = st["real"], st["synthetic_matched"]
+    for i in range(len(re_["rest"])):
+        lines.append(f"| {i} (synth {st['taxel_order'][i]}) | {re_['rest'][i]:.0f} / {sy['rest'][i]:.0f} | "
+                     f"{re_['range'][i]:.0f} / {sy['range'][i]:.0f} | "
+                     f"{re_['peak_s'][i]:+.2f} / {sy['peak_s'][i]:+.2f} |")  # fmt: skip
+    b = st["spectrum_bands_hz"]
+    lines += ["", "| band Hz | " + " | ".join(f"{lo:g}-{hi:g}" for lo, hi in pairwise(b)) + " |",
+              "|---|" + "---|" * (len(b) - 1),
+              "| log10 power real | " + " | ".join(f"{v:.2f}" for v in re_["spectrum"]) + " |",
+              "| log10 power synth | " + " | ".join(f"{v:.2f}" for v in sy["spectrum"]) + " |",
+              ""]  # fmt: skip
+    fr = r["force_rise_N"]
+    lines += ["| letter | " + " | ".join(fr) + " |", "|---|" + "---|" * len(fr),
+              "| force rise over the letter, real (N) | " + " | ".join(
+                  "-" if v["real"] is None else f"{v['real']:.2f}" for v in fr.values()) + " |",
+              "| ... synthetic (N) | " + " | ".join(f"{v['synthetic']:.2f}" for v in fr.values()) + " |",
+              ""]  # fmt: skip
+    lines += ["| trained on | tested on | per window % | per slide % |", "|---|---|---|---|"]
+    for name in ("matched", "file order"):
+        sel = [x for x in r["synthetic_only"] if x["taxels"] == name]
+        acc, per = _ms([x["accuracy"] for x in sel]), _ms([x["per_slide"] for x in sel])
+        lines.append(f"| synthetic only (taxels {name}, {len(sel)} seeds) | all {r['real_slides']} "
+                     f"real | {acc} | {per} |")  # fmt: skip
+    for k in sorted({x["k"] for x in r["few_shot"]}):
+        for arm in ("real only", "synthetic + real"):
+            sel = [x for x in r["few_shot"] if x["k"] == k and x["arm"] == arm]
+            lines.append(f"| {k} real per class, {arm} ({len(sel)} draws) | the other "
+                         f"{sel[0]['test_slides']} real | {_ms([x['accuracy'] for x in sel])} | "
+                         f"{_ms([x['per_slide'] for x in sel])} |")  # fmt: skip
+    lines += [
+        "",
+        "| knob | value | synthetic-only accuracy on real % | change (points) |",
+        "|---|---|---|---|",
+    ]
+    for x in r["knobs"]:
+        ch = "-" if x["knob"] == "defaults" else f"{x['change_points']:+.1f}"
+        val = "-" if x["value"] is None else f"{x['value']:g}"
+        lines.append(f"| {x['knob']} | {val} | {100 * x['accuracy']:.1f} | {ch} |")
+    lines.append(f"\n({r['seconds']:.0f} s)")
+    return "\n".join(lines) + "\n"
+
+
+def plot(real: WindowDataset, synth: WindowDataset, order: np.ndarray, r: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    st = r["statistics"]
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.2))
+    x = np.arange(len(st["real"]["rest"]))
+    ax = axes[0]
+    ax.bar(x - 0.2, st["real"]["range"], 0.4, label="real: range", color="tab:blue")
+    ax.bar(
+        x + 0.2, st["synthetic_matched"]["range"], 0.4, label="synthetic: range", color="tab:orange"
+    )
+    ax.plot(x, st["real"]["rest"], "o", color="navy", label="real: rest level")
+    ax.plot(
+        x, st["synthetic_matched"]["rest"], "s", color="darkorange", label="synthetic: rest level"
+    )
+    ax.set_xticks(x)
+    ax.set_xlabel("taxel (real file's order; synthetic matched)")
+    ax.set_ylabel("counts (0..255)")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.set_title("per-taxel rest level and range")
+    ax = axes[1]
+    t = (np.arange(real.X.shape[-1]) - real.X.shape[-1] / 2) / real.fs_hz
+    for c, name in enumerate(real.class_names):
+        for ds, style, o in ((real, "-", np.arange(12)), (synth, "--", order)):
+            X = ds.X[ds.y == c][:, o].astype(np.float64)
+            rise = (X - np.median(X[..., : X.shape[-1] // 10], -1, keepdims=True)).sum(1).mean(0)
+            ax.plot(
+                t,
+                rise,
+                style,
+                color=f"C{c}",
+                label=f"{name} {'real' if ds is real else 'synthetic'}",
+            )
+    ax.set_xlabel("time from mid-slide (s)")
+    ax.set_ylabel("sum over taxels of the rise above rest (counts)")
+    ax.legend(fontsize=7, ncol=2)
+    ax.set_title("mean slide per letter (solid: real, dashed: synthetic)")
+    ax = axes[2]
+    b = st["spectrum_bands_hz"]
+    mids = np.sqrt(np.array(b[:-1]) * np.array(b[1:]))
+    ax.semilogx(mids, st["real"]["spectrum"], "o-", label="real")
+    ax.semilogx(mids, st["synthetic_matched"]["spectrum"], "s--", label="synthetic")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("log10 power (counts^2 / Hz)")
+    ax.legend()
+    ax.set_title("power spectrum (mean over taxels and slides)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+HELP = "sim-to-real: the braille task against the real iCub Braille file (statistics, transfer)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--data-root", default="../shared/data",
+                   help="folder holding braille_icub_abc/ (never copied into the repo)")  # fmt: skip
+    p.add_argument("--synthetic", type=int, default=300, help="synthetic slides per seed")
+    p.add_argument("--seeds", type=int, default=3, help="synthetic-only render + training seeds")
+    p.add_argument("--shots", type=int, nargs="+", default=[1, 2, 5], help="real slides per class")
+    p.add_argument("--draws", type=int, default=5, help="random draws per few-shot size")
+    p.add_argument("--knobs", nargs="*", default=list(KNOBS), choices=KNOBS,
+                   help="randomisation knobs to switch off and double (none: skip)")  # fmt: skip
+    p.add_argument("--knob-synthetic", type=int, default=150, help="synthetic slides per knob run")
+    p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
+
+
+def main(out: Path | None, options: argparse.Namespace) -> int:
+    from . import require_out
+
+    run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
+        synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
+        draws=options.draws, knobs=tuple(options.knobs), knob_synthetic=options.knob_synthetic,
+        epochs=options.epochs, progress=not options.quiet)  # fmt: skip
+    return 0

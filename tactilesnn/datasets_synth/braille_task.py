@@ -1,0 +1,148 @@
+"""Braille task: an iCub capacitive fingertip slid over Braille cells (seed 003 technology).
+
+Scene: a plate carrying one Braille cell (standard dot geometry: spherical-cap dots of 1.44 mm
+base diameter and 0.48 mm height, 2.34 mm apart within the cell) slides under the fingertip
+(:class:`~tactilesnn.datasets_synth.capacitive_fingertip.CapacitiveFingertip`) along the
+fingertip's long axis, as the robot arm of ``../shared/data/braille_icub_abc`` does: 38 mm at
+about 10 mm/s (3.75 s, the cell under the fingertip mid-slide), pressed with about 1.5 N at a
+set height (position control: the force rises as the dots pass), the fingertip's centre running
+along the cell's first row (dots 1 and 4; ``row_mm``); frames at 93.3 Hz (the real file's median
+rate). The dots are in the standard order (1-2-3 down the first column, 4-5-6 down the second);
+the slide runs across the columns.
+
+Array contract: ``X [N, 12, 350]`` float32 iCub taxel values (counts 0..255) at 93.3 Hz; classes
+are letters (``letters``, default ``"abc"``: the real file's A, B, C).
+
+Randomisation knobs (each also a difficulty axis of the sim-to-real study; 0 switches it off):
+``gain_spread`` (sd of each taxel's log gain, drawn per trial), ``offset_counts`` (sd of each
+taxel's calibration offset, counts), ``drift_counts`` (rms of a random-walk baseline drift over
+the slide, counts), ``speed_spread`` (relative sd of the slide speed), ``force_spread`` (relative
+half-range of the pressing force around ``force_N``, and a 10 % ripple along the slide),
+``position_mm`` (sd of the cell's placement across and along the slide, and of the fingertip's
+contact point: the real file's sub-millimetre offsets), ``taxel_noise`` (scales the CDC's 4 LSB
+rms noise and the readout's 0.7 counts rms). ``difficulty`` scales every knob at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .base import register_task
+from .capacitive_fingertip import CapacitiveFingertip, FingertipParams
+from .trial_task import TrialTask
+
+#: the raised dots (1..6) of each letter of the Braille alphabet (grade 1)
+BRAILLE_DOTS: dict[str, tuple[int, ...]] = {
+    "a": (1,), "b": (1, 2), "c": (1, 4), "d": (1, 4, 5), "e": (1, 5), "f": (1, 2, 4),
+    "g": (1, 2, 4, 5), "h": (1, 2, 5), "i": (2, 4), "j": (2, 4, 5), "k": (1, 3), "l": (1, 2, 3),
+    "m": (1, 3, 4), "n": (1, 3, 4, 5), "o": (1, 3, 5), "p": (1, 2, 3, 4), "q": (1, 2, 3, 4, 5),
+    "r": (1, 2, 3, 5), "s": (2, 3, 4), "t": (2, 3, 4, 5), "u": (1, 3, 6), "v": (1, 2, 3, 6),
+    "w": (2, 4, 5, 6), "x": (1, 3, 4, 6), "y": (1, 3, 4, 5, 6), "z": (1, 3, 5, 6),
+}  # fmt: skip
+
+DOT_DIAMETER_MM = 1.44
+DOT_HEIGHT_MM = 0.48
+DOT_SPACING_MM = 2.34
+
+
+def cell_dots_mm(letter: str, spacing_mm: float = DOT_SPACING_MM) -> np.ndarray:
+    """Dot centres ``[k, 2]`` (mm; x along the slide, y across; the cell's centre at 0)."""
+    if letter not in BRAILLE_DOTS:
+        raise ValueError(f"unknown Braille letter {letter!r}; letters: {''.join(BRAILLE_DOTS)}")
+    pos = {d: ((d > 3) - 0.5, 1 - (d - 1) % 3) for d in range(1, 7)}  # (column, row)
+    return np.array([pos[d] for d in BRAILLE_DOTS[letter]], np.float64) * spacing_mm
+
+
+@register_task
+@dataclass(frozen=True)
+class BrailleTask(TrialTask):
+    """Letters read by sliding an iCub fingertip over a Braille cell; ``X [N, 12, 350]`` counts."""
+
+    n_samples: int = 300
+    letters: str = "abc"
+    fs_frames_hz: float = 93.3
+    duration_s: float = 3.75
+    slide_mm: float = 38.0
+    # the real file's robot state (columns 6-8 read as a force in N): 1.47 N (1.40-1.54 over
+    # slides) before the letter; the arm holds its height, so the force rises over the dots
+    force_N: float = 1.47
+    gain_spread: float = 0.25
+    offset_counts: float = 4.0
+    drift_counts: float = 2.0
+    speed_spread: float = 0.1
+    force_spread: float = 0.2
+    row_mm: float = DOT_SPACING_MM  # the track's offset from the cell's middle row (to dots 1, 4)
+    position_mm: float = 0.5
+    taxel_noise: float = 1.0
+
+    name: ClassVar[str] = "braille"
+    task_id: ClassVar[int] = 6
+    units: ClassVar[str] = "iCub taxel counts (8-bit, 0 = calibrated rest)"
+
+    def __post_init__(self) -> None:
+        bad = sorted(set(self.letters) - set(BRAILLE_DOTS))
+        if bad or len(set(self.letters)) != len(self.letters) or len(self.letters) < 2:
+            raise ValueError(f"letters must be >= 2 distinct letters a-z, got {self.letters!r}")
+        for knob in ("gain_spread", "offset_counts", "drift_counts", "speed_spread",
+                     "force_spread", "position_mm", "taxel_noise"):  # fmt: skip
+            v = getattr(self, knob)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"{knob} must be a finite number >= 0, got {v}")
+        if not 0 <= self.force_spread < 1:
+            raise ValueError(f"force_spread must be in [0, 1), got {self.force_spread}")
+        for name in ("fs_frames_hz", "duration_s", "slide_mm", "force_N"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a finite number > 0, got {v}")
+        super().__post_init__()
+
+    @property
+    def class_names(self) -> tuple[str, ...]:  # type: ignore[override]
+        return tuple(self.letters)
+
+    @property
+    def sensor(self) -> CapacitiveFingertip:
+        scale = self.taxel_noise * self.difficulty
+        base = FingertipParams()
+        return CapacitiveFingertip(
+            FingertipParams(
+                noise_lsb=base.noise_lsb * scale, noise_counts=base.noise_counts * scale
+            )
+        )
+
+    @property
+    def fs_hz(self) -> float:
+        return float(self.fs_frames_hz)
+
+    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        d = self.difficulty
+        sensor = self.sensor
+        n = self.window
+        t = np.arange(n) / self.fs_hz
+        speed = (
+            self.slide_mm / self.duration_s * np.exp(self.speed_spread * d * rng.standard_normal())
+        )
+        place = self.position_mm * d * rng.standard_normal(2)  # cell: along, across the slide
+        contact = self.position_mm * d * rng.standard_normal(2)  # the fingertip's lowest point
+        dots = cell_dots_mm(self.class_names[label]) + place - [0.0, self.row_mm]  # mid-slide
+        shift = speed * (t - self.duration_s / 2)  # the plate moves towards -x
+
+        bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]  # [frames, k, 2]
+        fs = self.force_spread * min(d, 1.0)
+        force = self.force_N * np.exp(fs * rng.uniform(-1, 1))
+        ripple = 1 + 0.1 * min(d, 1.0) * np.sin(
+            2 * np.pi * t / rng.uniform(1.0, 4.0) + rng.uniform(0, 2 * np.pi)
+        )
+        gain = np.exp(self.gain_spread * d * rng.standard_normal(12))
+        offset = self.offset_counts * d * rng.standard_normal(12)
+        drift = np.cumsum(rng.standard_normal((12, n)), 1) * (self.drift_counts * d / np.sqrt(n))
+        counts = sensor.read(force * ripple, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
+                             offset[:, None] + drift, rng)  # fmt: skip
+        load = sensor.last_force_N
+        info = {"speed_mm_s": float(speed), "force_N": float(force), "cell_offset_mm": place.tolist(),
+                "contact_mm": contact.tolist(),
+                "force_rise_N": float(load.max() - load[: max(1, n // 10)].mean())}  # fmt: skip
+        return counts, info

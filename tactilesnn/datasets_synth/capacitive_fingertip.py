@@ -1,0 +1,256 @@
+"""iCub capacitive fingertip (seed 003 technology, SPEC 2.4) pressed on a surface with relief.
+
+Array contract of :meth:`CapacitiveFingertip.read`: raised features (dots) of a surface under
+the fingertip (``bumps_mm [frames, k, 2]`` centres in the fingertip's frame, one height and base
+diameter) and the normal force per frame (``force_N [frames]``) -> ``counts [12, frames]``
+float64: the iCub skin's 8-bit taxel values (0..255, 0 = the pad's calibrated rest), one frame
+per CDC sweep.
+
+Physics, per frame:
+
+* The fingertip is a curved pad (radii ``radius_along_mm`` / ``radius_across_mm``: height
+  ``h(u) = u_x^2 / 2 R_x + u_y^2 / 2 R_y`` above its lowest point ``contact_mm``) covered by a soft
+  dielectric layer ``foam_mm`` thick under a thin outer cover. Pressed by ``force_N`` onto the
+  surface, each point of the foam is compressed by ``c(u) = max(delta - h(u) + relief(u), 0)`` (a
+  Winkler foundation: the foam acts as independent columns). The cover drapes over a dot: the
+  relief it passes on is a raised-cosine bump of the dot's height over the dot's radius plus
+  ``cover_spread_mm`` (0: the bare spherical cap). The strain ``s = c / foam_mm`` (capped below
+  ``strain_max``) needs the pressure of the foam's saturating law inverted,
+  ``p = p_half s / (s_max - s)`` (the law of :class:`CapacitiveTriangle`: ``s = s_max p / (p +
+  p_half)``); the approach ``delta`` balances ``sum p dA = force_N`` (bisection, per frame).
+* Each pad (``pad_diameter_mm``) is a parallel plate over the compressed foam: its capacitance is
+  the area-weighted sum of ``eps_r(s) eps0 dA / (x0 (1 - s))`` over sub-points of the pad
+  (:meth:`CapacitiveTriangle.capacitance_pF` per sub-point), plus the routing's parasitic.
+* The 16-bit CDC (AD7147-like, :meth:`CapacitiveTriangle.cdc_code`) converts it; CDC noise
+  ``noise_lsb`` rms.
+* The iCub readout: ``counts = clip(round(gain (code - rest) / 2^shift_bits + offset), 0, 255)``,
+  ``rest`` the pad's unloaded code (the skin's calibration at start-up, fingertip in the air),
+  plus readout noise ``noise_counts`` rms.
+  Per-taxel ``gain`` and ``offset`` (manufacturing spread, calibration error) are given by the
+  caller (a task draws them); a value below the calibrated rest reads 0, as on the robot.
+
+The taxel layout (:func:`icub_fingertip_layout`) is a planar projection of the 12 pads of the
+fingertip's flexible PCB (approximate: 3 rows x 4 columns, staggered, 3.5 mm pitch); the real
+fingertip is curved about both axes, which the height ``h(u)`` models.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.checks import as_float_array, check_finite, check_positive
+from .capacitive_triangle import CapacitiveTriangle, CapacitiveTriangleParams
+from .pvdf import disc_points
+
+
+def icub_fingertip_layout(pitch_mm: float = 3.5) -> np.ndarray:
+    """12 pad centres ``[12, 2]`` (mm; x along the fingertip's long axis, y across), centroid 0:
+    3 rows of 4, the middle row shifted by half a pitch (the fingertip PCB's staggered pads)."""
+    pts = []
+    for row, shift in zip((-1, 0, 1), (0.0, 0.5, 0.0), strict=True):
+        for col in range(4):
+            pts.append(((col - 1.5 + shift) * pitch_mm, row * pitch_mm * np.sqrt(3) / 2))
+    xy = np.array(pts)
+    return xy - xy.mean(0)
+
+
+@dataclass(frozen=True)
+class FingertipParams:
+    """Fingertip geometry, foam and readout (lengths mm, pressures Pa, force N)."""
+
+    pad_diameter_mm: float = 3.0
+    pitch_mm: float = 3.5
+    radius_along_mm: float = 9.0  # fingertip curvature along its long axis
+    radius_across_mm: float = 6.5  # ... and across it (the fingertip is ~14.5 mm wide)
+    foam_mm: float = 3.0  # soft dielectric layer (SPEC 2.4: silicone foam 3 mm)
+    gap_um: float = 100.0  # dielectric thickness at rest (the triangle module's value)
+    eps_r: float = 3.0
+    eps_r_gain: float = 2.0
+    strain_max: float = 0.7
+    p_half_Pa: float = 50e3
+    parasitic_pF: float = 2.0
+    noise_lsb: float = 4.0  # CDC rms noise at the fastest stage
+    shift_bits: int = 6  # 16-bit code -> 8-bit taxel value
+    # readout noise (counts rms) beyond the CDC's: the real iCub file's first differences at rest
+    # have an sd of ~1 count on pressed taxels (1 / sqrt 2 per sample)
+    noise_counts: float = 0.7
+    grid_mm: float = 0.25  # quadrature step of the force balance
+    pad_rings: int = 3  # sub-point rings per pad (disc quadrature)
+    cover_spread_mm: float = 1.5  # how far the outer cover's drape over a dot reaches beyond it
+
+    def __post_init__(self) -> None:
+        for name in ("pad_diameter_mm", "pitch_mm", "radius_along_mm", "radius_across_mm",
+                     "foam_mm", "gap_um", "p_half_Pa", "grid_mm"):  # fmt: skip
+            check_positive(getattr(self, name), name)
+        if not 0 < self.strain_max < 1:
+            raise ValueError(f"strain_max must be in (0, 1), got {self.strain_max}")
+        if not (np.isfinite(self.cover_spread_mm) and self.cover_spread_mm >= 0):
+            raise ValueError(
+                f"cover_spread_mm must be a finite number >= 0, got {self.cover_spread_mm}"
+            )
+        if not 0 <= self.shift_bits <= 8:
+            raise ValueError(f"shift_bits must be 0..8, got {self.shift_bits}")
+
+    def triangle_params(self) -> CapacitiveTriangleParams:
+        """The same pad, foam and CDC as a :class:`CapacitiveTriangleParams` (shared physics)."""
+        return CapacitiveTriangleParams(
+            pad_diameter_mm=self.pad_diameter_mm, gap_um=self.gap_um, eps_r=self.eps_r,
+            eps_r_gain=self.eps_r_gain, strain_max=self.strain_max, p_half_Pa=self.p_half_Pa,
+            parasitic_pF=self.parasitic_pF, noise_lsb=self.noise_lsb, hysteresis=0.0,
+        )  # fmt: skip
+
+
+class CapacitiveFingertip:
+    """Twelve capacitive pads on a curved fingertip under a soft foam, read as iCub counts."""
+
+    n_channels = 12
+
+    def __init__(self, params: FingertipParams | None = None) -> None:
+        self.params = params or FingertipParams()
+        self.taxels_mm = icub_fingertip_layout(self.params.pitch_mm)
+        self._cap = CapacitiveTriangle(self.params.triangle_params())
+        offs, self._pad_w = disc_points(self.params.pad_diameter_mm, self.params.pad_rings)
+        self.pad_points_mm = (self.taxels_mm[:, None, :] + offs[None]).reshape(-1, 2)  # [12*Q, 2]
+        self._n_sub = offs.shape[0]
+        self.last_force_N = np.zeros(0)  # the contact force of the last read, per frame (N)
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        return tuple(f"taxel{i}" for i in range(self.n_channels))
+
+    def contact_grid(self, contact_mm: np.ndarray, relief_max_mm: float) -> np.ndarray:
+        """Quadrature points ``[G, 2]`` (mm) covering every point the foam can touch: where the
+        fingertip's height is below the deepest possible approach (foam fully compressed plus
+        the highest relief)."""
+        p = self.params
+        reach = p.foam_mm * p.strain_max + relief_max_mm
+        ax, ay = np.sqrt(2 * p.radius_along_mm * reach), np.sqrt(2 * p.radius_across_mm * reach)
+        gx = np.arange(-ax, ax + p.grid_mm / 2, p.grid_mm)
+        gy = np.arange(-ay, ay + p.grid_mm / 2, p.grid_mm)
+        u = np.stack(np.meshgrid(gx, gy, indexing="ij"), -1).reshape(-1, 2)
+        keep = u[:, 0] ** 2 / ax**2 + u[:, 1] ** 2 / ay**2 <= 1.0
+        return u[keep] + np.asarray(contact_mm, np.float64)
+
+    def height_mm(self, points_mm: np.ndarray, contact_mm: np.ndarray) -> np.ndarray:
+        """The fingertip surface's height (mm) above its lowest point ``contact_mm``."""
+        p = self.params
+        d = np.asarray(points_mm, np.float64) - np.asarray(contact_mm, np.float64)
+        return d[..., 0] ** 2 / (2 * p.radius_along_mm) + d[..., 1] ** 2 / (2 * p.radius_across_mm)
+
+    def relief_mm(self, points_mm: np.ndarray, bumps_mm: np.ndarray, height_mm: float,
+                  diameter_mm: float) -> np.ndarray:  # fmt: skip
+        """Relief (mm) the foam feels ``[frames, P]`` at ``points_mm [P, 2]`` from dots centred at
+        ``bumps_mm [frames, k, 2]``: each a spherical cap (``cover_spread_mm`` = 0) or the cover's
+        raised-cosine drape over it; overlapping drapes take the higher."""
+        a = diameter_mm / 2
+        out = np.zeros((bumps_mm.shape[0], points_mm.shape[0]))
+        for k in range(bumps_mm.shape[1]):
+            r = np.linalg.norm(points_mm[None, :, :] - bumps_mm[:, k, None, :], axis=-1)
+            spread = self.params.cover_spread_mm
+            if spread > 0:
+                reach = a + spread
+                z = height_mm * np.cos(0.5 * np.pi * np.minimum(r / reach, 1.0)) ** 2
+            else:
+                radius = (a * a + height_mm**2) / (2 * height_mm)
+                z = np.maximum(
+                    np.sqrt(np.maximum(radius**2 - r**2, 0.0)) - (radius - height_mm), 0.0
+                )
+            np.maximum(out, z, out=out)
+        return out
+
+    def pressure_Pa(self, strain: np.ndarray) -> np.ndarray:
+        """The foam's pressure at a strain: the saturating law inverted (strain < strain_max)."""
+        p = self.params
+        return p.p_half_Pa * strain / (p.strain_max - strain)
+
+    def _strain(self, delta: np.ndarray, height: np.ndarray, relief: np.ndarray) -> np.ndarray:
+        p = self.params
+        c = np.maximum(delta[:, None] - height[None, :] + relief, 0.0)
+        return np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+
+    def approach_mm(
+        self, force_N: np.ndarray, grid_mm: np.ndarray, height: np.ndarray, relief: np.ndarray
+    ) -> np.ndarray:
+        """The approach ``delta [frames]`` (mm) at which the foam carries ``force_N``
+        (bisection to 1e-6 mm; the force grows monotonically with ``delta``)."""
+        p = self.params
+        da = p.grid_mm**2 * 1e-6  # m^2 per quadrature point
+        lo = np.zeros(force_N.size)
+        hi = np.full(force_N.size, p.foam_mm * p.strain_max + float(relief.max(initial=0.0)))
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            f = self.pressure_Pa(self._strain(mid, height, relief)).sum(1) * da
+            low = f < force_N
+            lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
+        return 0.5 * (lo + hi)
+
+    def read(
+        self,
+        force_N: np.ndarray,
+        bumps_mm: np.ndarray,
+        bump_height_mm: float,
+        bump_diameter_mm: float,
+        contact_mm: np.ndarray,
+        gain: np.ndarray,
+        offset_counts: np.ndarray,
+        rng: np.random.Generator | None = None,
+        position_control: bool = True,
+    ) -> np.ndarray:
+        """Frames of a press -> ``counts [12, frames]`` (see module doc).
+
+        ``bumps_mm [frames, k, 2]``: the dots' centres (mm, fingertip frame) at each frame (the
+        scene moves the surface), ``bump_height_mm`` / ``bump_diameter_mm`` their shape;
+        ``contact_mm [2]``: the
+        fingertip's lowest point in layout coordinates; ``gain [12]`` (relative) and
+        ``offset_counts [12]`` or ``[12, frames]`` (counts, drift included): the readout's
+        per-taxel calibration; ``rng``: CDC noise when given.
+
+        ``position_control`` (default, as a robot arm sliding at a set height): ``force_N`` is
+        the force on the flat surface, which sets the approach; a dot then compresses the foam
+        further and the force rises (``last_force_N`` holds it per frame). Otherwise the force
+        is held (force control) and a dot takes load from the rest of the contact.
+        """
+        p = self.params
+        f = as_float_array(force_N, "force_N", ndim=1).astype(np.float64)
+        check_finite(f, "force_N")
+        if (f <= 0).any():
+            raise ValueError("force_N must be > 0 N in every frame (the fingertip is pressed)")
+        gain = as_float_array(gain, "gain", ndim=1).astype(np.float64)
+        if gain.shape != (self.n_channels,):
+            raise ValueError(f"gain must be [{self.n_channels}], got {gain.shape}")
+        bumps = as_float_array(bumps_mm, "bumps_mm", ndim=3).astype(np.float64)
+        if bumps.shape[0] != f.size or bumps.shape[2] != 2:
+            raise ValueError(f"bumps_mm must be [frames={f.size}, k, 2], got {bumps.shape}")
+        check_finite(bumps, "bumps_mm")
+        check_positive(bump_height_mm, "bump_height_mm")
+        check_positive(bump_diameter_mm, "bump_diameter_mm")
+        shape = (bump_height_mm, bump_diameter_mm)
+        grid = self.contact_grid(contact_mm, bump_height_mm)
+        height = self.height_mm(grid, contact_mm)
+        relief = self.relief_mm(grid, bumps, *shape)
+        delta = self.approach_mm(
+            f, grid, height, np.zeros_like(relief) if position_control else relief
+        )
+        da = p.grid_mm**2 * 1e-6
+        self.last_force_N = self.pressure_Pa(self._strain(delta, height, relief)).sum(1) * da
+        pads = self.pad_points_mm
+        s = self._strain(
+            delta, self.height_mm(pads, contact_mm), self.relief_mm(pads, bumps, *shape)
+        )
+        cap = self._cap
+        c_sub = cap.capacitance_pF(s) - p.parasitic_pF  # [F, 12*Q] pF per sub-area share
+        c_pad = (
+            c_sub.reshape(f.size, self.n_channels, self._n_sub) @ self._pad_w
+        ).T + p.parasitic_pF
+        code = cap.cdc_code(c_pad)
+        if rng is not None:
+            code = np.clip(np.round(code + p.noise_lsb * rng.standard_normal(code.shape)), 0, 65535)
+        rest = cap.cdc_code(cap.capacitance_pF(np.zeros(1)))
+        off = np.asarray(offset_counts, np.float64)
+        off = off[:, None] if off.ndim == 1 else off
+        counts = gain[:, None] * (code - rest) / 2**p.shift_bits + off
+        if rng is not None and p.noise_counts > 0:
+            counts = counts + p.noise_counts * rng.standard_normal(counts.shape)
+        return np.clip(np.round(counts), 0, 255)
