@@ -9,6 +9,7 @@ from .braille_task import BrailleTask
 from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
 from .faults import Faults, parse_faults
 from .hook_loop import HookLoopTask
+from .localisation_task import ContactLocalisationTask
 from .teng_tasks import MaterialTask, StiffnessCurvatureTask
 from .texture_task import TextureTask
 from .touch_task import TouchModalityTask
@@ -18,6 +19,7 @@ __all__ = [
     "BrailleTask",
     "CapacitivePiezoParams",
     "CapacitivePiezoStack",
+    "ContactLocalisationTask",
     "Faults",
     "HookLoopTask",
     "MaterialTask",

@@ -20,8 +20,9 @@ one frame earlier.
 Array contract of :meth:`ChipArray.read`: in-plane stress per chip ``sigma_Pa [samples, 25]`` and
 ``lambda_rad [samples, 25]`` at ``fs_in_hz`` -> ``[25, 4, frames]`` float32 readings, in
 ``drho/rho`` units (the ADC code divided by gain and bridge voltage), at 60 frames/s.
-Contact stress field (:func:`contact_stress`): the radial in-plane Boussinesq stress below a
-normal force through the foil (Poisson ratio 0.5), pointing away from the contact.
+Contact stress field (:func:`contact_stress`): the radial in-plane stress below a normal and a
+tangential force through the foil (Boussinesq + Cerruti, Poisson ratio 0.5), along the line from
+the contact; :func:`solve_contact` inverts it (position, normal and tangential force).
 """
 
 from __future__ import annotations
@@ -69,18 +70,47 @@ def chip_positions(n: int = 5, chip_mm: float = 1.46, gap_mm: float = 6.0) -> np
 
 
 def contact_stress(
-    force_N: float, center_mm: np.ndarray, chips_mm: np.ndarray, depth_mm: float = 1.0
+    force_N: float,
+    center_mm: np.ndarray,
+    chips_mm: np.ndarray,
+    depth_mm: float = 1.0,
+    shear_N: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Radial Boussinesq stress (Pa, tensile > 0) and its direction at each chip.
+    """In-plane stress (Pa) and its direction at each chip below a contact with normal force
+    ``force_N`` and tangential force ``shear_N [2]`` (N, in the array's plane).
 
-    ``sigma_rr = 3 F r^2 z / (2 pi (r^2 + z^2)^(5/2))`` for Poisson ratio 0.5, directed along the
-    line from the contact centre to the chip.
+    For Poisson ratio 0.5 both Boussinesq's normal-load and Cerruti's tangential-load solutions
+    leave a uniaxial in-plane stress along the line from the contact to the chip (Johnson,
+    Contact Mechanics 3.2-3.3: the ``(1 - 2 nu)`` terms vanish):
+    ``sigma = 3 (F z + Q . d) r^2 / (2 pi (r^2 + z^2)^(5/2))`` (compression counted positive),
+    with ``d`` the in-plane vector
+    from the contact to the chip (``r = |d|``) and ``z`` the depth; a tangential force loads the
+    chips it points at more and those behind it less.
     """
     d = (np.asarray(chips_mm, dtype=np.float64) - np.asarray(center_mm, dtype=np.float64)) * 1e-3
     r2 = (d**2).sum(-1)
     z = depth_mm * 1e-3
-    sigma = 3 * force_N * r2 * z / (2 * np.pi * (r2 + z * z) ** 2.5)
+    load = force_N * z
+    if shear_N is not None:
+        load = load + d @ np.asarray(shear_N, dtype=np.float64)
+    sigma = 3 * load * r2 / (2 * np.pi * (r2 + z * z) ** 2.5)
     return sigma, np.arctan2(d[:, 1], d[:, 0])
+
+
+def solve_contact(
+    chips_mm: np.ndarray, sigma: np.ndarray, lam: np.ndarray, depth_mm: float = 1.0, top: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
+    """Seed 002's least-squares inverse: the contact centre from the stress directions
+    (:func:`locate_contact`), then the normal and tangential force from the magnitudes (linear
+    least squares on ``sigma_k = c_k (F z + Q . d_k)``, :func:`contact_stress`'s model).
+    Returns ``(center_mm [2], force [3] = (F_N, Qx_N, Qy_N))``."""
+    center = locate_contact(chips_mm, sigma, lam, top)
+    d = (np.asarray(chips_mm, np.float64) - center) * 1e-3
+    r2 = (d**2).sum(-1)
+    z = depth_mm * 1e-3
+    c = 3 * r2 / (2 * np.pi * (r2 + z * z) ** 2.5)
+    a = c[:, None] * np.concatenate([np.full((len(d), 1), z), d], 1)
+    return center, np.linalg.lstsq(a, np.asarray(sigma, np.float64), rcond=None)[0]
 
 
 def locate_contact(

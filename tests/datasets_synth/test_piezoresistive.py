@@ -84,3 +84,54 @@ def test_refuses_bad_input():
     bad[3, 7] = np.inf
     with pytest.raises(ValueError, match="non-finite"):
         arr.read(bad, np.zeros((10, 25)), 600.0)
+
+
+def _johnson_in_plane(P, Q, d_m, z_m):
+    """Johnson (Contact Mechanics eqs 3.20 and 3.22) at nu = 0.5, written out independently:
+    Boussinesq sigma_r = -3 P z r^2 / (2 pi rho^5) (sigma_theta = 0) and Cerruti for Q along x:
+    sigma_x = -3 Q x^3, sigma_y = -3 Q x y^2, tau_xy = -3 Q x^2 y (each / 2 pi rho^5); a Q at an
+    angle is the x-case in rotated coordinates. Returns the in-plane tensors [n, 2, 2] (Pa)."""
+    out = []
+    qn = np.linalg.norm(Q)
+    rot = np.eye(2) if qn == 0 else np.array([[Q[0], -Q[1]], [Q[1], Q[0]]]) / qn
+    for x, y in d_m:
+        r2 = x * x + y * y
+        rho5 = (r2 + z_m * z_m) ** 2.5
+        ang = np.arctan2(y, x)
+        radial = np.array([[np.cos(ang) ** 2, np.cos(ang) * np.sin(ang)],
+                           [np.cos(ang) * np.sin(ang), np.sin(ang) ** 2]])  # fmt: skip
+        t = -3 * P * z_m * r2 / (2 * np.pi * rho5) * radial
+        xr, yr = rot.T @ np.array([x, y])  # chip in coordinates where Q is along x
+        c = (
+            -3
+            * qn
+            / (2 * np.pi * rho5)
+            * np.array([[xr**3, xr * xr * yr], [xr * xr * yr, xr * yr * yr]])
+        )
+        out.append(t + rot @ c @ rot.T)
+    return np.array(out)
+
+
+def test_normal_and_tangential_stress_match_johnson():
+    from tactilesnn.datasets_synth.piezoresistive import contact_stress
+
+    chips = chip_positions()
+    center, P, Q = np.array([2.0, -5.0]), 6.0, np.array([1.5, -2.0])
+    sigma, lam = contact_stress(P, center, chips, 1.0, Q)
+    ref = _johnson_in_plane(P, Q, (chips - center) * 1e-3, 1e-3)
+    u = np.stack([np.cos(lam), np.sin(lam)], 1)
+    ours = -sigma[:, None, None] * u[:, :, None] * u[:, None, :]  # compression positive
+    np.testing.assert_allclose(ours, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def test_least_squares_inverse_recovers_position_and_forces():
+    from tactilesnn.datasets_synth.piezoresistive import contact_stress, solve_contact
+
+    chips = chip_positions()
+    center, P, Q = np.array([-4.2, 6.1]), 8.0, np.array([-2.0, 1.0])
+    sigma, lam = contact_stress(P, center, chips, 1.0, Q)
+    r = relative_resistance(sigma[:, None], lam[:, None], np.deg2rad([0, 45, 90, 135])[None])
+    s_hat, l_hat = solve_stress(r)
+    c_hat, f_hat = solve_contact(chips, s_hat, l_hat, 1.0)
+    np.testing.assert_allclose(c_hat, center, atol=1e-6)
+    np.testing.assert_allclose(f_hat, [P, *Q], rtol=1e-6)

@@ -11,7 +11,7 @@ from tactilesnn.datasets_synth.generate import ShardDataset, TaskDataset, genera
 from tactilesnn.datasets_synth.pvdf import PVDFParams, PVDFTriangle
 from tactilesnn.datasets_synth.textures import TEXTURES
 
-TRIAL_TASKS = ["texture", "stiffness_curvature", "material", "touch", "braille"]
+TRIAL_TASKS = ["texture", "stiffness_curvature", "material", "touch", "braille", "localise"]
 
 
 @pytest.mark.parametrize("name", TRIAL_TASKS)

@@ -23,6 +23,7 @@ BENCHMARKS: dict[str, str] = {
     "skip": "skip",
     "busy": "busy",
     "sim2real": "sim2real",
+    "localise": "localise",
 }
 
 
