@@ -138,3 +138,19 @@ def test_tempotron_settings_have_prefixed_names_and_the_old_ones_as_aliases():
     assert new == old and new.model.lr == 0.01 and new.model.tau_ms == 120.0
     assert flat_settings()["lr"].help == "alias of --tempotron-lr"
     assert "alias" not in flat_settings()["tempotron_lr"].help
+
+
+def test_a_wide_task_defaults_to_the_linear_cost_model_unless_a_model_is_named():
+    from tactilesnn.app.defaults import run_spec
+    from tactilesnn.config import DEFAULT_MODEL, WIDE_INPUT_MODEL
+
+    # 100 chip channels x the GWT's bands: thousands of events, the tempotron's cost squared
+    assert run_spec({"task": "localise"}, None).config.model_type == WIDE_INPUT_MODEL
+    assert (
+        run_spec({"task": "localise", "model": "tempotron"}, None).config.model_type == "tempotron"
+    )
+    named = run_spec({"task": "localise", "tempotron_lr": 0.01}, None).config
+    assert named.model_type == "tempotron" and named.model.lr == 0.01
+    # 12 taxels stay under the bound: the default model as documented
+    assert run_spec({"task": "braille"}, None).config.model_type == DEFAULT_MODEL
+    assert run_spec({"task": "hook_loop"}, None).config.model_type == DEFAULT_MODEL

@@ -18,6 +18,9 @@ from typing import Any
 
 from ..config import (
     DATA_ENCODER_CANDIDATES,
+    DEFAULT_MODEL,
+    DEFAULT_MODEL_MAX_AFFERENTS,
+    WIDE_INPUT_MODEL,
     PipelineConfig,
     apply_flat,
     data_file_defaults,
@@ -26,6 +29,7 @@ from ..config import (
 )
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.base import task_parameters
+from ..encoders import build_encoder
 from ..recordings import auto_window, event_layout, is_event_file
 from .options import run_options, train_options
 from .run import FileSource, RunSpec, TaskSource
@@ -66,9 +70,12 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
     data = settings.get("data")
     if not data and "channels" not in given:
         # the default channel ('dynamic', hook_loop's) where the task has it, else all of them
-        names = get_task(settings["task"], **task_params(settings["task"], settings)).channel_names
+        task = get_task(settings["task"], **task_params(settings["task"], settings))
+        names = task.channel_names
         if not set(PipelineConfig().channels) <= set(names):
             flat["channels"] = ("all",)
+            if "model" not in given and not _model_settings_given(given):
+                _wide_input_model(flat, base, task)
     if data:
         events = is_event_file(Path(data))
         owners = flat_settings()
@@ -80,6 +87,25 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
             if key not in given and part not in given:
                 flat[key] = value
     return apply_flat(base, flat)
+
+
+def _model_settings_given(given: set[str]) -> bool:
+    owners = flat_settings()
+    return any(k in owners and owners[k].part == "model" for k in given)
+
+
+def _wide_input_model(flat: dict[str, Any], base: dict[str, Any], task: Any) -> None:
+    """The default model's cost grows with the square of the afferents: past
+    :data:`~tactilesnn.config.DEFAULT_MODEL_MAX_AFFERENTS` a task's default run takes the
+    linear-cost model (``--model`` names another)."""
+    config = apply_flat(base, flat)
+    encoder = build_encoder(config.encoder, task.fs_hz, task.window, len(task.channel_names))
+    afferents = encoder.n_afferents * encoder.max_spikes + config.clock_afferents
+    if config.model_type == DEFAULT_MODEL and afferents > DEFAULT_MODEL_MAX_AFFERENTS:
+        flat["model"] = WIDE_INPUT_MODEL
+        log.info("%d input events per window: the %s model (the default %s's exact maximum costs "
+                 "their square per window; --model %s insists)", afferents, WIDE_INPUT_MODEL,
+                 DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip
 
 
 def data_window(settings: dict[str, Any]) -> tuple[float | None, float | None]:

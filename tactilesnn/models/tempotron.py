@@ -162,6 +162,26 @@ class Tempotron(nn.Module):
         """Exact ``(v_max, t_max)``, each ``[batch, classes]``; t_max in ms."""
         return self._maximum(self._intervals(spike_times))
 
+    #: bytes of intermediates one call of the exact maximum may hold (pairwise lags [M, M])
+    BUDGET_BYTES = 1 << 26
+
+    def batched_maximum(
+        self, spike_times: torch.Tensor, weight: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(v_max, t_max)`` as :meth:`forward` (with ``weight`` if given), a few samples at a
+        time so that the ``[events, events]`` lag matrices stay within :attr:`BUDGET_BYTES`
+        (one sample of 2,000 afferents holds ~100 MB; a mini-batch of 32 at once held 7 GB)."""
+        b = spike_times.shape[0]
+        events = spike_times[0].numel() + 1 if b else 1
+        step = max(1, self.BUDGET_BYTES // (4 * 6 * events * events))
+        if step >= b:
+            return self._maximum(self._intervals(spike_times, weight))
+        parts = [
+            self._maximum(self._intervals(spike_times[i : i + step], weight))
+            for i in range(0, b, step)
+        ]
+        return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+
     def _maximum(self, iv: dict) -> tuple[torch.Tensor, torch.Tensor]:
         v_at, v_int = iv["v_at"], iv["v_int"]
         # the window start comes first so that ties resolve to the earliest time
@@ -267,13 +287,13 @@ class Tempotron(nn.Module):
         Returns ``(n_errors, predictions)``: tempotron errors (missed target fires plus false
         fires, over samples x classes) and the predicted classes before the update.
         """
-        v_max, t_max = self(spike_times)
+        v_max, t_max = self.batched_maximum(spike_times)
         # a tempotron whose potential never rises above rest has t_max at the window start, where
         # no input has arrived: the rule would give it no update ever again. Its potentiation is
         # taken where its inputs coincide most (the maximum of sum |w_i| K(t - t_i)) instead.
         silent = v_max <= self.v_rest
         if bool(silent.any()):
-            _, t_coinc = self._maximum(self._intervals(spike_times, self.weight.abs()))
+            _, t_coinc = self.batched_maximum(spike_times, self.weight.abs())
             t_max = torch.where(silent, t_coinc, t_max)
         thr = self.theta + self.v_rest
         target = nn.functional.one_hot(y, self.n_classes).bool()

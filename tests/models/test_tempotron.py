@@ -130,6 +130,30 @@ def test_rule_learns_a_separable_timing_task():
     assert float((m.predict(times) == y).float().mean()) == 1.0
 
 
+def test_rule_update_in_budgeted_chunks_equals_one_batch(monkeypatch):
+    # a mini-batch of wide inputs is taken a few samples at a time (bounded memory); the update,
+    # summed over the batch, is the same as the whole batch at once
+    g = torch.Generator().manual_seed(1)
+    times = 100 * torch.rand(12, 40, 2, generator=g)
+    times[:, ::3, 1] = math.inf
+    y = torch.randint(0, 3, (12,), generator=g)
+    whole, chunked = Tempotron(40, 3, 100.0, seed=2), Tempotron(40, 3, 100.0, seed=2)
+    with torch.no_grad():
+        chunked.weight.copy_(whole.weight)
+        chunked.weight[1] = -chunked.weight[1].abs()  # one silent tempotron: the coincidence path
+        whole.weight[1] = chunked.weight[1]
+    whole.rule_update(times, y, lr=0.01, momentum=0.5, margin=0.2)
+    events = 40 * 2 + 1
+    monkeypatch.setattr(Tempotron, "BUDGET_BYTES", 5 * 4 * 6 * events * events)  # 5 per call
+    calls = []
+    original = Tempotron._intervals
+    monkeypatch.setattr(Tempotron, "_intervals", lambda self, t, w=None: calls.append(len(t)) or
+                        original(self, t, w))  # fmt: skip
+    chunked.rule_update(times, y, lr=0.01, momentum=0.5, margin=0.2)
+    assert max(calls) == 5 and sum(calls) >= 12
+    torch.testing.assert_close(chunked.weight, whole.weight, rtol=1e-6, atol=1e-7)
+
+
 def test_rejects_bad_spike_input():
     m = Tempotron(3, 2, 100.0)
     with pytest.raises(ValueError, match="spike times"):

@@ -9,6 +9,10 @@ a float64 direct convolution), relative to the scalogram's peak; libraries with 
 normalisation (PyWavelets L2, ssqueezepy / fCWT L1) are compared after a least-squares gain per
 band (their *shape* error). Optional peers (ssqueezepy, fCWT) are skipped when not installed.
 
+``--fft``: the FFT backends (scipy's pocketfft, ducc0, pyFFTW where installed) inside our
+full-rate transform on W1-W3 and a long many-channel workload (W4: 39 channels, 1 kHz, 30 s,
+48 bands 2-450 Hz), 1 and 2 threads, against fCWT with like-for-like (periodic) edges.
+
 ``--sparse``: the activity gate on a 12-taxel stream where only some taxels are touched; reports
 the time saved and checks that spikes of the active part are identical to the ungated run.
 """
@@ -68,6 +72,7 @@ WORKLOADS = (
     Workload("W2", 1, 12, 2000.0, 10.0, 5.0, 900.0, 64),
     Workload("W3", 256, 1, 200.0, 5.0, 2.0, 90.0, 32),
 )
+LONG = Workload("W4", 1, 39, 1000.0, 30.0, 2.0, 450.0, 48)
 
 
 def median_time(fn: Callable[[], object], repeats: int, budget_s: float = 20.0) -> float:
@@ -281,6 +286,66 @@ def bench_stft(
     return rows
 
 
+def bench_fft(w: Workload, repeats: int, threads_list: list[int]) -> list[dict]:
+    """Our full-rate GWT with each installed FFT backend (both edge modes) and fCWT."""
+    from ...core.fft_backend import available
+
+    x = w.signal()
+    freqs = w.freqs()
+    rows = []
+    scalograms = {p: GaborScalogram(w.fs_hz, freqs, padding=p) for p in ("periodic", "reflect")}
+    refs = {p: g.transform(x, np.float64, fft="scipy") for p, g in scalograms.items()}
+    for threads in threads_list:
+        torch.set_num_threads(threads)
+        for padding, g in scalograms.items():
+            for backend in available():
+
+                def fn(g=g, th=threads, b=backend):
+                    return g.transform(x, np.float32, workers=th, fft=b)
+
+                ref = refs[padding]
+                err = float(np.abs(fn() - ref).max() / np.abs(ref).max())
+                name = f"tactilesnn-gwt {padding} [{backend}]"
+                rows.append(_row(w, name, threads, median_time(fn, repeats), err, "abs", 1))
+        if importlib.util.find_spec("fcwt"):
+            try:
+                fn = _fcwt(w, x)(threads)
+                fn()
+            except Exception as e:  # an optional peer that fails must not stop the benchmark
+                rows.append(
+                    {"workload": w.name, "impl": "fcwt", "threads": threads, "error": str(e)}
+                )
+                continue
+            rows.append(_row(w, "fcwt (periodic edges)", threads, median_time(fn, repeats), None,
+                             "other wavelet", 1))  # fmt: skip
+    torch.set_num_threads(threads_list[-1])
+    return rows
+
+
+def fft_summary(rows: list[dict]) -> str:
+    """Per workload and threads: each backend's time over scipy's and fCWT's over the best ours."""
+    lines = ["| workload | threads | edges | scipy ms | ducc0 / scipy | pyfftw / scipy | "
+             "fCWT ms | best ours / fCWT |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    keys = sorted({(r["workload"], r["threads"]) for r in rows})
+    for wl, th in keys:
+        sel = {r["impl"]: r for r in rows if (r["workload"], r["threads"]) == (wl, th)}
+        fc = sel.get("fcwt (periodic edges)")
+        for padding in ("periodic", "reflect"):
+            base = sel.get(f"tactilesnn-gwt {padding} [scipy]")
+            if base is None:
+                continue
+            ratio = {
+                b: f"{sel[k]['ms'] / base['ms']:.2f}" if (k := f"tactilesnn-gwt {padding} [{b}]")
+                in sel else "-"
+                for b in ("ducc0", "pyfftw")
+            }  # fmt: skip
+            best = min(r["ms"] for k, r in sel.items() if k.startswith(f"tactilesnn-gwt {padding}"))
+            vs = f"{best / fc['ms']:.2f}" if fc else "-"
+            lines.append(f"| {wl} | {th} | {padding} | {base['ms']:.1f} | {ratio['ducc0']} | "
+                         f"{ratio['pyfftw']} | {fc['ms'] if fc else float('nan'):.1f} | {vs} |")  # fmt: skip
+    return "\n".join(lines)
+
+
 def _row(w: Workload, impl: str, threads: int, t: float, err: float | None, kind: str, hop: int):
     work = w.batch * w.channels * w.samples * w.bands
     return {
@@ -329,10 +394,23 @@ def format_rows(rows: list[dict], mine_prefix: str = "tactilesnn-gwt") -> str:
     return "\n".join(lines)
 
 
-def run(out: Path | None, repeats: int = 7, hop: int = 10, sparse: bool = False) -> dict:
+def run(
+    out: Path | None, repeats: int = 7, hop: int = 10, sparse: bool = False, fft: bool = False
+) -> dict:
     threads_list = sorted({1, torch.get_num_threads()})
     results: dict = {"threads": threads_list, "gwt": [], "stft": []}
-    if sparse:
+    if fft:
+        threads_list = [1, 2]
+        results["fft"] = []
+        for w in (*WORKLOADS, LONG):
+            results["fft"] += bench_fft(w, repeats, threads_list)
+        results["table_fft"] = format_rows(results["fft"], "tactilesnn-gwt periodic [scipy]")
+        results["summary_fft"] = fft_summary(results["fft"])
+        print("Full-rate GWT by FFT backend (last column: time over ours, scipy backend, periodic)")
+        print(results["table_fft"])
+        print("\nSummary (ratios < 1: faster)")
+        print(results["summary_fft"])
+    elif sparse:
         from .sparse import bench_sparse
 
         results["sparse"] = bench_sparse(repeats)
@@ -362,9 +440,11 @@ HELP = "GWT / STFT encoders against PyWavelets, ssqueezepy, fCWT and scipy (spee
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=7, help="timed runs per case")
     p.add_argument("--sparse", action="store_true", help="the activity-gate benchmark instead")
+    p.add_argument("--fft", action="store_true",
+                   help="FFT backends (scipy, ducc0, pyFFTW) in the full-rate GWT against fCWT")  # fmt: skip
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
     run(Path(out) / "encoders.json" if out else None, repeats=options.repeats,
-        sparse=options.sparse)  # fmt: skip
+        sparse=options.sparse, fft=options.fft)  # fmt: skip
     return 0
