@@ -145,12 +145,16 @@ def test_a_wide_task_defaults_to_the_linear_cost_model_unless_a_model_is_named()
     from tactilesnn.config import DEFAULT_MODEL, WIDE_INPUT_MODEL
 
     # 100 chip channels x the GWT's bands: thousands of events, the tempotron's cost squared
-    assert run_spec({"task": "localise"}, None).config.model_type == WIDE_INPUT_MODEL
+    wide = run_spec({"task": "localise"}, None)
+    assert wide.config.model_type == WIDE_INPUT_MODEL and wide.config.level_neurons > 0
+    assert wide.select_encoders  # and the encoder is chosen, as for a data file
+    assert not run_spec({"task": "localise", "encoder": "lif"}, None).select_encoders
     assert (
         run_spec({"task": "localise", "model": "tempotron"}, None).config.model_type == "tempotron"
     )
     named = run_spec({"task": "localise", "tempotron_lr": 0.01}, None).config
     assert named.model_type == "tempotron" and named.model.lr == 0.01
     # 12 taxels stay under the bound: the default model as documented
-    assert run_spec({"task": "braille"}, None).config.model_type == DEFAULT_MODEL
+    narrow = run_spec({"task": "braille"}, None)
+    assert narrow.config.model_type == DEFAULT_MODEL and not narrow.select_encoders
     assert run_spec({"task": "hook_loop"}, None).config.model_type == DEFAULT_MODEL

@@ -20,7 +20,9 @@ the slide, counts), ``speed_spread`` (relative sd of the slide speed), ``force_s
 half-range of the pressing force around ``force_N``, and a 10 % ripple along the slide),
 ``position_mm`` (sd of the cell's placement across and along the slide, and of the fingertip's
 contact point: the real file's sub-millimetre offsets), ``taxel_noise`` (scales the CDC's 4 LSB
-rms noise and the readout's 0.7 counts rms). ``difficulty`` scales every knob at once.
+rms noise and the readout's 0.7 counts rms). ``force_ramp``: the relative rise of the pressing
+force along the slide (a plate not level with the arm's path; the real file's robot state shows
++32 %), drawn +-50 % around its value per trial. ``difficulty`` scales every knob at once.
 """
 
 from __future__ import annotations
@@ -69,6 +71,9 @@ class BrailleTask(TrialTask):
     # the real file's robot state (columns 6-8 read as a force in N): 1.47 N (1.40-1.54 over
     # slides) before the letter; the arm holds its height, so the force rises over the dots
     force_N: float = 1.47
+    # ... and it grows along the slide (the plate is not level with the arm's path): force over
+    # the last 10 % of a slide / over the first 10 %, minus 1: median 0.32 (0.27-0.36)
+    force_ramp: float = 0.32
     gain_spread: float = 0.25
     offset_counts: float = 4.0
     drift_counts: float = 2.0
@@ -87,7 +92,7 @@ class BrailleTask(TrialTask):
         if bad or len(set(self.letters)) != len(self.letters) or len(self.letters) < 2:
             raise ValueError(f"letters must be >= 2 distinct letters a-z, got {self.letters!r}")
         for knob in ("gain_spread", "offset_counts", "drift_counts", "speed_spread",
-                     "force_spread", "position_mm", "taxel_noise"):  # fmt: skip
+                     "force_spread", "position_mm", "taxel_noise", "force_ramp"):  # fmt: skip
             v = getattr(self, knob)
             if not np.isfinite(v) or v < 0:
                 raise ValueError(f"{knob} must be a finite number >= 0, got {v}")
@@ -136,6 +141,8 @@ class BrailleTask(TrialTask):
         ripple = 1 + 0.1 * min(d, 1.0) * np.sin(
             2 * np.pi * t / rng.uniform(1.0, 4.0) + rng.uniform(0, 2 * np.pi)
         )
+        ramp = self.force_ramp * (1 + 0.5 * min(d, 1.0) * rng.uniform(-1, 1))
+        ripple = ripple * (1 + ramp * t / self.duration_s)
         gain = np.exp(self.gain_spread * d * rng.standard_normal(12))
         offset = self.offset_counts * d * rng.standard_normal(12)
         drift = np.cumsum(rng.standard_normal((12, n)), 1) * (self.drift_counts * d / np.sqrt(n))

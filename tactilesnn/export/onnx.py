@@ -37,6 +37,16 @@ from ..core.version import __version__
 from ..pipeline import SpikePipeline
 
 SCORE_ATOL = 1e-4
+#: ... or this fraction of the window's largest |score|, whichever is larger: a readout summing
+#: 4,005 afferents into scores of ~150 rounds by 4e-4 in float32 (torch's own float32 against
+#: float64: 4.1e-6 relative)
+SCORE_RTOL = 2e-5
+
+
+def score_tolerance(ref: np.ndarray) -> np.ndarray:
+    """Per window ``[N]``: how far the exported scores may be from torch's ``ref [N, classes]``."""
+    scale = np.abs(ref).max(1) if ref.size else np.zeros(len(ref))
+    return np.maximum(SCORE_ATOL, SCORE_RTOL * scale)
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
 DECISION_ATOL_MS = 1e-3
 
@@ -232,7 +242,8 @@ def verify(
     With ``parts`` each component's graph is checked on its own first: the encoder's spike times
     within ``TIME_ATOL_MS`` (the same silent slots, except spikes at the code's cutoff, see
     :func:`compare_spike_times`), the model's scores within ``SCORE_ATOL`` on the
-    very spike times torch produced. End to end, scores must agree within ``SCORE_ATOL`` except
+    very spike times torch produced (or ``SCORE_RTOL`` of the window's largest score, float32
+    rounding of large sums). End to end, scores must agree within the same except
     on at most ``MAX_BOUNDARY_FRACTION`` of windows (spikes on a step boundary, see above).
     """
 
@@ -253,11 +264,12 @@ def verify(
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
         got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"))
         per_m = np.abs(got_m - ref).max(1)
-        dm, off_m = float(per_m.max()), int((per_m > SCORE_ATOL).sum())
+        dm, off_m = float(per_m.max()), int((per_m > score_tolerance(ref)).sum())
         del enc, mod  # one session at a time: each holds its own copy of the weights
         if off_m > _boundary_allowance(len(x)):
             raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
-                              f"{SCORE_ATOL}) on {off_m} of {len(x)} windows")  # fmt: skip
+                              f"{SCORE_ATOL} or {SCORE_RTOL} of the scores) on {off_m} of "
+                              f"{len(x)} windows")  # fmt: skip
         if early:
             report.update(_check_early(pipe, spikes, *got_e))
         report.update(
@@ -270,7 +282,7 @@ def verify(
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"))[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
-    off = int((per_window > SCORE_ATOL).sum())
+    off = int((per_window > score_tolerance(ref)).sum()) if len(x) else 0
     if off > _boundary_allowance(len(x)):
         worst = float(per_window.max())
         raise ExportError(

@@ -53,7 +53,9 @@ def test_bench_localise_rows(tmp_path):
     assert {r["target"] for r in rows} == {"position", "direction"}
     floor = next(r for r in rows if r["target"] == "position" and r["method"].startswith("floor"))
     assert floor["accuracy"] == 1.0 and floor["mean"] < 2 * localise_cell_half_diagonal()
-    assert (tmp_path / "localise.md").read_text().count("| position |") == 4
+    assert (tmp_path / "localise.md").read_text().count("| position |") == 5
+    amp = next(r for r in rows if r["target"] == "position" and "amplitude" in r["method"])
+    assert 0 <= amp["accuracy"] <= 1 and amp["median"] >= 0
 
 
 def localise_cell_half_diagonal():

@@ -63,6 +63,7 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
+    from ...baselines import amplitude_stats
     from ...config import DATA_ENCODER_CANDIDATES
     from ...datasets_synth import get_task
     from ...selection import select_encoder
@@ -92,6 +93,11 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     p_lr = lr.predict(hold(test))
     rows.append(_row("logistic regression on the hold readings", _errors(task, p_lr, info),
                      float((p_lr == test.y).mean()), unit))  # fmt: skip
+    amp = make_pipeline(StandardScaler(), LogisticRegression(max_iter=5000))
+    amp.fit(amplitude_stats(train.X), train.y)
+    p_amp = amp.predict(amplitude_stats(test.X))
+    rows.append(_row("logistic regression on window mean and RMS (amplitude baseline)",
+                     _errors(task, p_amp, info), float((p_amp == test.y).mean()), unit))  # fmt: skip
     centres, angles = least_squares(test.X, task.depth_mm)
     if target == "position":
         err = np.linalg.norm(centres - np.array([i["center_mm"] for i in info]), axis=1)

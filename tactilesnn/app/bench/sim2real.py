@@ -41,7 +41,7 @@ log = logging.getLogger("tactilesnn")
 
 REAL_FILE = "braille_icub_abc/braille_abc_icub.npz"
 #: the braille task's randomisation knobs (each also a field of BrailleTask)
-KNOBS = ("gain_spread", "offset_counts", "drift_counts", "speed_spread", "force_spread",
+KNOBS = ("gain_spread", "offset_counts", "drift_counts", "speed_spread", "force_spread", "force_ramp",
          "position_mm", "taxel_noise")  # fmt: skip
 SPECTRUM_BANDS_HZ = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 
