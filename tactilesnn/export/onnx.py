@@ -47,6 +47,8 @@ def score_tolerance(ref: np.ndarray) -> np.ndarray:
     """Per window ``[N]``: how far the exported scores may be from torch's ``ref [N, classes]``."""
     scale = np.abs(ref).max(1) if ref.size else np.zeros(len(ref))
     return np.maximum(SCORE_ATOL, SCORE_RTOL * scale)
+
+
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
 DECISION_ATOL_MS = 1e-3
 
