@@ -39,8 +39,8 @@ DEFAULT_ENCODER = "gwt"
 MAX_CLOCK_AFFERENTS = 1024
 DEFAULT_MODEL = "tempotron"
 #: the default model's exact maximum holds [events, events] lags per window: above this many
-#: afferents a task's default run takes the linear-cost model instead (a 100-channel task gave
-#: the tempotron 2,005 afferents: ~90 ms per window per pass, hours for 40 epochs)
+#: input events a task's default run takes the linear-cost model instead (a 100-channel task gave
+#: the tempotron 4,005; at 2,005 one window costs 87 ms per pass: hours for 40 epochs)
 DEFAULT_MODEL_MAX_AFFERENTS = 512
 WIDE_INPUT_MODEL = "readout"
 

@@ -98,7 +98,7 @@ def _model_settings_given(given: set[str]) -> bool:
 def _wide_input_model(
     flat: dict[str, Any], base: dict[str, Any], task: Any, given: set[str]
 ) -> None:
-    """The default model's cost grows with the square of the afferents: past
+    """The default model's cost grows with the square of its input events: past
     :data:`~tactilesnn.config.DEFAULT_MODEL_MAX_AFFERENTS` a task's default run takes what
     ``train --data`` takes (the linear-cost model, the calibrated level code, and, unless an
     encoder is set, the encoder chosen on held-out training windows; ``--model`` names another).
@@ -106,14 +106,14 @@ def _wide_input_model(
     code 68.3 %, LIF + level code + readout 79.8 % (amplitude baseline 84.0 %)."""
     config = apply_flat(base, flat)
     encoder = build_encoder(config.encoder, task.fs_hz, task.window, len(task.channel_names))
-    afferents = encoder.n_afferents * encoder.max_spikes + config.clock_afferents
-    if config.model_type == DEFAULT_MODEL and afferents > DEFAULT_MODEL_MAX_AFFERENTS:
+    events = encoder.n_afferents * encoder.max_spikes + config.clock_afferents
+    if config.model_type == DEFAULT_MODEL and events > DEFAULT_MODEL_MAX_AFFERENTS:
         flat["model"] = WIDE_INPUT_MODEL
         if "level_neurons" not in given:
             flat["level_neurons"] = DATA_LEVEL_NEURONS
         log.info("%d input events per window: the defaults of a data file (the %s model, level "
                  "code; the default %s's exact maximum costs their square per window, --model %s "
-                 "insists)", afferents, WIDE_INPUT_MODEL, DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip
+                 "insists)", events, WIDE_INPUT_MODEL, DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip
 
 
 def data_window(settings: dict[str, Any]) -> tuple[float | None, float | None]:

@@ -311,9 +311,8 @@ class GaborScalogram(nn.Module):
             chunk = max(1, (4 << 20) // row_bytes)
         out = np.empty((b * c, self.n_bands, plan["frames"]), dtype=dt)
         for i in range(0, b * c, chunk):
-            out[i : i + chunk] = self._transform_rows(
-                flat[i : i + chunk].astype(dt), p, plan, workers, backend
-            )
+            rows = flat[i : i + chunk].astype(dt)
+            self._transform_rows(rows, p, plan, workers, backend, out[i : i + chunk])
         if hop != self.hop:
             out = np.ascontiguousarray(out[..., :: self.hop])
         return out.reshape(b, c, self.n_bands, -1)
@@ -384,25 +383,55 @@ class GaborScalogram(nn.Module):
             (np.concatenate(vals), (np.concatenate(rows_i), np.concatenate(cols_i))),
             shape=(length // 2 + 1, self.n_bands * m_len),
         )
+        # where no band's support exceeds M, folding is a placement: each band's bins go to one
+        # or two contiguous runs of its row (no sums), so the band rows can be built directly in
+        # [signals, bands, M] order, inverse-transformed along their contiguous axis and written
+        # out without a transpose (W3, ducc0, 1 thread: 18.5 -> 13.5 ms, identical output)
+        place = None
+        if all(hi - lo <= m_len for lo, hi, _ in bands):
+            place = []
+            for lo, hi, gain in bands:
+                start = lo % m_len
+                first = min(hi - lo, m_len - start)  # bins before the wrap to index 0
+                place.append((lo, hi, gain, start, first))
         plan = {
             "length": length,
             "m": m_len,
             "frames": math.ceil(n / hop),
             "fold_t": fold.T.tocsr(),  # [bands * M, bins]: z^T = S^T spec^T
+            "place": place,
         }
         self._cache[key] = plan  # type: ignore[assignment]
         return plan
 
     def _transform_rows(
-        self, rows: np.ndarray, p: int, plan: dict, workers: int, backend: FFTBackend
-    ) -> np.ndarray:
+        self,
+        rows: np.ndarray,
+        p: int,
+        plan: dict,
+        workers: int,
+        backend: FFTBackend,
+        out: np.ndarray,
+    ) -> None:
+        """Scalogram magnitudes of ``rows [n, samples]`` into ``out [n, bands, frames]``."""
         if p:
             mode = "reflect" if self.padding == "reflect" else "constant"
             rows = np.pad(rows, ((0, 0), (p, p)), mode=mode)
         spec = backend.rfft(rows, plan["length"], workers)
         m_len = plan["m"]
+        if plan["place"] is not None:
+            # rows 8 values longer than M: a power-of-two M would put every row in the same
+            # cache sets (ducc0, M = 2048: 3.2 -> 1.1 ms per 512 rows)
+            z = np.zeros((rows.shape[0], self.n_bands, m_len + 8), dtype=spec.dtype)[..., :m_len]
+            for i, (lo, hi, gain, start, first) in enumerate(plan["place"]):
+                z[:, i, start : start + first] = spec[:, lo : lo + first] * gain[:first]
+                if first < hi - lo:
+                    z[:, i, : hi - lo - first] = spec[:, lo + first : hi] * gain[first:]
+            w = backend.ifft(z, 2, workers)
+            np.abs(w[..., : plan["frames"]], out=out)
+            return
         # the sparse product gives [bands * M, rows]; the inverse FFTs run along M in that layout
         # (no transpose copy of the complex spectra) and only the magnitudes are transposed
         zt = (plan["fold_t"] @ spec.T).reshape(self.n_bands, m_len, rows.shape[0])
         w = backend.ifft(zt, 1, workers)
-        return np.abs(w[:, : plan["frames"]]).transpose(2, 0, 1)
+        out[:] = np.abs(w[:, : plan["frames"]]).transpose(2, 0, 1)
