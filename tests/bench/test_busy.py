@@ -64,3 +64,27 @@ def test_the_default_command_trains_the_default_pipeline(tmp_path):
         "--epochs",
         "1",
     ]
+
+
+def test_side_by_side_times_each_job_and_stops_the_rest_on_failure():
+    quick = [sys.executable, "-c", "import time; time.sleep(0.2)"]
+    slow = [sys.executable, "-c", "import time; time.sleep(0.6)"]
+    t = busy.side_by_side([quick, slow])
+    assert 0.15 < t[0] < t[1]  # each job's own end, started together
+    hang = [sys.executable, "-c", "import time; time.sleep(60)"]
+    fail = [sys.executable, "-c", "import sys; sys.exit(3)"]
+    started = []
+    real_popen = busy.subprocess.Popen
+
+    def popen(*a, **kw):
+        p = real_popen(*a, **kw)
+        started.append(p.pid)
+        return p
+
+    busy.subprocess.Popen = popen
+    try:
+        with pytest.raises(RuntimeError, match="failed \\(3\\)"):
+            busy.side_by_side([hang, fail])
+    finally:
+        busy.subprocess.Popen = real_popen
+    assert not _running(started)  # the hanging job was stopped

@@ -2,7 +2,9 @@
 
 The default training (``tactilesnn train --no-export``, a fresh process each time) timed alone and
 beside ``--neighbours`` CPU-bound processes (pure-Python loops, as other users' jobs or a sweep's
-other trials are), in alternating rounds; medians of the wall times and their ratio. With ``n``
+other trials are), in alternating rounds; medians of the wall times and their ratio. ``--pair``:
+beside a second copy of the same training instead (a sweep's normal case), each copy's wall time
+against one alone. With ``n``
 neighbours on ``c`` usable CPUs a fair scheduler leaves the job ``c / (n + c)`` of the machine at
 worst, so a ratio near ``(n + c) / c`` is the share lost, and much more than that is time wasted
 (threads spinning at barriers, oversubscription: the 12.5x of issue 30 for a 2x share). The
@@ -67,6 +69,61 @@ def beside(cmd: list[str], neighbours: int) -> float:
             p.wait()
 
 
+def side_by_side(cmds: list[list[str]]) -> list[float]:
+    """Wall seconds of each of ``cmds`` started together (RuntimeError if one fails; the others
+    are stopped)."""
+    t0 = time.perf_counter()
+    procs = [subprocess.Popen(c, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True) for c in cmds]  # fmt: skip
+    ends: list[float | None] = [None] * len(procs)
+    try:
+        while any(e is None for e in ends):
+            for i, p in enumerate(procs):
+                if ends[i] is None and p.poll() is not None:
+                    ends[i] = time.perf_counter() - t0
+                    if p.returncode != 0:
+                        raise RuntimeError(f"side-by-side job {i} failed ({p.returncode}): "
+                                           f"{p.stderr.read()[-500:] if p.stderr else ''}")  # fmt: skip
+            time.sleep(0.05)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+    return [float(e) for e in ends]  # type: ignore[arg-type]
+
+
+def run_pair(out: Path | None = None, rounds: int = 2, epochs: int | None = None) -> dict:
+    """Alternating rounds of (one alone, two side by side) -> medians and the ratio of each copy
+    to one alone (a fair share of 2 CPUs between two equal jobs: 1.0x with 2 usable CPUs, 2.0x
+    with 1)."""
+    if rounds < 1:
+        raise ValueError("rounds must be at least 1")
+    alone, pair = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(rounds):
+            alone.append(timed(train_command(Path(tmp) / f"alone-{r}", epochs)))
+            print(f"round {r + 1}: alone {alone[-1]:.1f} s", flush=True)
+            both = side_by_side(
+                [train_command(Path(tmp) / f"pair-{r}-{i}", epochs) for i in (0, 1)]
+            )
+            pair += both
+            print(f"round {r + 1}: side by side {both[0]:.1f} s and {both[1]:.1f} s", flush=True)
+    cpus = usable_cpus()
+    res = {"cpus": cpus, "rounds": rounds, "alone_s": alone, "pair_s": pair,
+           "alone_median_s": statistics.median(alone), "pair_median_s": statistics.median(pair),
+           "fair_share_ratio": max(1.0, 2 / cpus)}  # fmt: skip
+    res["ratio"] = res["pair_median_s"] / res["alone_median_s"]
+    print(f"one alone {res['alone_median_s']:.1f} s, each of two side by side "
+          f"{res['pair_median_s']:.1f} s: {res['ratio']:.2f}x (the slower copy "
+          f"{max(pair) / res['alone_median_s']:.2f}x of the median alone)")  # fmt: skip
+    if out is not None:
+        from . import write_result
+
+        write_result(out, "busy_pair.json", res)
+    return res
+
+
 def run(
     out: Path | None = None,
     neighbours: int = 2,
@@ -113,8 +170,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--epochs", type=int, default=None, help="training epochs (default: the default's)"
     )
+    p.add_argument("--pair", action="store_true",
+                   help="two copies of the training side by side, not CPU-bound neighbours")  # fmt: skip
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
+    if options.pair:
+        run_pair(out, rounds=options.rounds, epochs=options.epochs)
+        return 0
     run(out, neighbours=options.neighbours, rounds=options.rounds, epochs=options.epochs)
     return 0
