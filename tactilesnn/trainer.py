@@ -13,6 +13,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .config import TrainConfig
+from .core.perf import refit_threads
 from .models.base import SpikeModel, to_tensor_labels
 
 
@@ -87,6 +88,7 @@ class Trainer:
             bar.set_postfix(
                 train_error=f"{err:.4f}", **({"val_acc": f"{score:.4f}"} if val else {})
             )
+            refit_threads()  # other processes come and go during a long training
             if on_epoch is not None:
                 on_epoch(epoch, self.state(st, gen, opt, best_w))
             if cfg.patience and val is not None and st["stale"] >= cfg.patience:

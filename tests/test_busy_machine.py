@@ -48,3 +48,35 @@ def test_runnable_processes_are_read_from_the_kernel_count(tmp_path):
     f.write_text("garbage\n")
     assert other_runnable(samples=1, path=str(f)) is None
     assert other_runnable(samples=1, path=str(tmp_path / "none")) is None
+
+
+def test_threads_are_refitted_while_governed_and_rate_limited(monkeypatch):
+    import torch
+
+    from tactilesnn.core import perf
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv("TACTILESNN_THREADS", raising=False)
+    before = torch.get_num_threads()
+    clock = [100.0]
+    monkeypatch.setattr("time.monotonic", lambda: clock[0])
+    monkeypatch.setattr(perf, "_last_refit", 0.0)
+    try:
+        torch.set_num_threads(2)
+        monkeypatch.setattr(perf, "_governed", False)
+        assert perf.refit_threads(cpus=2, others=1) is None  # fit_threads never chose: untouched
+        assert torch.get_num_threads() == 2
+        assert perf.fit_threads(cpus=2, others=0) is None and perf._governed  # alone at start
+        assert perf.refit_threads(cpus=2, others=1) == 1  # a second training started later
+        clock[0] += 0.5
+        assert perf.refit_threads(cpus=2, others=0) is None  # not before REFIT_EVERY_S
+        assert torch.get_num_threads() == 1
+        clock[0] += perf.REFIT_EVERY_S
+        assert perf.refit_threads(cpus=2, others=0) == 2  # it ended: both CPUs again
+        monkeypatch.setenv("TACTILESNN_THREADS", "2")
+        perf.fit_threads(cpus=2, others=0)  # a user setting ends the governing
+        clock[0] += perf.REFIT_EVERY_S
+        assert not perf._governed and perf.refit_threads(cpus=2, others=1) is None
+    finally:
+        perf._governed = False
+        torch.set_num_threads(before)

@@ -21,6 +21,12 @@ _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 _M_ARENA_MAX = -8
 _done = False
+#: :func:`fit_threads` chose the thread count itself (no user setting): :func:`refit_threads`
+#: may change it as other processes come and go
+_governed = False
+_last_refit = 0.0
+#: seconds between two looks at the machine's load while governed
+REFIT_EVERY_S = 1.0
 
 
 def tune_allocator(threshold_bytes: int = 1 << 30) -> bool:
@@ -74,11 +80,13 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
     A thread count the user set (``OMP_NUM_THREADS``, ``TACTILESNN_THREADS``) is left alone; set
     one for bit-identical reruns (float sums split over threads round differently).
     Returns the count set, or None if unchanged."""
+    global _governed
     if "OMP_NUM_THREADS" in os.environ:
         return None
     import torch
 
     wanted = os.environ.get("TACTILESNN_THREADS")
+    _governed = wanted is None
     if wanted is not None:
         n = int(wanted)
     else:
@@ -95,3 +103,29 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
         return None
     torch.set_num_threads(n)
     return n
+
+
+def refit_threads(cpus: int | None = None, others: int | None = None) -> int | None:
+    """Fit the thread count again (at most every :data:`REFIT_EVERY_S`) where :func:`fit_threads`
+    chose it: long work calls this between its steps (the trainer after every epoch). Two
+    trainings started together each saw the other not yet running and kept 2 threads on 2 CPUs:
+    149 s each against 15 s alone, until they looked again. A no-op where the user set the
+    threads or :func:`fit_threads` was not called (a library user's process is left alone).
+    Returns the count set, or None if unchanged."""
+    global _last_refit
+    import time
+
+    if not _governed:
+        return None
+    now = time.monotonic()
+    if now - _last_refit < REFIT_EVERY_S:
+        return None
+    _last_refit = now
+    if others is None:
+        # a few short reads after a pause: this process's own threads have gone to sleep
+        # (bounded spin) and are not counted as others
+        time.sleep(0.003)
+        others = other_runnable(samples=3, gap_s=0.003)
+        if others is None:
+            return None
+    return fit_threads(cpus, others)
