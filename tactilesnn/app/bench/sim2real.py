@@ -191,7 +191,8 @@ def few_shot_split(
 
 def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
-        knob_synthetic: int = 150, epochs: int | None = None, progress: bool = True) -> dict:  # fmt: skip
+        knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
+        progress: bool = True) -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
@@ -217,7 +218,10 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
 
     # 2. synthetic only, every seed; the encoder chosen on seed 0's synthetic windows
     cfg, chosen = base_config(cut(reorder(synth0, order)), 0, epochs)
+    if level_neurons is not None:  # after the choice: the encoder is the defaults' own
+        cfg = cfg.replace(level_neurons=int(level_neurons))
     result["encoder"] = chosen
+    result["level_neurons"] = cfg.level_neurons
     rows = []
     for seed in range(seeds):
         synth = synth0 if seed == 0 else render_synthetic(real, synthetic, seed, progress)[0]
@@ -283,7 +287,8 @@ def _ms(values: list[float]) -> str:
 def table(r: dict) -> str:
     st = r["statistics"]
     lines = [f"Real: {r['real_slides']} slides of {r['real_file']} ({r['fs_hz']:.2f} Hz); synthetic: "
-             f"{r['synthetic_slides']} braille slides per seed; encoder {r['encoder']} + readout.", "",
+             f"{r['synthetic_slides']} braille slides per seed; encoder {r['encoder']} + readout, "
+             f"level code {r.get('level_neurons', '-')} neurons.", "",
              "| taxel (real order) | rest real / synth | range real / synth | peak s real / synth |",
              "|---|---|---|---|"]  # fmt: skip
     re_, sy = st["real"], st["synthetic_matched"]
@@ -397,6 +402,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="randomisation knobs to switch off and double (none: skip)")  # fmt: skip
     p.add_argument("--knob-synthetic", type=int, default=150, help="synthetic slides per knob run")
     p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
+    p.add_argument("--level-neurons", type=int, default=None,
+                   help="level code neurons (default: train --data's; 0 = scale-invariant)")  # fmt: skip
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
@@ -405,5 +412,6 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
     run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
         synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
         draws=options.draws, knobs=tuple(options.knobs), knob_synthetic=options.knob_synthetic,
-        epochs=options.epochs, progress=not options.quiet)  # fmt: skip
+        epochs=options.epochs, level_neurons=options.level_neurons,
+        progress=not options.quiet)  # fmt: skip
     return 0
