@@ -114,13 +114,19 @@ def run_pair(out: Path | None = None, rounds: int = 2, epochs: int | None = None
            "alone_median_s": statistics.median(alone), "pair_median_s": statistics.median(pair),
            "fair_share_ratio": max(1.0, 2 / cpus)}  # fmt: skip
     res["ratio"] = res["pair_median_s"] / res["alone_median_s"]
-    print(f"one alone {res['alone_median_s']:.1f} s, each of two side by side "
-          f"{res['pair_median_s']:.1f} s: {res['ratio']:.2f}x (the slower copy "
-          f"{max(pair) / res['alone_median_s']:.2f}x of the median alone)")  # fmt: skip
+    return _report(res, out, "busy_pair.json",
+                   f"one alone {res['alone_median_s']:.1f} s, each of two side by side "
+                   f"{res['pair_median_s']:.1f} s: {res['ratio']:.2f}x (the slower copy "
+                   f"{max(pair) / res['alone_median_s']:.2f}x of the median alone)")  # fmt: skip
+
+
+def _report(res: dict, out: Path | None, name: str, line: str) -> dict:
+    """Print ``line`` and write ``res`` as ``out/name`` (when ``out`` is given)."""
+    print(line)
     if out is not None:
         from . import write_result
 
-        write_result(out, "busy_pair.json", res)
+        write_result(out, name, res)
     return res
 
 
@@ -154,14 +160,10 @@ def run(
         "fair_share_ratio": (neighbours + cpus) / cpus,
     }
     res["ratio"] = res["beside_median_s"] / res["alone_median_s"]
-    print(f"alone {res['alone_median_s']:.1f} s, beside {neighbours} CPU-bound neighbours "
-          f"{res['beside_median_s']:.1f} s: {res['ratio']:.2f}x (a fair share of {cpus} CPUs: "
-          f"{res['fair_share_ratio']:.2f}x)")  # fmt: skip
-    if out is not None:
-        from . import write_result
-
-        write_result(out, "busy.json", res)
-    return res
+    return _report(res, out, "busy.json",
+                   f"alone {res['alone_median_s']:.1f} s, beside {neighbours} CPU-bound neighbours "
+                   f"{res['beside_median_s']:.1f} s: {res['ratio']:.2f}x (a fair share of {cpus} "
+                   f"CPUs: {res['fair_share_ratio']:.2f}x)")  # fmt: skip
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
