@@ -9,9 +9,9 @@ The two calls the scalogram makes, behind one small contract:
 
 ``auto`` (the default) takes ducc0 when it is installed (``pip install tactilesnn[fast]``) and
 scipy otherwise: ducc0 measured fastest on every workload of ``tactilesnn bench encoders --fft``
-(docs/benchmarks.md), pyFFTW slower than pocketfft along the strided axis the scalogram uses.
+(docs/benchmarks.md: 0.55-0.92x of pocketfft's time), pyFFTW slower than pocketfft on most.
 ``TACTILESNN_FFT`` (``scipy``, ``ducc0``, ``pyfftw``, ``auto``) overrides it for a process.
-All backends agree within float32 rounding (tests/core/test_fft_backend.py).
+All backends agree within float32 rounding (tests/encoders/test_fft_backend.py).
 """
 
 from __future__ import annotations

@@ -172,8 +172,7 @@ class Tempotron(nn.Module):
         time so that the ``[events, events]`` lag matrices stay within :attr:`BUDGET_BYTES`
         (one sample of 2,000 afferents holds ~100 MB; a mini-batch of 32 at once held 7 GB)."""
         b = spike_times.shape[0]
-        events = spike_times[0].numel() + 1 if b else 1
-        step = max(1, self.BUDGET_BYTES // (4 * 6 * events * events))
+        step = max(1, self.BUDGET_BYTES // maximum_bytes(spike_times[0].numel() if b else 0))
         if step >= b:
             return self._maximum(self._intervals(spike_times, weight))
         parts = [
@@ -317,6 +316,13 @@ class Tempotron(nn.Module):
         return n_err, v_max.argmax(dim=1)
 
 
+def maximum_bytes(slots: int) -> int:
+    """Peak intermediate bytes of the exact maximum for one sample of ``slots`` spike slots:
+    it holds ``[events, events]`` pairwise lags (the slots and the window-end sentinel)."""
+    events = slots + 1
+    return 4 * 6 * events * events
+
+
 # ---------------------------------------------------------------------------------- component
 @dataclass(frozen=True)
 class TempotronConfig:
@@ -397,8 +403,7 @@ class TempotronClassifier(SpikeModel):
         return self.net(spikes)[0]
 
     def bytes_per_sample(self, afferents: int, k: int) -> int:
-        events = afferents * k + 1  # the exact maximum holds [events, events] pairwise lags
-        return 4 * 6 * events * events
+        return maximum_bytes(afferents * k)
 
     def early_decision(self, spikes: Tensor) -> tuple[Tensor, Tensor]:
         return self.net.predict_early(spikes)
