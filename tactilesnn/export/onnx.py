@@ -256,6 +256,7 @@ def verify(
     batch = check_batch(pipe)
     bar = (lambda name: f"verify {name}") if progress else (lambda name: None)
     report: dict = {"n_checked": len(x), "check_batch": batch}
+    tol = score_tolerance(ref)
     if parts is not None and len(x):
         enc = _session(parts[0])
         got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"))[0]
@@ -266,7 +267,7 @@ def verify(
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
         got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"))
         per_m = np.abs(got_m - ref).max(1)
-        dm, off_m = float(per_m.max()), int((per_m > score_tolerance(ref)).sum())
+        dm, off_m = float(per_m.max()), int((per_m > tol).sum())
         del enc, mod  # one session at a time: each holds its own copy of the weights
         if off_m > _boundary_allowance(len(x)):
             raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
@@ -284,7 +285,7 @@ def verify(
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"))[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
-    off = int((per_window > score_tolerance(ref)).sum()) if len(x) else 0
+    off = int((per_window > tol).sum())
     if off > _boundary_allowance(len(x)):
         worst = float(per_window.max())
         raise ExportError(

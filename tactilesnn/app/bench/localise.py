@@ -63,7 +63,7 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ...baselines import amplitude_stats
+    from ...baselines import amplitude_stats, fit_amplitude_baseline
     from ...config import DATA_ENCODER_CANDIDATES
     from ...datasets_synth import get_task
     from ...selection import select_encoder
@@ -93,9 +93,7 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     p_lr = lr.predict(hold(test))
     rows.append(_row("logistic regression on the hold readings", _errors(task, p_lr, info),
                      float((p_lr == test.y).mean()), unit))  # fmt: skip
-    amp = make_pipeline(StandardScaler(), LogisticRegression(max_iter=5000))
-    amp.fit(amplitude_stats(train.X), train.y)
-    p_amp = amp.predict(amplitude_stats(test.X))
+    p_amp = fit_amplitude_baseline(train.X, train.y).predict(amplitude_stats(test.X))
     rows.append(_row("logistic regression on window mean and RMS (amplitude baseline)",
                      _errors(task, p_amp, info), float((p_amp == test.y).mean()), unit))  # fmt: skip
     centres, angles = least_squares(test.X, task.depth_mm)
