@@ -134,7 +134,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if val_set is not None:
             val = (pipe.encode(val_set.X), val_set.y)
         trainer = Trainer(pipe.model, config.train, progress=self.progress)
-        self.history_ = trainer.fit(spikes, fit_set.y, val=val)
+        self.history_ = trainer.fit(spikes, fit_set.y, val=val, groups=fit_set.scan)
         self.pipeline_ = pipe
         calib = val if val is not None else (spikes, fit_set.y)
         self.temperature_ = _temperature(pipe.scores(calib[0]).numpy(), np.asarray(calib[1]))

@@ -37,17 +37,36 @@ class Trainer:
         val: tuple[torch.Tensor, np.ndarray] | None = None,
         on_epoch: Callable[[int, dict], None] | None = None,
         resume: dict | None = None,
+        groups: np.ndarray | None = None,
     ) -> list[float]:
-        """Train on spike times ``[N, A, k]`` and labels ``[N]``; returns the error per epoch."""
+        """Train on spike times ``[N, A, k]`` and labels ``[N]``; returns the error per epoch.
+
+        A model that solves in one go (:meth:`~SpikeModel.solve`) does so instead of the epochs:
+        one entry of history, what it chose in ``self.history["solved"]``; ``groups``: the
+        windows' recording ids ``[N]`` for its cross-validation."""
         cfg, model = self.config, self.model
         yt = to_tensor_labels(np.asarray(y), model.n_classes, spikes.shape[0])
         gen = torch.Generator().manual_seed(cfg.seed)
         by_rule = model.learns_by_rule
         opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
         st = {"epoch": 0, "history": [], "val_history": [], "best_score": -math.inf, "stale": 0}
+        solved = None
         if resume is None:
             model.prepare(spikes)  # resumed runs restore what it fitted with their weights
+            solved = model.solve(spikes, yt, groups)
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        if solved is not None:  # the optimum: no epochs to run
+            st["history"].append(
+                float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
+            )
+            if val is not None:
+                vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
+                st["val_history"].append(
+                    float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
+                )
+            st["epoch"] = cfg.epochs
+            if on_epoch is not None:
+                on_epoch(0, self.state(st, gen, opt, best_w))
         if resume is not None:
             _load_state(model, resume["model"])
             gen.set_state(torch.from_numpy(np.asarray(resume["rng"], dtype=np.uint8)))
@@ -57,7 +76,8 @@ class Trainer:
             st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
             best_w = {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}
         desc = f"train {type(model).registry_name}"
-        bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc, disable=not self.progress)
+        bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc,
+                   disable=not self.progress or st["epoch"] >= cfg.epochs)  # fmt: skip
         for epoch in bar:
             perm = torch.randperm(spikes.shape[0], generator=gen)
             model.train()
@@ -97,7 +117,7 @@ class Trainer:
             model.load_state_dict(best_w)
         model.eval()
         model.calibrate_decision(spikes)  # on the weights kept
-        self.history = st
+        self.history = {**st, "solved": solved}
         return st["history"]
 
     def state(self, st: dict, gen: torch.Generator, opt, best_w: dict) -> dict:

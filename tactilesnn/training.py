@@ -99,6 +99,7 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
         val=(s_val, val_set.y) if val_set is not None else None,
         on_epoch=checkpoint,
         resume=resume,
+        groups=fit_set.scan,
     )
     t_fit = time.perf_counter() - t0 - t_enc
     test_scores = pipe.scores(s_test).numpy()
@@ -125,6 +126,8 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
     }
     if early is not None:
         metrics["early_decision"] = early
+    if trainer.history.get("solved") is not None:
+        metrics["model_fit"] = trainer.history["solved"]
     skipped = pipe.encoder.skip_stats()  # {mechanism: what it skipped}
     if skipped is not None:  # what the skipping changed: the test split encoded without it
         with pipe.encoder.skipping(False):

@@ -354,6 +354,16 @@ def export_into_run(
     return {k: rep[k] for k in keys if k in rep}
 
 
+def saved_pipeline_config(d: dict) -> PipelineConfig:
+    """A saved run's settings: a component field added after the run was written takes the
+    value it had then (the component's ``SAVED_BEFORE``), not today's default."""
+    cfg = PipelineConfig.from_dict(d)
+    before = getattr(type(cfg.model), "SAVED_BEFORE", {})
+    saved = d.get("model", {}) if is_nested(d) else d
+    missing = {k: v for k, v in before.items() if k not in saved}
+    return cfg.replace(model=replace(cfg.model, **missing)) if missing else cfg
+
+
 def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
     """Rebuild a trained pipeline from a run folder (JSON config + npz weights, no pickle)."""
     run_dir = Path(run_dir)
@@ -363,7 +373,7 @@ def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
     cfg = read_json(run_dir / "config.json")
     legacy = not is_nested(cfg["pipeline"])  # written before the component layer
     pipe = SpikePipeline(
-        PipelineConfig.from_dict(cfg["pipeline"]),
+        saved_pipeline_config(cfg["pipeline"]),
         cfg["fs_hz"],
         cfg["window"],
         cfg["channel_names"],

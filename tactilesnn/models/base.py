@@ -112,6 +112,13 @@ class SpikeModel(nn.Module):
         """Fit input statistics on the training spikes ``[N, A, k]`` before the first epoch
         (e.g. feature scaling, kept as buffers so they are saved and exported); default: none."""
 
+    def solve(self, spikes: Tensor, y: Tensor, groups=None) -> dict | None:
+        """Fit in one go instead of the trainer's epochs (a convex model solved to its optimum),
+        after :meth:`prepare`: labels ``y [N]`` int64, ``groups`` recording ids ``[N]`` (for
+        cross-validation; None: each window its own). Returns what the fit chose (reported in
+        ``metrics.json``), or None (default): train by epochs."""
+        return None
+
     def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
         """Differentiable training loss (models that learn by gradient)."""
         raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")

@@ -1,6 +1,7 @@
 """Leaky-integrator readout: traces against a float64 loop, many classes, export parity."""
 
 import numpy as np
+import pytest
 import torch
 
 from tactilesnn.app.run import load_run
@@ -88,3 +89,65 @@ def test_weights_without_the_scaler_load_as_identity():
     spikes = torch.rand(4, fresh.model.n_afferents, 1) * 500
     np.testing.assert_array_equal(fresh.model.features(spikes).numpy(),
                                   fresh.model.traces(spikes).numpy())  # fmt: skip
+
+
+def _timing_problem(seed: int = 3):
+    rng = np.random.default_rng(seed)
+    proto = rng.uniform(0, 400, (3, 8, 1))
+    y = np.repeat(np.arange(3), 30)
+    spikes = np.clip(proto[y] + rng.normal(0, 40, (y.size, 8, 1)), 0, 400)
+    return torch.from_numpy(spikes).float(), y
+
+
+def test_the_exact_solver_finds_scikit_learns_optimum_on_the_readouts_features():
+    from sklearn.linear_model import LogisticRegression
+
+    from tactilesnn.config import TrainConfig
+
+    spikes, y = _timing_problem()
+    model = build_model(ReadoutConfig(n_times=4, choose=False), 8, 1, 3, 400.0)
+    trainer = Trainer(model, TrainConfig(epochs=7, batch_size=16))
+    history = trainer.fit(spikes, y)
+    assert len(history) == 1 and trainer.history["epoch"] == 7  # solved: no epochs to run
+    info = trainer.history["solved"]
+    assert info["instants"] == 4 and info["penalty"] == pytest.approx(0.03 * 256 / 90)
+    feats = model.features(spikes).detach().double().numpy()
+    ref = LogisticRegression(C=1.0 / (2 * info["penalty"] * 90), tol=1e-10, max_iter=10_000)
+    ref.fit(feats, y)
+    w = model.linear.weight.detach().numpy()
+    np.testing.assert_allclose(w, ref.coef_, atol=1e-3 * np.abs(ref.coef_).max())
+
+
+def test_cross_validation_reports_every_candidate_and_zeroes_unused_instants():
+    spikes, y = _timing_problem(4)
+    groups = np.arange(90) // 3
+    model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
+    model.prepare(spikes)
+    info = model.solve(spikes, torch.from_numpy(y), groups)
+    assert {(r["instants"], r["penalty"]) for r in info["cross_validation"]} == {
+        (m, model.config.weight_decay * 256 / 90 * f) for m in (4, 1)
+        for f in (1 / 3, 1.0, 3.0, 10.0, 30.0)
+    }  # fmt: skip
+    best = max(r["cv_accuracy"] for r in info["cross_validation"])
+    chosen = [r for r in info["cross_validation"]
+              if r["instants"] == info["instants"] and r["penalty"] == info["penalty"]]  # fmt: skip
+    assert chosen[0]["cv_accuracy"] == best
+    w = model.linear.weight.detach().numpy().reshape(3, 8, 4)
+    if info["instants"] == 1:
+        assert np.all(w[..., :3] == 0) and np.any(w[..., 3] != 0)
+
+
+def test_adam_and_saved_runs_keep_the_epochs():
+    from tactilesnn.app.run import saved_pipeline_config
+
+    spikes, y = _timing_problem()
+    model = build_model(ReadoutConfig(solver="adam"), 8, 1, 3, 400.0)
+    model.prepare(spikes)
+    assert model.solve(spikes, torch.from_numpy(y)) is None
+    saved = PipelineConfig.from_flat(model="readout").to_dict()
+    del saved["model"]["solver"], saved["model"]["choose"]  # written before the exact solver
+    cfg = saved_pipeline_config(saved)
+    assert (cfg.model.solver, cfg.model.choose) == ("adam", False)
+    assert PipelineConfig.from_dict(saved).model.solver == "exact"  # a user's file: today's
+    with pytest.raises(ValueError, match="solver"):
+        ReadoutConfig(solver="sgd")
