@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -78,6 +79,9 @@ def select_encoder(
     fit_set = selection_subset(fit_set, cap, config.seed)
     val_set = selection_subset(val_set, cap, config.seed + 1)
     median = median_power_frequency(fit_set.X, train.fs_hz)
+    # the model as a component asks to be fitted while encoders are compared (e.g. without its
+    # own cross-validation); the chosen config keeps the model as configured
+    quick = replace(config.model, **getattr(type(config.model), "WHILE_SELECTING", {}))
     scores: dict[str, dict[str, float]] = {}
     best, best_key = config, (-1.0, -1.0)
     for name in candidates:
@@ -85,7 +89,7 @@ def select_encoder(
         defaults = getattr(cls, "data_defaults", None)
         fitted = defaults(train.fs_hz, train.X.shape[-1], median) if defaults else {}
         cfg = config.replace(encoder=cls(**fitted))
-        m = fit_and_evaluate(cfg, fit_set, val_set, progress=False).metrics
+        m = fit_and_evaluate(cfg.replace(model=quick), fit_set, val_set, progress=False).metrics
         key = (m["test_accuracy"], m.get("test_accuracy_per_recording", m["test_accuracy"]))
         scores[name] = {"per_window": float(key[0])}
         if "test_accuracy_per_recording" in m:

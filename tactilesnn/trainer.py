@@ -55,7 +55,7 @@ class Trainer:
             model.prepare(spikes)  # resumed runs restore what it fitted with their weights
             solved = model.solve(spikes, yt, groups)
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
-        if solved is not None:  # the optimum: no epochs to run
+        if solved is not None and not solved.get("train_epochs"):  # the optimum: no epochs
             st["history"].append(
                 float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
             )

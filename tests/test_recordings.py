@@ -129,9 +129,33 @@ def test_encoder_selection_picks_the_code_that_keeps_what_separates_the_classes(
     assert best.encoder_type == "lif" and set(scores) == {"gwt", "stft", "lif"}
     assert scores["lif"] > 0.9 and scores["lif"] > max(scores["gwt"], scores["stft"]) + 0.2
     assert best.model == cfg.model and best.train == cfg.train  # only the encoder changes
+    assert best.model.choose  # the readout's own cross-validation kept for the final training
     # the calibrated level code gives the window-normalised codes the level back
     _, report = select_encoder(cfg.replace(level_neurons=4), train, ("gwt", "stft"))
     assert min(v["per_window"] for v in report["scores"].values()) > 0.9
+
+
+def test_candidates_are_fitted_as_the_model_asks_while_selecting(monkeypatch) -> None:
+    """The readout's cross-validation is skipped while encoders are compared (its
+    ``WHILE_SELECTING``), not in the chosen configuration."""
+    from tactilesnn import selection
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.datasets_synth import WindowDataset
+
+    seen = []
+    real = selection.fit_and_evaluate
+
+    def spy(cfg, *a, **k):
+        seen.append(cfg.model.choose)
+        return real(cfg, *a, **k)
+
+    monkeypatch.setattr(selection, "fit_and_evaluate", spy)
+    rng = np.random.default_rng(1)
+    X = rng.standard_normal((24, 1, 100)).astype(np.float32)
+    train = WindowDataset(X, np.arange(24) % 2, np.arange(24), 100.0, ("a", "b"), ("ch0",))
+    cfg = PipelineConfig.from_flat(channels=("all",), model="readout")
+    best, _ = selection.select_encoder(cfg, train, ("gwt", "lif"))
+    assert seen == [False, False] and best.model.choose
 
 
 def test_selection_subset_takes_whole_recordings_of_every_class_up_to_the_cap() -> None:

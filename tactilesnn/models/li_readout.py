@@ -36,6 +36,7 @@ Runs written before keep their settings and score as before.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -47,14 +48,24 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
 from .base import SpikeModel, register_model, seeded
-from .softmax_fit import PENALTY_FACTORS, choose_penalty, fit_softmax, orthogonal_basis
+from .softmax_fit import (
+    CV_WINDOWS,
+    PENALTY_FACTORS,
+    choose_penalty,
+    fit_softmax,
+    orthogonal_basis,
+    whole_groups,
+)
+
+log = logging.getLogger("tactilesnn")
 
 #: training windows at which the penalty is ``weight_decay`` (see the module docstring)
 PRIOR_WINDOWS = 256
 SOLVERS = ("exact", "adam")
-#: the exact solver's float64 feature matrix may take this much; above it the readout trains
-#: by the trainer's Adam epochs (with the configured penalty, every instant)
-EXACT_BUDGET_BYTES = 1 << 30
+#: the exact solver's float64 feature matrix may take this much (its working set is about four
+#: times that: basis, Gram matrix); above it the readout trains by the trainer's Adam epochs
+#: (with the configured penalty, every instant)
+EXACT_BUDGET_BYTES = 384 << 20
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,9 @@ class ReadoutConfig:
 
     #: what a saved configuration without these fields meant (runs written before them)
     SAVED_BEFORE: ClassVar[dict[str, object]] = {"solver": "adam", "choose": False}
+    #: while encoders are compared (:func:`~tactilesnn.selection.select_encoder`): one exact fit
+    #: at the configured penalty, every instant (the ranking of encoders, at a third of the cost)
+    WHILE_SELECTING: ClassVar[dict[str, object]] = {"choose": False}
     FLAGS: ClassVar[dict[str, str]] = {
         "readout_tau_ms": "tau_ms",
         "readout_times": "n_times",
@@ -150,6 +164,8 @@ class LIReadout(SpikeModel):
         self.register_buffer("feat_mean", torch.zeros(n_in))
         self.register_buffer("feat_scale", torch.ones(n_in))
         self.penalty = float(config.weight_decay)  # set from the training set's size by prepare()
+        # which features train (solve() may leave instants out); not saved: zero weights are
+        self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
 
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
@@ -183,51 +199,80 @@ class LIReadout(SpikeModel):
 
     @torch.no_grad()
     def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None) -> dict | None:
-        """The exact solver (``solver = "exact"``; None otherwise, or when the features exceed
-        :data:`EXACT_BUDGET_BYTES`: the trainer's epochs then): after :meth:`prepare`, the
+        """The exact solver (``solver = "exact"``; None otherwise): after :meth:`prepare`, the
         penalised cross-entropy minimised to its optimum, with ``choose`` the penalty and the
         read-out instants used (the others get zero weight) chosen by cross-validation over
         ``groups`` (recording ids ``[N]``; each window its own without). Returns what was
-        chosen, with the cross-validated accuracy of every candidate."""
+        chosen, with the cross-validated accuracy of every candidate.
+
+        Bounded: where the float64 features exceed :data:`EXACT_BUDGET_BYTES`, the choice is
+        made on whole recordings that fit it (at most ``CV_WINDOWS``) and the weights are then
+        trained by the trainer's epochs with that penalty and those instants
+        (``"train_epochs": True`` in the report)."""
         cfg = self.config
         n, d = spikes.shape[0], self.linear.in_features
-        if cfg.solver != "exact" or n == 0 or 8 * n * d > EXACT_BUDGET_BYTES:
+        exact = 8 * n * d <= EXACT_BUDGET_BYTES
+        if cfg.solver != "exact" or n == 0 or (not exact and not cfg.choose):
             return None
         t0 = time.perf_counter()
-        feats = torch.cat([self.features(spikes[i : i + b]).double()
-                           for i, b in _batches(n, self.batch_size(spikes))])  # fmt: skip
         groups = np.arange(n) if groups is None else np.asarray(groups)
+        # over the budget, only the windows the cross-validation uses are featurised
+        cap = min(CV_WINDOWS, EXACT_BUDGET_BYTES // (8 * d))
+        idx = np.arange(n) if exact else whole_groups(groups, cap)
+        sub = spikes[torch.from_numpy(idx)] if not exact else spikes
+        feats = torch.cat([self.features(sub[i : i + b]).double()
+                           for i, b in _batches(len(idx), self.batch_size(sub))])  # fmt: skip
+        ys, gs = y[torch.from_numpy(idx)], groups[idx]
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
         subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
         factors = PENALTY_FACTORS if cfg.choose else (1.0,)
         best: tuple = ()
         table = []
         for subset in subsets:
-            g, v = orthogonal_basis(feats[:, cols[:, subset].reshape(-1)])
-            lam, rows = choose_penalty(g, y, groups, self.n_classes,
+            part = feats if len(subset) == cfg.n_times else feats[:, cols[:, subset].reshape(-1)]
+            g, v = orthogonal_basis(part)
+            del part
+            lam, rows = choose_penalty(g, ys, gs, self.n_classes,
                                        [self.penalty * f for f in factors])  # fmt: skip
             acc = max((r["cv_accuracy"] for r in rows), default=0.0)
             table += [{"instants": len(subset), **r} for r in rows]
             if not best or acc > best[0]:  # ties: the candidate tried first (more instants)
                 best = (acc, subset, lam, g, v)
         _, subset, lam, g, v = best
-        z, b, evals = fit_softmax(g, y, self.n_classes, lam)
+        used = cols[:, subset].reshape(-1)
         weight = torch.zeros(self.n_classes, d, dtype=torch.float64)
-        weight[:, cols[:, subset].reshape(-1)] = (v @ z).T
+        report = {"penalty": lam, "instants": len(subset),
+                  "instants_ms": [float(self.times_ms[j]) for j in subset],
+                  "cross_validation": table, "cv_windows": len(idx)}  # fmt: skip
+        if exact:
+            z, b, evals = fit_softmax(g, ys, self.n_classes, lam)
+            weight[:, used] = (v @ z).T
+            self.linear.bias.copy_(b.float())
+            report.update(solver="exact (L-BFGS)", function_evaluations=evals)
+        else:  # the trainer's epochs, on the chosen instants only (see loss())
+            weight[:, used] = self.linear.weight.double()[:, used]
+            self.instant_mask.zero_()
+            self.instant_mask[used] = 1.0
+            report.update(solver="adam (features over the exact fit's budget)", train_epochs=True)
         self.linear.weight.copy_(weight.float())
-        self.linear.bias.copy_(b.float())
+        report["seconds"] = time.perf_counter() - t0
+        log.info("readout: %s, penalty %.3g (%.3g x the prior), %d read-out instant(s)%s "
+                 "(%.1f s)", report["solver"], lam, lam / self.penalty, len(subset),
+                 " chosen by cross-validation over recordings" if cfg.choose else "",
+                 report["seconds"])  # fmt: skip
         self.penalty = lam
-        return {"solver": "exact (L-BFGS)", "penalty": lam, "instants": len(subset),
-                "instants_ms": [float(self.times_ms[j]) for j in subset],
-                "function_evaluations": evals, "cross_validation": table,
-                "seconds": time.perf_counter() - t0}  # fmt: skip
+        return report
 
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         return 4 * 4 * afferents * k * self.config.n_times
 
     def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
-        ce = nn.functional.cross_entropy(self.scores(spikes), y)
-        return ce + self.penalty * self.linear.weight.pow(2).sum()
+        # instants left out by solve() have zero weight and, masked here, zero gradient: Adam
+        # keeps them at exactly zero, so the unmasked scores() equal the masked ones
+        w = self.linear.weight * self.instant_mask
+        ce = nn.functional.cross_entropy(nn.functional.linear(self.features(spikes), w,
+                                                              self.linear.bias), y)  # fmt: skip
+        return ce + self.penalty * w.pow(2).sum()
 
     def learning_rate(self) -> float:
         return self.config.lr

@@ -21,6 +21,8 @@ from torch import Tensor
 PENALTY_FACTORS = (1 / 3, 1.0, 3.0, 10.0, 30.0)
 #: folds of the cross-validation (by recording: a recording's windows never straddle folds)
 FOLDS = 3
+#: windows the cross-validation uses at most (whole recordings, evenly spaced)
+CV_WINDOWS = 2000
 
 
 def orthogonal_basis(features: Tensor, rtol: float = 1e-6) -> tuple[Tensor, Tensor]:
@@ -62,7 +64,6 @@ def fit_softmax(
     ``max_iter`` iterations)."""
     n = g.shape[0]
     scale = 1.0 / torch.sqrt((g * g).sum(0) / (4.0 * n) + 2.0 * penalty)  # [r]
-    gs = g * scale
     w = torch.zeros(g.shape[1], n_classes, dtype=torch.float64)
     b = torch.zeros(n_classes, dtype=torch.float64)
     if init is not None:
@@ -79,7 +80,9 @@ def fit_softmax(
         nonlocal evals
         evals += 1
         opt.zero_grad()
-        loss = torch.nn.functional.cross_entropy(gs @ w + b, y) + penalty * (sq * w * w).sum()
+        # g (w scaled), not (g scaled) w: no scaled copy of the features
+        loss = torch.nn.functional.cross_entropy(g @ (w * scale[:, None]) + b, y)
+        loss = loss + penalty * (sq * w * w).sum()
         loss.backward()
         return loss
 
@@ -111,7 +114,7 @@ def choose_penalty(
     groups: np.ndarray,
     n_classes: int,
     penalties: list[float],
-    max_windows: int = 2000,
+    max_windows: int = CV_WINDOWS,
 ) -> tuple[float, list[dict]]:
     """The penalty with the highest cross-validated accuracy over recordings (ties: the lower
     held-out cross-entropy, then the larger penalty), on at most ``max_windows`` windows (whole
@@ -119,8 +122,10 @@ def choose_penalty(
     from the last (the well-conditioned end first), to a gradient of 1e-5 (a ranking, not the
     final weights). Returns ``(penalty, [{"penalty", "cv_accuracy", "cv_log_loss"} per
     penalty])``; with fewer than two recordings, the middle penalty and an empty table."""
-    keep = _whole_groups(np.asarray(groups), max_windows)
-    g, y, groups = g[torch.from_numpy(keep)], y[torch.from_numpy(keep)], np.asarray(groups)[keep]
+    keep = whole_groups(np.asarray(groups), max_windows)
+    if keep.size < len(y):  # the subsample's own basis: fewer, better-conditioned coordinates
+        g = orthogonal_basis(g[torch.from_numpy(keep)])[0]
+        y, groups = y[torch.from_numpy(keep)], np.asarray(groups)[keep]
     masks = group_folds(groups)
     if not masks:
         return penalties[len(penalties) // 2], []
@@ -145,7 +150,7 @@ def choose_penalty(
     return float(penalties[best]), table
 
 
-def _whole_groups(groups: np.ndarray, max_windows: int) -> np.ndarray:
+def whole_groups(groups: np.ndarray, max_windows: int) -> np.ndarray:
     """Indices of whole groups, evenly spaced over the groups, totalling at most
     ``max_windows`` windows (all when they fit; at least one group)."""
     if groups.size <= max_windows:

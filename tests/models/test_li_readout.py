@@ -151,3 +151,23 @@ def test_adam_and_saved_runs_keep_the_epochs():
     assert PipelineConfig.from_dict(saved).model.solver == "exact"  # a user's file: today's
     with pytest.raises(ValueError, match="solver"):
         ReadoutConfig(solver="sgd")
+
+
+def test_over_the_budget_the_choice_is_kept_and_the_epochs_train(monkeypatch):
+    """Features too large for the exact fit: the penalty and instants are chosen on whole
+    recordings within the budget, then Adam trains only the chosen instants."""
+    from tactilesnn.config import TrainConfig
+    from tactilesnn.models import li_readout
+
+    spikes, y = _timing_problem(5)
+    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 8 * 32 * 60)  # 60 of 90 windows
+    monkeypatch.setattr(li_readout, "instant_subsets", lambda n: [[n - 1]])  # the last only
+    model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
+    trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
+    history = trainer.fit(spikes, y, groups=np.arange(90) // 3)
+    info = trainer.history["solved"]
+    assert info["train_epochs"] and info["cv_windows"] <= 60 and len(history) == 5
+    assert info["instants"] == 1
+    w = model.linear.weight.detach().numpy().reshape(3, 8, 4)
+    assert np.all(w[..., :3] == 0) and np.all(w[..., 3] != 0)  # Adam kept the others at zero
+    assert "instant_mask" not in model.state_dict()  # not saved: the zero weights are
