@@ -56,14 +56,7 @@ class Trainer:
             solved = model.solve(spikes, yt, groups)
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if solved is not None and not solved.get("train_epochs"):  # the optimum: no epochs
-            st["history"].append(
-                float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
-            )
-            if val is not None:
-                vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
-                st["val_history"].append(
-                    float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
-                )
+            _record(st, model, spikes, yt, val)
             st["epoch"] = cfg.epochs
             if on_epoch is not None:
                 on_epoch(0, self.state(st, gen, opt, best_w))
@@ -92,13 +85,7 @@ class Trainer:
                     loss.backward()
                     opt.step()
             model.eval()
-            err = float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
-            st["history"].append(err)
-            score = 1.0 - err
-            if val is not None:
-                vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
-                score = float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
-                st["val_history"].append(score)
+            err, score = _record(st, model, spikes, yt, val)
             if score > st["best_score"]:
                 st["best_score"], st["stale"] = score, 0
                 best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
@@ -129,6 +116,20 @@ class Trainer:
         if opt is not None:
             state["optimizer"] = _flatten_optimizer(opt)
         return state
+
+
+def _record(st: dict, model: SpikeModel, spikes: torch.Tensor, yt: torch.Tensor,
+            val: tuple[torch.Tensor, np.ndarray] | None) -> tuple[float, float]:  # fmt: skip
+    """Append the training error (and validation accuracy) to ``st``; returns ``(error, score)``
+    with score the validation accuracy, or ``1 - error`` without validation."""
+    err = float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
+    st["history"].append(err)
+    if val is None:
+        return err, 1.0 - err
+    vy = torch.as_tensor(np.asarray(val[1]), dtype=torch.long)
+    score = float((model.batched_scores(val[0]).argmax(1) == vy).float().mean())
+    st["val_history"].append(score)
+    return err, score
 
 
 def _load_state(module: torch.nn.Module, arrays: dict) -> None:

@@ -124,11 +124,6 @@ def instant_subsets(n_times: int) -> list[list[int]]:
     return out
 
 
-def _batches(n: int, size: int):
-    for i in range(0, n, size):
-        yield i, size
-
-
 def trace_features(spikes: Tensor, times_ms: Tensor, tau_ms: float) -> Tensor:
     """Spike times ``[B, A, k]`` (ms, inf = none) -> traces ``[B, A, n_times]`` at ``times_ms``."""
     lag = times_ms.view(1, 1, 1, -1) - spikes.unsqueeze(-1)  # [B, A, k, T]; inf spikes -> -inf
@@ -220,8 +215,9 @@ class LIReadout(SpikeModel):
         cap = min(CV_WINDOWS, EXACT_BUDGET_BYTES // (8 * d))
         idx = np.arange(n) if exact else whole_groups(groups, cap)
         sub = spikes[torch.from_numpy(idx)] if not exact else spikes
-        feats = torch.cat([self.features(sub[i : i + b]).double()
-                           for i, b in _batches(len(idx), self.batch_size(sub))])  # fmt: skip
+        step = self.batch_size(sub)
+        feats = torch.cat([self.features(sub[i : i + step]).double()
+                           for i in range(0, len(idx), step)])  # fmt: skip
         ys, gs = y[torch.from_numpy(idx)], groups[idx]
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
         subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
@@ -257,7 +253,8 @@ class LIReadout(SpikeModel):
         self.linear.weight.copy_(weight.float())
         report["seconds"] = time.perf_counter() - t0
         log.info("readout: %s, penalty %.3g (%.3g x the prior), %d read-out instant(s)%s "
-                 "(%.1f s)", report["solver"], lam, lam / self.penalty, len(subset),
+                 "(%.1f s)", report["solver"], lam, lam / self.penalty if self.penalty else 1.0,
+                 len(subset),
                  " chosen by cross-validation over recordings" if cfg.choose else "",
                  report["seconds"])  # fmt: skip
         self.penalty = lam

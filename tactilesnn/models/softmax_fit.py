@@ -40,7 +40,7 @@ def orthogonal_basis(features: Tensor, rtol: float = 1e-6) -> tuple[Tensor, Tens
     s, vec = s[:r], vec[:, :r]
     if d <= n:
         return f @ vec, vec
-    return vec * s, (f.T @ vec) / s
+    return vec * s, (f.T @ vec) / s.clamp_min(1e-300)  # all-zero features: V = 0, weights 0
 
 
 def fit_softmax(
@@ -63,7 +63,8 @@ def fit_softmax(
     function evaluations)``; stops when the largest gradient entry is below ``tol`` (or after
     ``max_iter`` iterations)."""
     n = g.shape[0]
-    scale = 1.0 / torch.sqrt((g * g).sum(0) / (4.0 * n) + 2.0 * penalty)  # [r]
+    # (+ a tiny floor: a zero column with no penalty would scale by infinity)
+    scale = 1.0 / torch.sqrt((g * g).sum(0) / (4.0 * n) + 2.0 * penalty + 1e-12)  # [r]
     w = torch.zeros(g.shape[1], n_classes, dtype=torch.float64)
     b = torch.zeros(n_classes, dtype=torch.float64)
     if init is not None:

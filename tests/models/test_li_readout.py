@@ -171,3 +171,15 @@ def test_over_the_budget_the_choice_is_kept_and_the_epochs_train(monkeypatch):
     w = model.linear.weight.detach().numpy().reshape(3, 8, 4)
     assert np.all(w[..., :3] == 0) and np.all(w[..., 3] != 0)  # Adam kept the others at zero
     assert "instant_mask" not in model.state_dict()  # not saved: the zero weights are
+
+
+@pytest.mark.parametrize("n_times", [4, 16])  # fewer features than windows, and more
+def test_silent_inputs_give_finite_zero_weights(n_times):
+    spikes = torch.full((20, 8, 1), float("inf"))  # no afferent ever spikes: constant features
+    y = np.arange(20) % 2
+    model = build_model(ReadoutConfig(n_times=n_times, weight_decay=0.0), 8, 1, 2, 400.0)
+    model.prepare(spikes)
+    info = model.solve(spikes, torch.from_numpy(y), np.arange(20) // 2)
+    w = model.linear.weight.detach()
+    assert info is not None and torch.isfinite(w).all() and torch.all(w == 0)
+    assert torch.isfinite(model.scores(spikes)).all()
