@@ -122,7 +122,10 @@ def choose_penalty(
     recordings, evenly spaced). Fitted from the largest penalty down, each fit warm-started
     from the last (the well-conditioned end first), to a gradient of 1e-5 (a ranking, not the
     final weights). Returns ``(penalty, [{"penalty", "cv_accuracy", "cv_log_loss"} per
-    penalty])``; with fewer than two recordings, the middle penalty and an empty table."""
+    penalty])``; with one penalty (nothing to choose) or fewer than two recordings, the middle
+    penalty and an empty table."""
+    if len(penalties) == 1:
+        return float(penalties[0]), []
     keep = whole_groups(np.asarray(groups), max_windows)
     if keep.size < len(y):  # the subsample's own basis: fewer, better-conditioned coordinates
         g = orthogonal_basis(g[torch.from_numpy(keep)])[0]
