@@ -107,7 +107,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     m, encoder = result.metrics, result.config.encoder_type
     if "encoder_selection" in m:
         sel = m["encoder_selection"]
-        held = ", ".join(f"{k} {100 * v['per_window']:.1f} %" for k, v in sel["scores"].items())
+        held = ", ".join(f"{k} {100 * v['per_window']:.1f} %"
+                         + (" (first round, stopped)" if v.get("stopped_early") else "")
+                         for k, v in sel["scores"].items())  # fmt: skip
         print(f"encoder chosen on held-out training recordings: {encoder} (per window: {held}; "
               f"{sel['fit_windows']} + {sel['val_windows']} windows, {sel['seconds']:.0f} s)")  # fmt: skip
     print(

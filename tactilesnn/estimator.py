@@ -28,6 +28,8 @@ from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 from .config import (
     DATA_ENCODER_CANDIDATES,
     DATA_LEVEL_NEURONS,
+    DATA_LEVEL_SCALE,
+    DATA_LEVEL_SHARE,
     DEFAULT_ENCODER,
     PipelineConfig,
     data_file_defaults,
@@ -62,6 +64,9 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
     level_neurons : receptive fields of the calibrated level code appended to the encoder's
         spikes (:mod:`tactilesnn.encoders.level`; 0 = off, needed by models that map every
         afferent onto a taxel grid, such as ``csnn``).
+    level_scale, level_share : what the level code's pairs code (``"rank"``, ``"linear"`` or
+        ``"rank+linear"``) and whether each channel's share of the window's total level is a
+        third statistic (as ``train --data``).
     val_fraction : windows (whole groups) held out of training for best-weight selection and
         the probability calibration (0: both on the training windows).
     fs_hz : sampling rate (Hz) when ``fit`` is not given one (``fit``'s wins).
@@ -79,6 +84,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         batch_size: int = 32,
         clock_afferents: int = 5,
         level_neurons: int = DATA_LEVEL_NEURONS,
+        level_scale: str = DATA_LEVEL_SCALE,
+        level_share: bool = DATA_LEVEL_SHARE,
         val_fraction: float = 0.0,
         seed: int = 0,
         fs_hz: float | None = None,
@@ -93,6 +100,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.batch_size = batch_size
         self.clock_afferents = clock_afferents
         self.level_neurons = level_neurons
+        self.level_scale = level_scale
+        self.level_share = level_share
         self.val_fraction = val_fraction
         self.seed = seed
         self.fs_hz = fs_hz
@@ -190,6 +199,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
         d["clock_afferents"] = self.clock_afferents
         d["level_neurons"] = self.level_neurons
+        d["level_scale"] = self.level_scale
+        d["level_share"] = self.level_share
         d["train"].update(batch_size=self.batch_size, seed=self.seed,
                           **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
         return PipelineConfig.from_dict(d)

@@ -71,7 +71,8 @@ class SpikePipeline:
         self.channel_idx = select_channels(config.channels, self.channel_names)
         self.duration_ms = 1000.0 * self.window / self.fs_hz
         self.encoder = build_encoder(config.encoder, self.fs_hz, self.window, len(self.channel_idx))
-        self.level = (LevelCode(len(self.channel_idx), config.level_neurons, self.duration_ms)
+        self.level = (LevelCode(len(self.channel_idx), config.level_neurons, self.duration_ms,
+                                scale=config.level_scale, share=config.level_share)
                       if config.level_neurons else None)  # fmt: skip
         self.n_level = self.level.n_afferents if self.level is not None else 0
         self.n_clock = config.clock_afferents

@@ -56,6 +56,21 @@ def selection_subset(data: WindowDataset, cap: int, seed: int) -> WindowDataset:
     return data.subset(np.isin(data.scan, keep))
 
 
+#: the first round fits every candidate on this share of the selection windows (when that is at
+#: least FIRST_ROUND_MIN_WINDOWS); a candidate further below the round's best than
+#: HOPELESS_POINTS, or three standard errors of the difference if that is more, stops there
+FIRST_ROUND_SHARE = 0.25
+FIRST_ROUND_MIN_WINDOWS = 300
+HOPELESS_POINTS = 0.05
+
+
+def hopeless(acc: float, best: float, n: int) -> bool:
+    """Whether held-out accuracy ``acc`` on ``n`` windows is too far below ``best`` (same
+    windows) to win with more training windows (see :data:`HOPELESS_POINTS`)."""
+    se = np.sqrt((acc * (1 - acc) + best * (1 - best)) / max(n, 1))
+    return best - acc > max(HOPELESS_POINTS, 3 * se)
+
+
 def select_encoder(
     config: PipelineConfig,
     train: WindowDataset,
@@ -70,8 +85,10 @@ def select_encoder(
     (per window: many more samples than the quarter of the recordings held out, where one
     recording is several points). Bounded in time: the candidates are fitted on at most
     ``max(SELECT_MIN_WINDOWS, training windows / candidates)`` windows of whole recordings, so the
-    selection costs about one final training. Returns the chosen config and a report
-    (``scores`` per candidate, ``ranked_by``, windows used, ``seconds``)."""
+    selection costs about one final training; where that is large, a first round on a quarter of
+    them stops the hopeless candidates early (:func:`hopeless`). Returns the chosen config and a
+    report (``scores`` per candidate, with ``stopped_early`` and ``first_round`` where that
+    applies, ``ranked_by``, windows used, ``seconds``)."""
     t0 = time.perf_counter()
     fit_set, val_set = split_validation(train, fraction, config.seed + 1)
     assert val_set is not None
@@ -82,27 +99,56 @@ def select_encoder(
     # the model as a component asks to be fitted while encoders are compared (e.g. without its
     # own cross-validation); the chosen config keeps the model as configured
     quick = replace(config.model, **getattr(type(config.model), "WHILE_SELECTING", {}))
-    scores: dict[str, dict[str, float]] = {}
-    best, best_key = config, (-1.0, -1.0)
+    configs = {}
     for name in candidates:
         cls = ENCODERS.config_class(name)
         defaults = getattr(cls, "data_defaults", None)
         fitted = defaults(train.fs_hz, train.X.shape[-1], median) if defaults else {}
-        cfg = config.replace(encoder=cls(**fitted))
-        m = fit_and_evaluate(cfg.replace(model=quick), fit_set, val_set, progress=False).metrics
-        key = (m["test_accuracy"], m.get("test_accuracy_per_recording", m["test_accuracy"]))
-        scores[name] = {"per_window": float(key[0])}
-        if "test_accuracy_per_recording" in m:
-            scores[name]["per_recording"] = float(key[1])
-        log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows", name,
-                 100 * key[0], (f", {100 * key[1]:.2f} % per recording"
-                                if "test_accuracy_per_recording" in m else ""),
-                 val_set.y.size)  # fmt: skip
+        configs[name] = config.replace(encoder=cls(**fitted))
+
+    def scored(name: str, fit: WindowDataset, val: WindowDataset) -> tuple[float, float | None]:
+        m = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False).metrics
+        per_rec = m.get("test_accuracy_per_recording")
+        log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows "
+                 "(fitted on %d)", name, 100 * m["test_accuracy"],
+                 f", {100 * per_rec:.2f} % per recording" if per_rec is not None else "",
+                 val.y.size, fit.y.size)  # fmt: skip
+        return float(m["test_accuracy"]), None if per_rec is None else float(per_rec)
+
+    scores: dict[str, dict[str, Any]] = {name: {} for name in candidates}
+    alive = list(candidates)
+    first = int(FIRST_ROUND_SHARE * fit_set.y.size)
+    ran_first = len(alive) > 1 and first >= FIRST_ROUND_MIN_WINDOWS
+    if ran_first:
+        small_fit = selection_subset(fit_set, first, config.seed + 2)
+        small_val = selection_subset(val_set, int(FIRST_ROUND_SHARE * val_set.y.size),
+                                     config.seed + 3)  # fmt: skip
+        for name in alive:
+            scores[name]["first_round"] = scored(name, small_fit, small_val)[0]
+        top = max(scores[name]["first_round"] for name in alive)
+        for name in alive:
+            acc = scores[name]["first_round"]
+            if hopeless(acc, top, small_val.y.size):
+                scores[name].update(per_window=acc, stopped_early=True)
+                log.info("encoder selection: %s stops after the first round (%.2f %% against "
+                         "%.2f %%)", name, 100 * acc, 100 * top)  # fmt: skip
+        alive = [n for n in alive if not scores[n].get("stopped_early")]
+    best, best_key = alive[0], (-1.0, -1.0)
+    for name in alive:
+        if ran_first and len(alive) == 1:  # the only one left: its final training follows
+            acc, per_rec = scores[name]["first_round"], None
+        else:
+            acc, per_rec = scored(name, fit_set, val_set)
+        scores[name]["per_window"] = acc
+        if per_rec is not None:
+            scores[name]["per_recording"] = per_rec
+        key = (acc, acc if per_rec is None else per_rec)
         if key > best_key:
-            best, best_key = cfg, key
+            best, best_key = name, key
     seconds = time.perf_counter() - t0
-    log.info("encoder selection: %s (%.0f s)", best.encoder_type, seconds)
-    report = {"chosen": best.encoder_type, "ranked_by": "per window, then per recording",
+    log.info("encoder selection: %s (%.0f s)", best, seconds)
+    report = {"chosen": best, "ranked_by": "per window, then per recording",
               "scores": scores, "fit_windows": int(fit_set.y.size),
-              "val_windows": int(val_set.y.size), "seconds": seconds}  # fmt: skip
-    return best, report
+              "val_windows": int(val_set.y.size), "seconds": seconds,
+              "first_round_windows": first if ran_first else 0}  # fmt: skip
+    return configs[best], report

@@ -158,6 +158,46 @@ def test_candidates_are_fitted_as_the_model_asks_while_selecting(monkeypatch) ->
     assert seen == [False, False] and best.model.choose
 
 
+def test_hopeless_needs_both_points_and_standard_errors() -> None:
+    from tactilesnn.selection import hopeless
+
+    assert hopeless(0.5, 0.9, 100)  # 40 points, 3 SE = 18
+    assert not hopeless(0.87, 0.9, 10_000)  # under the 5-point floor, however many windows
+    assert not hopeless(0.8, 0.9, 30)  # 10 points but 3 SE = 27: could be noise
+    assert hopeless(0.8, 0.9, 1000)
+
+
+def test_hopeless_candidates_stop_after_the_first_round(monkeypatch) -> None:
+    """Classes that differ only in level: the window-normalised codes stop after a first round on
+    a quarter of the windows; the one left is not fitted again (its final training follows)."""
+    from tactilesnn import selection
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.datasets_synth import WindowDataset
+
+    calls = []
+    real = selection.fit_and_evaluate
+
+    def spy(cfg, fit, val, **k):
+        calls.append((cfg.encoder_type, fit.y.size, val.y.size))
+        return real(cfg, fit, val, **k)
+
+    monkeypatch.setattr(selection, "fit_and_evaluate", spy)
+    monkeypatch.setattr(selection, "FIRST_ROUND_MIN_WINDOWS", 20)
+    rng = np.random.default_rng(0)
+    y = np.arange(400) % 2
+    t = np.arange(200) / 200.0
+    shape = np.sin(2 * np.pi * 8 * t + rng.uniform(0, 6, (400, 1, 1)))
+    X = ((1 + 2 * y)[:, None, None] * shape).astype(np.float32)
+    train = WindowDataset(X, y, np.arange(400), 200.0, ("lo", "hi"), ("ch0",))
+    cfg = PipelineConfig.from_flat(channels=("all",), model="readout")
+    best, report = selection.select_encoder(cfg, train, ("gwt", "stft", "lif"))
+    assert best.encoder_type == "lif" and report["first_round_windows"] == 75
+    assert [c[0] for c in calls] == ["gwt", "stft", "lif"] and {c[1] for c in calls} == {75}
+    sc = report["scores"]
+    assert sc["gwt"]["stopped_early"] and sc["stft"]["stopped_early"]
+    assert "stopped_early" not in sc["lif"] and sc["lif"]["per_window"] > 0.9
+
+
 def test_selection_subset_takes_whole_recordings_of_every_class_up_to_the_cap() -> None:
     from tactilesnn.datasets_synth import WindowDataset
     from tactilesnn.selection import selection_subset

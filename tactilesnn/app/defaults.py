@@ -19,6 +19,8 @@ from typing import Any
 from ..config import (
     DATA_ENCODER_CANDIDATES,
     DATA_LEVEL_NEURONS,
+    DATA_LEVEL_SCALE,
+    DATA_LEVEL_SHARE,
     DEFAULT_MODEL,
     DEFAULT_MODEL_MAX_AFFERENTS,
     WIDE_INPUT_MODEL,
@@ -109,8 +111,10 @@ def _wide_input_model(
     events = encoder.n_afferents * encoder.max_spikes + config.clock_afferents
     if config.model_type == DEFAULT_MODEL and events > DEFAULT_MODEL_MAX_AFFERENTS:
         flat["model"] = WIDE_INPUT_MODEL
-        if "level_neurons" not in given:
-            flat["level_neurons"] = DATA_LEVEL_NEURONS
+        for key, value in (("level_neurons", DATA_LEVEL_NEURONS), ("level_scale", DATA_LEVEL_SCALE),
+                           ("level_share", DATA_LEVEL_SHARE)):  # fmt: skip
+            if key not in given:
+                flat[key] = value
         log.info("%d input events per window: the defaults of a data file (the %s model, level "
                  "code; the default %s's exact maximum costs their square per window, --model %s "
                  "insists)", events, WIDE_INPUT_MODEL, DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip

@@ -44,6 +44,11 @@ from torch import Tensor, nn
 from ..core.data import evenly_spaced
 
 STATS = ("mean", "log_sd")
+#: with ``share``: the level's share of the window's total across channels (scale-free)
+SHARE_STATS = ("mean", "log_sd", "share")
+#: what the ON / OFF pair codes: the training rank, the linear position in the training range, or
+#: a pair of each (the readout weighs them)
+SCALES = ("rank", "linear", "rank+linear")
 #: a receptive field's response below this is no spike
 SILENT_BELOW = 0.1
 #: the log_sd floor, relative to the channel's scale (median training sd + median |level|): a flat
@@ -53,33 +58,52 @@ SD_FLOOR = 1e-6
 MIN_GAP = 1e-3
 
 
-def window_stats(x: Tensor, centre: Tensor, sd_floor: Tensor) -> Tensor:
+def window_stats(
+    x: Tensor, centre: Tensor, sd_floor: Tensor, share_floor: Tensor | None = None
+) -> Tensor:
     """Window ``[B, C, W]`` -> ``[B, C, 2]``: mean - centre, ln(sd + floor) (``centre`` and
-    ``sd_floor`` ``[C]``). The centre (a channel's typical level) comes off first, so the sums are
-    of small deviations (raw counts sit near 20,000 where level differences are thousandths)."""
+    ``sd_floor`` ``[C]``); with ``share_floor`` (a scalar) ``[B, C, 3]``: the third is the
+    channel's share, (mean - centre) / (sum over channels of |mean - centre| + share_floor).
+    The centre (a channel's typical level) comes off first, so the sums are of small deviations
+    (raw counts sit near 20,000 where level differences are thousandths)."""
     x = x - centre.view(1, -1, 1)
     mean = x.mean(-1, keepdim=True)
     dev = x - mean
     sd = (dev * dev).mean(-1, keepdim=True).sqrt()
-    return torch.cat([mean, torch.log(sd + sd_floor.view(1, -1, 1))], -1)
+    out = [mean, torch.log(sd + sd_floor.view(1, -1, 1))]
+    if share_floor is not None:
+        out.append(mean / (mean.abs().sum(1, keepdim=True) + share_floor))
+    return torch.cat(out, -1)
 
 
 class LevelCode(nn.Module):
     """Channels' window statistics -> calibrated population latency code (module docstring)."""
 
-    def __init__(self, n_channels: int, neurons: int, duration_ms: float, quantiles: int = 32):
+    #: buffers a saved run may lack (added later); they keep their constructed value
+    optional_state = ("share_floor",)
+
+    def __init__(self, n_channels: int, neurons: int, duration_ms: float, quantiles: int = 32,
+                 scale: str = "rank", share: bool = False) -> None:  # fmt: skip
         super().__init__()
         if neurons < 2:
             raise ValueError(f"level_neurons must be 0 (off) or at least 2, got {neurons}")
+        if scale not in SCALES:
+            raise ValueError(f"level_scale must be one of {', '.join(SCALES)}, got {scale!r}")
         self.n_channels, self.neurons = int(n_channels), int(neurons)
+        self.scale, self.share = scale, bool(share)
+        self.stats = SHARE_STATS if self.share else STATS
+        #: ON / OFF pairs per statistic: the rank's, the linear position's, or both
+        self.pairs = 2 if scale == "rank+linear" else 1
         self.duration_ms = float(duration_ms)
         # float64 state and arithmetic: a window at a value many training windows share (a silent
         # channel at the sd floor) sits on a steep stretch of the rank function, where float32
         # rounding in another runtime moved spikes by whole knot intervals (26 ms, measured)
         f64 = torch.float64
-        self.register_buffer("knots", torch.zeros(n_channels, len(STATS), quantiles + 1, dtype=f64))
+        n_stats = len(self.stats)
+        self.register_buffer("knots", torch.zeros(n_channels, n_stats, quantiles + 1, dtype=f64))
         self.register_buffer("sd_floor", torch.ones(n_channels, dtype=f64))
         self.register_buffer("centre", torch.zeros(n_channels, dtype=f64))
+        self.register_buffer("share_floor", torch.ones((), dtype=f64))
         fields = neurons - 2
         centres = torch.full((fields,), 0.5, dtype=f64)  # one field: in the middle
         if fields > 1:
@@ -89,7 +113,7 @@ class LevelCode(nn.Module):
         self.width = 1.0 / (fields - 1) if fields > 1 else 0.5
         self.silent_below = SILENT_BELOW
         #: afferents of the code (a plain attribute: the module is scripted inside LIF graphs)
-        self.n_afferents = self.n_channels * len(STATS) * self.neurons
+        self.n_afferents = self.n_channels * n_stats * (self.neurons + 2 * (self.pairs - 1))
 
     @torch.jit.unused
     def fit(self, X: np.ndarray, n_max: int = 4096) -> LevelCode:
@@ -98,12 +122,18 @@ class LevelCode(nn.Module):
         idx = evenly_spaced(len(arr), n_max)
         x = np.asarray(arr[idx], dtype=np.float64)
         centre = np.median(x.mean(-1), axis=0)  # [C]
-        x = x - centre[:, None]
-        mean = x.mean(-1)
+        mean = x.mean(-1) - centre
         sd = x.std(-1)
         scale = np.median(sd, axis=0) + np.median(np.abs(mean), axis=0) + np.abs(centre)
         floor = np.where(scale > 0, SD_FLOOR * scale, 1e-30)
-        stats = np.stack([mean, np.log(sd + floor)], -1)  # [n, C, 2]
+        # the share's floor: the channels' typical deviations summed (windows at rest, whose
+        # deviations are noise, get small shares rather than noise magnified to +-1)
+        typical = float((np.median(sd, axis=0) + np.median(np.abs(mean), axis=0)).sum())
+        self.share_floor.fill_(typical if typical > 0 else 1e-30)
+        c, f = torch.from_numpy(centre), torch.from_numpy(floor)
+        step = max(1, (1 << 25) // max(1, x[0].nbytes))  # the statistics' deviations in chunks
+        stats = np.concatenate([self.stats_of(torch.from_numpy(x[i : i + step]), c, f).numpy()
+                                for i in range(0, len(x), step)])  # [n, C, stats]  # fmt: skip
         q = np.linspace(0.0, 1.0, self.knots.shape[-1])
         knots = np.quantile(stats, q, axis=0).transpose(1, 2, 0)  # [C, 2, K+1]
         # knots at least MIN_GAP of the range apart: where many windows share a value (silent
@@ -120,18 +150,36 @@ class LevelCode(nn.Module):
         self.centre.copy_(torch.from_numpy(centre))
         return self
 
-    def ranks(self, x: Tensor) -> Tensor:
-        """Window ``[B, C, W]`` -> each statistic's training rank ``[B, C, 2]`` in [0, 1]
-        (float64)."""
-        v = window_stats(x.double(), self.centre, self.sd_floor).unsqueeze(-1)  # [B, C, 2, 1]
+    def stats_of(self, x: Tensor, centre: Tensor, sd_floor: Tensor) -> Tensor:
+        """Window ``[B, C, W]`` (float64) -> its statistics ``[B, C, S]``."""
+        return window_stats(x, centre, sd_floor, self.share_floor if self.share else None)
+
+    def rank_of(self, v: Tensor) -> Tensor:
+        """Statistics ``[B, C, S]`` -> their training ranks in [0, 1] (float64)."""
+        v = v.unsqueeze(-1)
         lo, hi = self.knots[..., :-1], self.knots[..., 1:]
-        frac = ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
-        return frac.mean(-1)
+        return ((v - lo) / (hi - lo)).clamp(0.0, 1.0).mean(-1)
+
+    def position_of(self, v: Tensor) -> Tensor:
+        """Statistics ``[B, C, S]`` -> their linear positions in the training range, in [0, 1]
+        (float64): proportional to the value, so a linear readout can form weighted sums of
+        levels (a centroid, a total force) that ranks distort."""
+        lo, hi = self.knots[..., 0], self.knots[..., -1]
+        return ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
+
+    def ranks(self, x: Tensor) -> Tensor:
+        """Window ``[B, C, W]`` -> each statistic's training rank ``[B, C, S]`` in [0, 1]."""
+        return self.rank_of(self.stats_of(x.double(), self.centre, self.sd_floor))
 
     def forward(self, x: Tensor) -> Tensor:
-        """Window ``[B, C, W]`` -> spike times ``[B, C * 2 * neurons]`` (ms, inf = silent)."""
-        u = self.ranks(x).unsqueeze(-1)  # [B, C, 2, 1]
+        """Window ``[B, C, W]`` -> spike times ``[B, n_afferents]`` (ms, inf = silent)."""
+        v = self.stats_of(x.double(), self.centre, self.sd_floor)
+        first = self.position_of(v) if self.scale == "linear" else self.rank_of(v)
+        u = first.unsqueeze(-1)  # [B, C, S, 1]
         t = torch.cat([self.duration_ms * (1.0 - u), self.duration_ms * u], -1)  # ON, OFF
+        if self.pairs == 2:
+            p = self.position_of(v).unsqueeze(-1)
+            t = torch.cat([t, self.duration_ms * (1.0 - p), self.duration_ms * p], -1)
         if self.fields > 0:
             z = (u - self.centres) / self.width
             r = torch.exp(-0.5 * z * z)

@@ -118,13 +118,18 @@ def test_pipeline_appends_the_level_afferents_between_encoder_and_clock():
     assert np.allclose(level[:, :, 0], pipe.level(torch.from_numpy(X)).numpy())
 
 
-@pytest.mark.parametrize("encoder", ["gwt", "lif"])  # traced and scripted encoder graphs
-def test_level_code_is_saved_with_the_run_and_exported(tmp_path, encoder):
+@pytest.mark.parametrize(
+    "encoder, scale, share",
+    [("gwt", "rank", False), ("lif", "rank", False), ("gwt", "rank+linear", True)],
+)  # traced and scripted encoder graphs; the data defaults' pairs and share
+def test_level_code_is_saved_with_the_run_and_exported(tmp_path, encoder, scale, share):
     params = {"seed": 0, "n_planar": 8, "n_concave": 4, "n_convex": 4, "n_test": 3}
-    cfg = PipelineConfig.from_flat(encoder=encoder, model="readout", level_neurons=4, epochs=2)
+    cfg = PipelineConfig.from_flat(encoder=encoder, model="readout", level_neurons=4, epochs=2,
+                                   level_scale=scale, level_share=share)  # fmt: skip
     run, _ = run_task("hook_loop", params, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
     assert pipe.level is not None and float(pipe.level.knots.abs().sum()) > 0
+    assert (pipe.level.scale, pipe.level.share) == (scale, share)
     from tactilesnn.datasets_synth import HookLoopTask
 
     X = HookLoopTask(**params).build()[1].X
@@ -134,3 +139,85 @@ def test_level_code_is_saved_with_the_run_and_exported(tmp_path, encoder):
     ref = pipe.scores(pipe.encode(X)).numpy()
     assert np.array_equal(got.argmax(1), ref.argmax(1)) and np.abs(got - ref).max() <= 1e-4
     assert math.isclose(float(pipe.level.duration_ms), pipe.duration_ms)
+
+
+def _reference_linear_and_share(code: LevelCode, X: np.ndarray, train: np.ndarray) -> np.ndarray:
+    """float64 NumPy: the rank pair, the linear pair (position between the training minimum and
+    maximum) of mean, log sd and share (the channel's deviation over the window's total)."""
+    x, tr = np.asarray(X, np.float64), np.asarray(train, np.float64)
+    centre = np.median(tr.mean(-1), axis=0)
+    floor = code.sd_floor.double().numpy()
+    typical = (np.median(tr.std(-1), 0) + np.median(np.abs(tr.mean(-1) - centre), 0)).sum()
+
+    def stats(a):
+        dev = a.mean(-1) - centre
+        share = dev / (np.abs(dev).sum(1, keepdims=True) + typical)
+        return np.stack([dev, np.log(a.std(-1) + floor), share], -1)
+
+    s_tr, v = stats(tr), stats(x)
+    knots = np.quantile(s_tr, np.linspace(0, 1, code.knots.shape[-1]), axis=0)
+    rank = np.empty_like(v)
+    for c in range(v.shape[1]):
+        for k in range(3):
+            rank[:, c, k] = np.interp(v[:, c, k], knots[:, c, k], np.linspace(0, 1, len(knots)))
+    lin = np.clip((v - s_tr.min(0)) / (s_tr.max(0) - s_tr.min(0)), 0, 1)
+    D = code.duration_ms
+    t = np.stack([D * (1 - rank), D * rank, D * (1 - lin), D * lin], -1)
+    return t.reshape(len(x), -1)
+
+
+def test_linear_pair_and_share_match_a_float64_reference():
+    train, test = _windows(seed=0), _windows(n=80, seed=1)
+    code = LevelCode(3, 2, 250.0, scale="rank+linear", share=True).fit(train)
+    assert code.n_afferents == 3 * 3 * 4  # channels x (mean, log sd, share) x two pairs
+    got = code(torch.from_numpy(test)).numpy()
+    ref = _reference_linear_and_share(code, test, train)
+    assert got.shape == ref.shape and np.abs(got - ref).max() < 0.05  # ms of 250
+    # the linear pair is proportional to the level: equal steps in level, equal steps in time
+    x = np.repeat(train[:1], 5, 0) + np.linspace(-1, 1, 5, dtype=np.float32)[:, None, None] * 20
+    t = code(torch.from_numpy(x)).numpy().reshape(5, 3, 3, 4)[:, 1, 0, 2]  # channel 1, mean, ON
+    np.testing.assert_allclose(np.diff(t), np.diff(t)[0], rtol=1e-3)  # float32 input at 2e4
+    only = LevelCode(3, 3, 250.0, scale="linear").fit(train)  # the pair and one field, linear
+    u = only.position_of(only.stats_of(torch.from_numpy(test).double(), only.centre,
+                                       only.sd_floor)).numpy()  # fmt: skip
+    t = only(torch.from_numpy(test)).numpy().reshape(80, 3, 2, 3)
+    np.testing.assert_allclose(t[..., 1], 250.0 * u, atol=1e-3)
+
+
+def test_share_is_scale_free_and_finite_at_rest():
+    train = _windows(seed=0)
+    code = LevelCode(3, 2, 100.0, share=True).fit(train)
+    centre = code.centre.numpy()[None, :, None].astype(np.float32)
+    press = np.broadcast_to(centre, (3, 3, 50)).astype(np.float64)
+    force = np.array([40.0, 400.0, 4000.0])
+    press[:, 1] += force[:, None]  # one taxel pressed; the others at their typical level
+    v = code.stats_of(torch.from_numpy(press), code.centre, code.sd_floor).numpy()[:, :, 2]
+    floor = float(code.share_floor)  # closed form: force / (force + floor), towards 1 at any scale
+    np.testing.assert_allclose(v[:, 1], force / (force + floor), atol=1e-5)  # float32 centre
+    assert np.abs(v[:, [0, 2]]).max() < 1e-4 and v[2, 1] > 0.95
+    rest = np.broadcast_to(centre, (1, 3, 50)).astype(np.float32)
+    assert np.isfinite(code(torch.from_numpy(rest)).numpy()).all()
+
+
+@pytest.mark.parametrize("bad", ["log", "Rank", ""])
+def test_unknown_level_scale_is_refused(bad):
+    with pytest.raises(ValueError, match="level_scale"):
+        PipelineConfig(level_scale=bad)
+    with pytest.raises(ValueError, match="level_scale"):
+        LevelCode(2, 2, 10.0, scale=bad)
+
+
+def test_a_run_saved_before_the_linear_pair_and_share_reads_as_it_was_written():
+    """Settings and weights without the new fields: the rank pair, no share, neutral floor."""
+    d = PipelineConfig.from_flat(encoder="lif", model="readout", level_neurons=2).to_dict()
+    for key in ("level_scale", "level_share"):
+        del d[key]
+    cfg = PipelineConfig.from_dict(d)
+    assert (cfg.level_scale, cfg.level_share) == ("rank", False)
+    pipe = SpikePipeline(cfg.replace(channels=("all",)), 200.0, 50, ("a", "b", "c"), ("x", "y"))
+    X = _windows(n=40)
+    pipe.calibrate(X)
+    w = {k: v for k, v in pipe.weights().items() if k != "level.share_floor"}
+    again = SpikePipeline(cfg.replace(channels=("all",)), 200.0, 50, ("a", "b", "c"), ("x", "y"))
+    again.load_weights(w)
+    assert torch.equal(again.encode(X), pipe.encode(X))
