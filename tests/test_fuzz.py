@@ -183,7 +183,7 @@ def test_toml_files_error_or_valid(table: dict, form: str) -> None:
 
 
 # ---------------------------------------------------------------- encoders
-ENC_NAMES = ["gwt", "stft", "lif", "delta"]
+ENC_NAMES = ["gwt", "stft", "lif", "delta", "bands"]
 
 
 @FUZZ

@@ -4,6 +4,7 @@ Registered components (``ENCODERS``): importing a component module registers it;
 are the registry's list of shipped encoders.
 """
 
+from .band_code import TRANSFORMS, BandCodeConfig, BandCodeEncoder
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .delta import DeltaConfig, DeltaEncoder
 from .events import EventsConfig, EventsEncoder
@@ -16,6 +17,9 @@ from .stft import STFTScalogram
 
 __all__ = [
     "ENCODERS",
+    "TRANSFORMS",
+    "BandCodeConfig",
+    "BandCodeEncoder",
     "DeltaConfig",
     "DeltaEncoder",
     "EventsConfig",

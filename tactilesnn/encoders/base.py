@@ -50,6 +50,8 @@ class SpikeEncoder(nn.Module):
     needs_fit: ClassVar[bool] = False
     #: buffers a saved run may lack (added later); they keep their constructed, neutral value
     optional_state: ClassVar[tuple[str, ...]] = ()
+    #: codes any analog channels (so it can code a transform's band envelopes: ``bands``)
+    codes_envelopes: ClassVar[bool] = False
 
     def __init__(self, config: object, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__()

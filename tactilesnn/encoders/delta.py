@@ -63,6 +63,7 @@ class DeltaEncoder(SpikeEncoder):
     """Send-on-delta ON/OFF afferents per channel; see the module docstring."""
 
     needs_fit = True
+    codes_envelopes = True
 
     def __init__(self, config: DeltaConfig, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__(config, fs_hz, window, n_channels)

@@ -159,6 +159,10 @@ class GaborScalogram(nn.Module):
         """``[batch, channels, samples]`` -> magnitude ``[batch, channels, bands, frames]``."""
         return self.analytic(x).abs()
 
+    def linear_map_shape(self, window: int) -> tuple[int, int]:
+        """``(rows, frames)`` of :meth:`linear_map` for a ``window``-sample input."""
+        return self.n_bands, -(-int(window) // self.hop)
+
     @torch.no_grad()
     def linear_map(self, window: int) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The transform of a ``window``-sample input as a matrix (for export as MatMuls).

@@ -134,6 +134,7 @@ class LIFPopulationEncoder(SpikeEncoder):
 
     onnx_scripted = True
     needs_fit = True
+    codes_envelopes = True
     #: runs written before the prescaler existed load with every = 1 (their first-k behaviour)
     optional_state: ClassVar[tuple[str, ...]] = ("every",)
 

@@ -87,6 +87,10 @@ class STFTScalogram(nn.Module):
     def n_bands(self) -> int:
         return self.freqs_hz.size
 
+    def linear_map_shape(self, window: int) -> tuple[int, int]:
+        """``(rows, frames)`` of :meth:`linear_map` for a ``window``-sample input."""
+        return self.nperseg // 2 + 1, 1 + (int(window) - self.nperseg) // self.hop
+
     def spectrum(self, x: torch.Tensor) -> torch.Tensor:
         """Complex STFT ``[batch, channels, nperseg // 2 + 1, frames]``, SciPy scaling."""
         if x.ndim != 3:
