@@ -65,8 +65,9 @@ HOPELESS_POINTS = 0.05
 
 
 def hopeless(acc: float, best: float, n: int) -> bool:
-    """Whether held-out accuracy ``acc`` on ``n`` windows is too far below ``best`` (same
-    windows) to win with more training windows (see :data:`HOPELESS_POINTS`)."""
+    """Whether held-out accuracy ``acc`` is too far below ``best`` (same windows, from ``n``
+    recordings) to win with more training windows (see :data:`HOPELESS_POINTS`). The standard
+    error counts recordings, not windows: a recording's windows err together."""
     se = np.sqrt((acc * (1 - acc) + best * (1 - best)) / max(n, 1))
     return best - acc > max(HOPELESS_POINTS, 3 * se)
 
@@ -128,7 +129,7 @@ def select_encoder(
         top = max(scores[name]["first_round"] for name in alive)
         for name in alive:
             acc = scores[name]["first_round"]
-            if hopeless(acc, top, small_val.y.size):
+            if hopeless(acc, top, np.unique(small_val.scan).size):
                 scores[name].update(per_window=acc, stopped_early=True)
                 log.info("encoder selection: %s stops after the first round (%.2f %% against "
                          "%.2f %%)", name, 100 * acc, 100 * top)  # fmt: skip

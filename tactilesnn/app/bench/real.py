@@ -97,6 +97,8 @@ PIPELINES = (
     ("default+readout", None, "readout", "any", {}),
     ("default+snn", None, "snn", "any", {}),
     ("lif+readout", "lif", "readout", "analog", {}),  # a level converter: not for event counts
+    # transform -> code: Gabor band envelopes into LIF converters (the bands encoder's defaults)
+    ("gwt>lif+readout", "bands", "readout", "analog", {}),
     # convolutions need a taxel grid, every afferent on it (as train --data gives a grid file)
     ("events+csnn", "events", "csnn", "events", {"level_neurons": 0}),
 )
