@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple
 
 from .core.checks import check_int
+from .core.device import check_device_name
 from .core.registry import Registry
 from .encoders import ENCODERS
 from .encoders.level import SCALES as LEVEL_SCALES
@@ -55,6 +56,7 @@ class TrainConfig:
     patience: int = 0  # epochs without validation improvement before stopping (0 = off)
     keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
     seed: int = 0  # split, generation and initialisation
+    device: str = "auto"  # where gradient training runs: auto (CUDA when present), cpu, cuda[:N]
 
     FLAGS: ClassVar[dict[str, str]] = {
         "epochs": "epochs",
@@ -62,6 +64,7 @@ class TrainConfig:
         "patience": "patience",
         "keep_best": "keep_best",
         "seed": "seed",
+        "device": "device",
     }
     HELP: ClassVar[dict[str, str]] = {
         "epochs": "training epochs (upper bound with early stopping)",
@@ -69,6 +72,9 @@ class TrainConfig:
         "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
         "keep_best": "keep the weights with the best validation (else training) accuracy",
         "seed": "dataset split, generation and initialisation seed",
+        "device": "where the model's gradient training runs: auto (a CUDA GPU when torch sees "
+        "one, else the CPU), cpu, cuda or cuda:N; encoding, rule learning, the readout's exact "
+        "solve and inference stay on the CPU",
     }
 
     def __post_init__(self) -> None:
@@ -78,6 +84,7 @@ class TrainConfig:
         check_int(self.seed, "seed", 0)
         if not isinstance(self.keep_best, bool):
             raise ValueError(f"keep_best must be true or false, got {self.keep_best!r}")
+        check_device_name(self.device)
 
 
 #: flat names of the pipeline's own fields

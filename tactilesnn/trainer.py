@@ -13,6 +13,7 @@ import torch
 from tqdm.auto import tqdm
 
 from .config import TrainConfig
+from .core.device import resolve_device
 from .core.perf import refit_threads
 from .models.base import SpikeModel, to_tensor_labels
 
@@ -68,22 +69,31 @@ class Trainer:
             st = {k: resume[k] for k in st}
             st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
             best_w = {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}
-        desc = f"train {type(model).registry_name}"
+        # gradient steps on the configured device (rule learning stays on the CPU); the model
+        # comes back to the CPU after each epoch, where evaluation, checkpoints and export run
+        device = torch.device("cpu") if by_rule else resolve_device(cfg.device)
+        desc = f"train {type(model).registry_name}" + (
+            f" on {device}" if device.type != "cpu" else ""
+        )
         bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc,
                    disable=not self.progress or st["epoch"] >= cfg.epochs)  # fmt: skip
         for epoch in bar:
             perm = torch.randperm(spikes.shape[0], generator=gen)
             model.train()
+            if device.type != "cpu":
+                model.to(device)
+                _optimizer_to(opt, device)
             for i in range(0, perm.numel(), cfg.batch_size):
                 idx = perm[i : i + cfg.batch_size]
                 if by_rule:
                     with torch.no_grad():
                         model.rule_update(spikes[idx], yt[idx], epoch)
                 else:
-                    loss = model.loss(spikes[idx], yt[idx])
+                    loss = model.loss(spikes[idx].to(device), yt[idx].to(device))
                     opt.zero_grad()
                     loss.backward()
                     opt.step()
+            model.to("cpu")
             model.eval()
             err, score = _record(st, model, spikes, yt, val)
             if score > st["best_score"]:
@@ -140,8 +150,21 @@ def _flatten_optimizer(opt: torch.optim.Optimizer) -> dict[str, np.ndarray]:
     out = {}
     for i, st in opt.state_dict()["state"].items():
         for k, v in st.items():
-            out[f"{i}.{k}"] = v.numpy().copy() if torch.is_tensor(v) else np.asarray(v)
+            out[f"{i}.{k}"] = (
+                v.detach().cpu().numpy().copy() if torch.is_tensor(v) else np.asarray(v)
+            )
     return out
+
+
+def _optimizer_to(opt: torch.optim.Optimizer | None, device: torch.device) -> None:
+    """The optimizer's state (Adam's moments) onto ``device``, beside the parameters (a resumed
+    run's state is loaded while the model is on the CPU)."""
+    if opt is None:
+        return
+    for st in opt.state.values():
+        for k, v in st.items():
+            if torch.is_tensor(v) and v.device != device and k != "step":
+                st[k] = v.to(device)
 
 
 def _restore_optimizer(opt: torch.optim.Optimizer, flat: dict[str, np.ndarray]) -> None:

@@ -32,7 +32,7 @@ def spike_raster(times: Tensor, dt_ms: float, steps: int) -> Tensor:
         times = times.unsqueeze(-1)
     idx = torch.floor(times / dt_ms)
     idx = torch.where(idx == float(steps), idx - 1.0, idx)
-    grid = torch.arange(steps, dtype=times.dtype).view(-1, 1, 1, 1)
+    grid = torch.arange(steps, dtype=times.dtype, device=times.device).view(-1, 1, 1, 1)
     return (idx.unsqueeze(0) == grid).to(times.dtype).sum(-1)
 
 

@@ -19,19 +19,23 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from ...core.device import resolve_device, synchronize
 from ...models.functional import lif_scan
 from ...models.snn import LIFLayer
 
 T, B, N_IN, N_H, N_OUT = 500, 64, 96, 128, 10
+CPU = torch.device("cpu")
 BETA = 0.95
 
 
-def _median_ms(fn: Callable[[], object], repeats: int) -> float:
+def _median_ms(fn: Callable[[], object], repeats: int, device: torch.device = CPU) -> float:
     fn()
+    synchronize(device)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
         fn()
+        synchronize(device)  # CUDA kernels run asynchronously: time their completion
         times.append(time.perf_counter() - t0)
     return 1000 * statistics.median(times)
 
@@ -50,8 +54,8 @@ class Ours(nn.Module):
 def reference_forward(model: Ours, x: torch.Tensor) -> torch.Tensor:
     """Plain per-step loop with the same weights (no custom autograd, no hoisting)."""
     with torch.no_grad():
-        h, _ = lif_scan(model.l1.fc(x), torch.zeros(B, N_H), BETA, 1.0, True)
-        o, _ = lif_scan(model.l2.fc(h), torch.zeros(B, N_OUT), BETA, 1.0, True)
+        h, _ = lif_scan(model.l1.fc(x), torch.zeros(B, N_H, device=x.device), BETA, 1.0, True)
+        o, _ = lif_scan(model.l2.fc(h), torch.zeros(B, N_OUT, device=x.device), BETA, 1.0, True)
     return o
 
 
@@ -135,34 +139,40 @@ def _peers(model: Ours) -> dict[str, nn.Module]:
     return peers
 
 
-def matmul_gflops(threads: int) -> float:
+def matmul_gflops(threads: int, device: torch.device = CPU) -> float:
     torch.set_num_threads(threads)
-    a, b = torch.randn(2048, 2048), torch.randn(2048, 2048)
-    ms = _median_ms(lambda: a @ b, 5)
+    a, b = torch.randn(2048, 2048, device=device), torch.randn(2048, 2048, device=device)
+    ms = _median_ms(lambda: a @ b, 5, device)
     return 2 * 2048**3 / (ms / 1000) / 1e9
 
 
-def run(repeats: int = 7) -> dict:
+def run(repeats: int = 7, device: str = "cpu") -> dict:
+    """The rows on ``device`` (``cpu``: 1 and 2 threads; a CUDA device: one row per
+    implementation, every model, input and optimizer on it)."""
     from ...core.perf import tune_allocator
 
+    dev = resolve_device(device)
     results_alloc = tune_allocator()
     torch.manual_seed(0)
-    x = (torch.rand(T, B, N_IN) < 0.05).float()
-    y = torch.randint(0, N_OUT, (B,))
+    x = (torch.rand(T, B, N_IN) < 0.05).float().to(dev)
+    y = torch.randint(0, N_OUT, (B,)).to(dev)
     ours = Ours()
+    models = {"tactilesnn (hoisted + reverse-scan backward)": ours, **_peers(ours)}
+    for m in models.values():
+        m.to(dev)
     with torch.no_grad():
         ref = reference_forward(ours, x)
         got = ours(x)
     results: dict = {
+        "device": str(dev) if dev.type == "cpu" else f"{dev} ({torch.cuda.get_device_name(dev)})",
         "ours_equals_reference": bool(torch.equal(ref, got)),
         "allocator_tuned": results_alloc,
         "rows": [],
     }
-    models = {"tactilesnn (hoisted + reverse-scan backward)": ours, **_peers(ours)}
     flops_fwd = 2 * T * B * (N_IN * N_H + N_H * N_OUT)
-    for threads in (1, 2):
+    for threads in (1, 2) if dev.type == "cpu" else (torch.get_num_threads(),):
         torch.set_num_threads(threads)
-        gf = matmul_gflops(threads)
+        gf = matmul_gflops(threads, dev)
         results[f"matmul_gflops_{threads}t"] = gf
         for name, m in models.items():
             opt = torch.optim.Adam(m.parameters(), lr=1e-3)
@@ -181,8 +191,8 @@ def run(repeats: int = 7) -> dict:
             row = {
                 "impl": name,
                 "threads": threads,
-                "forward_ms": _median_ms(fwd, repeats),
-                "train_step_ms": _median_ms(step, max(3, repeats // 2)),
+                "forward_ms": _median_ms(fwd, repeats, dev),
+                "train_step_ms": _median_ms(step, max(3, repeats // 2), dev),
             }
             if name.startswith("snnTorch") or name.startswith("SpikingJelly"):
                 with torch.no_grad():
@@ -196,10 +206,18 @@ def run(repeats: int = 7) -> dict:
 
 
 def format_table(res: dict) -> str:
+    gemm = {
+        k[len("matmul_gflops_") : -1]: v for k, v in res.items() if k.startswith("matmul_gflops_")
+    }
+    roof = {k[len("roofline_forward_ms_"):-1]: v for k, v in res.items()
+            if k.startswith("roofline_forward_ms_")}  # fmt: skip
     lines = [
-        f"forward matmul work {res['forward_matmul_mflop']:.0f} MFLOP; measured GEMM "
-        f"{res['matmul_gflops_1t']:.0f} GFLOP/s (1 thread), {res['matmul_gflops_2t']:.0f} (2): "
-        f"roofline {res['roofline_forward_ms_1t']:.1f} / {res['roofline_forward_ms_2t']:.1f} ms",
+        f"device {res.get('device', 'cpu')}; forward matmul work "
+        f"{res['forward_matmul_mflop']:.0f} MFLOP; measured GEMM "
+        + ", ".join(f"{v:.0f} GFLOP/s ({t} thread(s))" for t, v in gemm.items())
+        + "; roofline "
+        + " / ".join(f"{v:.3f}" for v in roof.values())
+        + " ms",
         f"ours equals the plain reference loop: {res['ours_equals_reference']}",
         "| implementation | threads | forward ms | train step ms | ours faster (fwd / train) |",
         "|---|---|---|---|---|",
@@ -219,10 +237,13 @@ HELP = "SNN training step against snnTorch, Norse and SpikingJelly (same network
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=7, help="timed runs per case")
+    p.add_argument("--device", default="cpu",
+                   help="cpu (1 and 2 threads), cuda or cuda:N (every implementation on that GPU), "
+                   "or auto (a CUDA GPU when torch sees one)")  # fmt: skip
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
     from . import write_result
 
-    write_result(out, "snn.json", run(repeats=options.repeats))
+    write_result(out, "snn.json", run(repeats=options.repeats, device=options.device))
     return 0

@@ -1,0 +1,40 @@
+"""Where tensors are computed: ``"auto"`` (CUDA when this torch build sees a GPU, else the CPU),
+``"cpu"``, ``"cuda"`` or ``"cuda:N"``. One resolver, so every command refuses an unusable device
+with the same clear message instead of failing deep inside torch."""
+
+from __future__ import annotations
+
+import torch
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def check_device_name(name: str) -> str:
+    """``name`` if it names a device this module resolves (ValueError otherwise)."""
+    base, _, index = str(name).partition(":")
+    if base not in DEVICES or (index and (base != "cuda" or not index.isdigit())):
+        raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {name!r}")
+    return str(name)
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """The ``torch.device`` for ``name`` (see the module docstring); a CUDA device this machine
+    lacks is a ValueError that says so."""
+    check_device_name(name)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda"):
+        if not torch.cuda.is_available():
+            raise ValueError(f"device {name!r}: this torch build or machine has no CUDA GPU "
+                             "(use --device cpu or auto)")  # fmt: skip
+        dev = torch.device(name)
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"device {name!r}: only {torch.cuda.device_count()} CUDA device(s)")
+        return dev
+    return torch.device("cpu")
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for the device's queued work (timings of asynchronous CUDA kernels)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
