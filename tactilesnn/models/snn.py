@@ -133,9 +133,14 @@ class _LIFScan(torch.autograd.Function):
 
 
 def _fused(x: torch.Tensor):
-    """The compiled recurrence for float32 CPU tensors, else None (pure torch)."""
-    if x.dtype != torch.float32 or x.device.type != "cpu":
+    """The fused recurrence for float32 tensors: the compiled C++ one on the CPU, the Triton one
+    on a CUDA device; else None (pure torch)."""
+    if x.dtype != torch.float32 or x.device.type not in ("cpu", "cuda"):
         return None
+    if x.device.type == "cuda":
+        from ._lif_triton import kernel as gpu_kernel
+
+        return gpu_kernel()
     from ._lif_kernel import kernel
 
     return kernel()
