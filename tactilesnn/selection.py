@@ -90,6 +90,8 @@ def select_encoder(
     them stops the hopeless candidates early (:func:`hopeless`). Returns the chosen config and a
     report (``scores`` per candidate, with ``stopped_early`` and ``first_round`` where that
     applies, ``ranked_by``, windows used, ``seconds``)."""
+    if not candidates:
+        raise ValueError("encoder selection needs at least one candidate encoder")
     t0 = time.perf_counter()
     fit_set, val_set = split_validation(train, fraction, config.seed + 1)
     assert val_set is not None
