@@ -8,11 +8,14 @@ it back, for any encoder, calibrated on the training windows so it follows the d
 
 * per channel and window two statistics (``STATS``): ``mean`` (the level, in the sensor's units)
   and ``log_sd`` (``ln`` of the standard deviation over the window's samples: activity, over any
-  number of decades);
+  number of decades); with ``share`` a third, the channel's share of the window's total level
+  across channels (``(mean - centre) / (sum |mean - centre| + floor)``: the spatial pattern of a
+  press without its force);
 * each statistic through the channel's empirical distribution function on the training windows
   (``quantiles`` knots, piecewise linear between them): ``u`` in [0, 1], the value's rank among
   the training windows. Ranks make the code independent of units and offsets; a value outside the
-  training range clamps to 0 or 1;
+  training range clamps to 0 or 1. ``scale = "linear"`` codes the value's linear position between
+  the training minimum and maximum instead, ``"rank+linear"`` both (a second ON / OFF pair);
 * ``u`` into ``neurons`` latency neurons: an ON / OFF pair, ``t = duration * (1 - u)`` and
   ``t = duration * u`` ms (the higher the value the earlier ON fires, the later OFF; both always
   fire, so a linear readout of their traces can weigh channels' levels against each other), and
@@ -27,10 +30,10 @@ channels), FabricSlide 99.41 -> 99.68 % (baseline 99.63 %); iCub Braille, seeds 
 96.83 % (+-4 points on 63 windows). Pair plus two fields: 99.71 / 99.36 / 96.30 % at 2.5x the
 afferents.
 
-Output: spike times ``[batch, channels * 2 * neurons]`` float32, ms from the window start
-(neuron index = (channel * 2 + statistic) * neurons + j: ON, OFF, then the fields), ``+inf`` =
-silent. The pipeline appends them after the encoder's afferents (one slot each) when
-``level_neurons > 0``.
+Output: spike times ``[batch, channels * S * per]`` float32 (``S`` statistics), ms from the
+window start (neuron index = (channel * S + statistic) * per + j, ``per = neurons``, plus 2 with
+``rank+linear``: ON, OFF, then the linear ON, OFF, then the fields), ``+inf`` = silent. The
+pipeline appends them after the encoder's afferents (one slot each) when ``level_neurons > 0``.
 """
 
 from __future__ import annotations
@@ -130,9 +133,10 @@ class LevelCode(nn.Module):
         # deviations are noise, get small shares rather than noise magnified to +-1)
         typical = float((np.median(sd, axis=0) + np.median(np.abs(mean), axis=0)).sum())
         self.share_floor.fill_(typical if typical > 0 else 1e-30)
-        c, f = torch.from_numpy(centre), torch.from_numpy(floor)
+        self.sd_floor.copy_(torch.from_numpy(floor))
+        self.centre.copy_(torch.from_numpy(centre))
         step = max(1, (1 << 25) // max(1, x[0].nbytes))  # the statistics' deviations in chunks
-        stats = np.concatenate([self.stats_of(torch.from_numpy(x[i : i + step]), c, f).numpy()
+        stats = np.concatenate([self.stats_of(torch.from_numpy(x[i : i + step])).numpy()
                                 for i in range(0, len(x), step)])  # [n, C, stats]  # fmt: skip
         q = np.linspace(0.0, 1.0, self.knots.shape[-1])
         knots = np.quantile(stats, q, axis=0).transpose(1, 2, 0)  # [C, 2, K+1]
@@ -146,13 +150,11 @@ class LevelCode(nn.Module):
         steps = np.maximum(np.diff(knots, axis=-1), gap)
         knots = np.concatenate([knots[..., :1], knots[..., :1] + np.cumsum(steps, -1)], -1)
         self.knots.copy_(torch.from_numpy(knots))
-        self.sd_floor.copy_(torch.from_numpy(floor))
-        self.centre.copy_(torch.from_numpy(centre))
         return self
 
-    def stats_of(self, x: Tensor, centre: Tensor, sd_floor: Tensor) -> Tensor:
+    def stats_of(self, x: Tensor) -> Tensor:
         """Window ``[B, C, W]`` (float64) -> its statistics ``[B, C, S]``."""
-        return window_stats(x, centre, sd_floor, self.share_floor if self.share else None)
+        return window_stats(x, self.centre, self.sd_floor, self.share_floor if self.share else None)
 
     def rank_of(self, v: Tensor) -> Tensor:
         """Statistics ``[B, C, S]`` -> their training ranks in [0, 1] (float64)."""
@@ -169,11 +171,11 @@ class LevelCode(nn.Module):
 
     def ranks(self, x: Tensor) -> Tensor:
         """Window ``[B, C, W]`` -> each statistic's training rank ``[B, C, S]`` in [0, 1]."""
-        return self.rank_of(self.stats_of(x.double(), self.centre, self.sd_floor))
+        return self.rank_of(self.stats_of(x.double()))
 
     def forward(self, x: Tensor) -> Tensor:
         """Window ``[B, C, W]`` -> spike times ``[B, n_afferents]`` (ms, inf = silent)."""
-        v = self.stats_of(x.double(), self.centre, self.sd_floor)
+        v = self.stats_of(x.double())
         first = self.position_of(v) if self.scale == "linear" else self.rank_of(v)
         u = first.unsqueeze(-1)  # [B, C, S, 1]
         t = torch.cat([self.duration_ms * (1.0 - u), self.duration_ms * u], -1)  # ON, OFF

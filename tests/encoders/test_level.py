@@ -178,8 +178,7 @@ def test_linear_pair_and_share_match_a_float64_reference():
     t = code(torch.from_numpy(x)).numpy().reshape(5, 3, 3, 4)[:, 1, 0, 2]  # channel 1, mean, ON
     np.testing.assert_allclose(np.diff(t), np.diff(t)[0], rtol=1e-3)  # float32 input at 2e4
     only = LevelCode(3, 3, 250.0, scale="linear").fit(train)  # the pair and one field, linear
-    u = only.position_of(only.stats_of(torch.from_numpy(test).double(), only.centre,
-                                       only.sd_floor)).numpy()  # fmt: skip
+    u = only.position_of(only.stats_of(torch.from_numpy(test).double())).numpy()
     t = only(torch.from_numpy(test)).numpy().reshape(80, 3, 2, 3)
     np.testing.assert_allclose(t[..., 1], 250.0 * u, atol=1e-3)
 
@@ -191,7 +190,7 @@ def test_share_is_scale_free_and_finite_at_rest():
     press = np.broadcast_to(centre, (3, 3, 50)).astype(np.float64)
     force = np.array([40.0, 400.0, 4000.0])
     press[:, 1] += force[:, None]  # one taxel pressed; the others at their typical level
-    v = code.stats_of(torch.from_numpy(press), code.centre, code.sd_floor).numpy()[:, :, 2]
+    v = code.stats_of(torch.from_numpy(press)).numpy()[:, :, 2]
     floor = float(code.share_floor)  # closed form: force / (force + floor), towards 1 at any scale
     np.testing.assert_allclose(v[:, 1], force / (force + floor), atol=1e-5)  # float32 centre
     assert np.abs(v[:, [0, 2]]).max() < 1e-4 and v[2, 1] > 0.95
