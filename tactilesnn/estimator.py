@@ -28,8 +28,6 @@ from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 from .config import (
     DATA_ENCODER_CANDIDATES,
     DATA_LEVEL_NEURONS,
-    DATA_LEVEL_SCALE,
-    DATA_LEVEL_SHARE,
     DEFAULT_ENCODER,
     PipelineConfig,
     data_file_defaults,
@@ -66,7 +64,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         afferent onto a taxel grid, such as ``csnn``).
     level_scale, level_share : what the level code's pairs code (``"rank"``, ``"linear"`` or
         ``"rank+linear"``) and whether each channel's share of the window's total level is a
-        third statistic (as ``train --data``).
+        third statistic (None: as ``train --data`` for the data: ``rank+linear`` and the share
+        for analog windows, the rank pair alone for event counts).
     val_fraction : windows (whole groups) held out of training for best-weight selection and
         the probability calibration (0: both on the training windows).
     fs_hz : sampling rate (Hz) when ``fit`` is not given one (``fit``'s wins).
@@ -84,8 +83,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         batch_size: int = 32,
         clock_afferents: int = 5,
         level_neurons: int = DATA_LEVEL_NEURONS,
-        level_scale: str = DATA_LEVEL_SCALE,
-        level_share: bool = DATA_LEVEL_SHARE,
+        level_scale: str | None = None,
+        level_share: bool | None = None,
         val_fraction: float = 0.0,
         seed: int = 0,
         fs_hz: float | None = None,
@@ -199,8 +198,10 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
         d["clock_afferents"] = self.clock_afferents
         d["level_neurons"] = self.level_neurons
-        d["level_scale"] = self.level_scale
-        d["level_share"] = self.level_share
+        if self.level_scale is not None:
+            d["level_scale"] = self.level_scale
+        if self.level_share is not None:
+            d["level_share"] = self.level_share
         d["train"].update(batch_size=self.batch_size, seed=self.seed,
                           **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
         return PipelineConfig.from_dict(d)

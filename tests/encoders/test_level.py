@@ -220,3 +220,11 @@ def test_a_run_saved_before_the_linear_pair_and_share_reads_as_it_was_written():
     again = SpikePipeline(cfg.replace(channels=("all",)), 200.0, 50, ("a", "b", "c"), ("x", "y"))
     again.load_weights(w)
     assert torch.equal(again.encode(X), pipe.encode(X))
+
+
+def test_data_defaults_both_pairs_and_the_share_for_analog_the_rank_pair_for_event_counts():
+    from tactilesnn.config import data_file_defaults
+
+    analog, events = data_file_defaults(False), data_file_defaults(True)
+    assert (analog["level_scale"], analog["level_share"]) == ("rank+linear", True)
+    assert (events["level_scale"], events["level_share"]) == ("rank", False)
