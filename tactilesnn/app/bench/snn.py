@@ -206,17 +206,13 @@ def run(repeats: int = 7, device: str = "cpu") -> dict:
 
 
 def format_table(res: dict) -> str:
-    gemm = {
-        k[len("matmul_gflops_") : -1]: v for k, v in res.items() if k.startswith("matmul_gflops_")
-    }
-    roof = {k[len("roofline_forward_ms_"):-1]: v for k, v in res.items()
-            if k.startswith("roofline_forward_ms_")}  # fmt: skip
+    threads = sorted({r["threads"] for r in res["rows"]})
     lines = [
         f"device {res.get('device', 'cpu')}; forward matmul work "
         f"{res['forward_matmul_mflop']:.0f} MFLOP; measured GEMM "
-        + ", ".join(f"{v:.0f} GFLOP/s ({t} thread(s))" for t, v in gemm.items())
+        + ", ".join(f"{res[f'matmul_gflops_{t}t']:.0f} GFLOP/s ({t} thread(s))" for t in threads)
         + "; roofline "
-        + " / ".join(f"{v:.3f}" for v in roof.values())
+        + " / ".join(f"{res[f'roofline_forward_ms_{t}t']:.3f}" for t in threads)
         + " ms",
         f"ours equals the plain reference loop: {res['ours_equals_reference']}",
         "| implementation | threads | forward ms | train step ms | ours faster (fwd / train) |",
