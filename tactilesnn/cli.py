@@ -209,11 +209,28 @@ def cmd_export(args: argparse.Namespace) -> int:
             f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
         )
         return 0
+    meta = {"training_data_sha256": data_hash(cfg), "run": str(args.run_dir)}
+    if args.stream and (args.quantize or args.format != "onnx"):
+        raise SystemExit(
+            "--stream writes the float32 ONNX stream graph: drop --quantize / --format"
+        )
+    if args.stream:
+        from .export.stream import export_stream
+
+        rep = export_stream(pipe, Path(args.out), test.X, metadata=meta, overwrite=args.overwrite)
+        print(
+            f"exported the stream graph {args.out} ({rep['step_samples']} samples per call, every "
+            f"sample transformed once): {rep['nodes']} nodes; on {rep['windows_checked']} windows "
+            f"of the test windows joined into one stream, onnxruntime vs torch: spike times within "
+            f"{rep['encoder_max_time_diff_ms']:.2g} ms, scores within {rep['max_score_diff']:.2g}, "
+            f"predictions agree {100 * rep['prediction_agreement']:.2f} %"
+        )
+        return 0
     report = export_pipeline(
         pipe,
         Path(args.out),
         test.X,
-        metadata={"training_data_sha256": data_hash(cfg), "run": str(args.run_dir)},
+        metadata=meta,
         overwrite=args.overwrite,
         progress=not args.quiet,
     )
@@ -398,6 +415,12 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.add_argument(
         "--quantize", action="store_true", help="also write <out>.int8.onnx (dynamic int8)"
+    )
+    p.add_argument(
+        "--stream",
+        action="store_true",
+        help="write the stream graph instead (half a window per call, every sample transformed "
+        "once; encoders with a stream form: cgwt); serve and classify it like model.onnx",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)

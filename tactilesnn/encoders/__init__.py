@@ -6,6 +6,7 @@ are the registry's list of shipped encoders.
 
 from .band_code import TRANSFORMS, BandCodeConfig, BandCodeEncoder
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
+from .causal_gwt import CausalGWTConfig, CausalGWTLatencyEncoder
 from .delta import DeltaConfig, DeltaEncoder
 from .events import EventsConfig, EventsEncoder
 from .gwt import GaborScalogram, log_bands
@@ -20,6 +21,8 @@ __all__ = [
     "TRANSFORMS",
     "BandCodeConfig",
     "BandCodeEncoder",
+    "CausalGWTConfig",
+    "CausalGWTLatencyEncoder",
     "DeltaConfig",
     "DeltaEncoder",
     "EventsConfig",

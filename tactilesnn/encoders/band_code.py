@@ -41,6 +41,7 @@ from ..core.data import evenly_spaced
 from ..core.registry import Registry
 from . import delta, lif_population  # noqa: F401  (codes registered before CHOICES is built)
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
+from .causal_gabor import CausalGaborScalogram
 from .export import WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .scalogram_latency import GWTConfig
@@ -55,6 +56,13 @@ EXPORT_BUDGET_BYTES = 256 << 20
 def gabor_envelopes(fs_hz: float, freqs_hz: np.ndarray, hop: int, window: int) -> nn.Module:
     """Gabor (complex Morlet) scalogram magnitudes, every ``hop``-th sample."""
     return GaborScalogram(fs_hz, freqs_hz, hop=hop)
+
+
+@TRANSFORMS.register("cgwt")
+def causal_gabor_envelopes(fs_hz: float, freqs_hz: np.ndarray, hop: int, window: int) -> nn.Module:
+    """The causal recursive Gabor bank's magnitudes (:mod:`.causal_gabor`), every ``hop``-th
+    sample."""
+    return CausalGaborScalogram(fs_hz, freqs_hz, hop=hop)
 
 
 @TRANSFORMS.register("stft")
@@ -93,7 +101,7 @@ class BandCodeConfig:
     CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"transform": TRANSFORMS.names(),
                                                     "code": envelope_codes()}  # fmt: skip
     HELP: ClassVar[dict[str, str]] = {
-        "transform": "filter bank whose band envelopes are coded (gwt, stft)",
+        "transform": "filter bank whose band envelopes are coded (gwt, cgwt, stft)",
         "code": "encoder of analog channels that codes the envelopes (lif, delta)",
         "f_lo_hz": "lowest band centre (Hz)",
         "f_hi_hz": "highest band centre (Hz; capped at 0.45 x the sampling rate)",

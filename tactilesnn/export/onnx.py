@@ -61,12 +61,12 @@ class PipelineEncoderGraph(nn.Module):
     """Window -> channel selection -> the encoder's own graph -> level code and clock
     afferents appended."""
 
-    def __init__(self, pipe: SpikePipeline) -> None:
+    def __init__(self, pipe: SpikePipeline, encoder: nn.Module | None = None) -> None:
         super().__init__()
         self.register_buffer("channel_idx", torch.as_tensor(pipe.channel_idx, dtype=torch.long))
         # every channel of the window, in order: no selection node (a copy of the window)
         self.select = list(pipe.channel_idx) != list(range(len(pipe.channel_names)))
-        self.encoder = pipe.encoder.onnx_module()
+        self.encoder = pipe.encoder.onnx_module() if encoder is None else encoder
         self.with_level = pipe.level is not None
         self.level = pipe.level if pipe.level is not None else nn.Identity()
         self.pad = pipe.max_spikes - 1
@@ -77,7 +77,11 @@ class PipelineEncoderGraph(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         x = torch.index_select(x, 1, self.channel_idx) if self.select else x
-        s = self.encoder(x)
+        return self.append(self.encoder(x), x)
+
+    def append(self, s: Tensor, x: Tensor) -> Tensor:
+        """The encoder's spikes ``s`` with the level code of the window ``x`` (selected
+        channels) and the clock afferents appended."""
         if self.with_level:
             level = self.level(x).unsqueeze(-1)
             if self.pad > 0:

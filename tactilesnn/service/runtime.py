@@ -38,6 +38,9 @@ class StreamState:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     buffer: np.ndarray | None = None
     windows_done: int = 0
+    #: stream graphs (half a window per call): halves fed so far and the last one's samples
+    halves: int = 0
+    last_half: np.ndarray | None = None
 
     @property
     def h(self) -> np.ndarray | None:
@@ -161,14 +164,17 @@ def _check_weights(path: str) -> None:
                 raise ValueError(f"{path}: weight {init.name!r} holds NaN; refusing to serve it")
 
 
-def _check_io(path: str, c: GraphContract, inputs: dict, outputs: set[str]) -> None:
+def _check_io(
+    path: str, c: GraphContract, inputs: dict, outputs: set[str], step: int | None = None
+) -> None:
     """The graph's inputs and outputs are those its metadata promises (a tampered or foreign
-    graph is refused at load, not at the first request)."""
+    graph is refused at load, not at the first request); ``step``: a stream graph's samples per
+    call (its ``window`` input)."""
     window = inputs.get(WINDOW_INPUT)
     if window is None:
         raise ValueError(f"{path}: the graph has no {WINDOW_INPUT!r} input")
     dims = list(window.shape)
-    want = [len(c.channels), c.window_samples]
+    want = [len(c.channels), c.window_samples if step is None else step]
     if len(dims) != 3 or any(
         isinstance(d, int) and d != w for d, w in zip(dims[1:], want, strict=True)
     ):
@@ -183,6 +189,55 @@ def _check_io(path: str, c: GraphContract, inputs: dict, outputs: set[str]) -> N
     missing = [o for o in c.plain_outputs if o not in outputs]
     if missing:
         raise ValueError(f"{path}: the graph lacks the outputs {missing}")
+
+
+@dataclass(frozen=True)
+class StreamContract:
+    """A stream graph's promise (metadata ``stream_step_samples``, ``stream_encoder_states``,
+    ``stream_state_init``): its ``window`` input is the next ``step`` samples (half a window);
+    the encoder's state inputs are listed, and how a fresh stream starts each (``repeat_first``:
+    every encoder channel's first sample repeated, channel-major; the others zeros)."""
+
+    step: int
+    encoder_states: tuple[str, ...]
+    repeat_first: tuple[str, ...]
+
+    @classmethod
+    def parse(cls, path: str, c: GraphContract) -> StreamContract | None:
+        import json
+
+        if "stream_step_samples" not in c.extra:
+            return None
+        try:
+            step = int(c.extra["stream_step_samples"], 10)
+            enc = json.loads(c.extra.get("stream_encoder_states", "[]"))
+            init = json.loads(c.extra.get("stream_state_init", "{}"))
+        except (ValueError, RecursionError) as e:
+            raise ValueError(f"{path}: unreadable stream metadata ({e})") from e
+        if step < 1 or 2 * step != c.window_samples:
+            raise ValueError(
+                f"{path}: stream step {step} is not half the window {c.window_samples}"
+            )
+        if not (isinstance(enc, list) and isinstance(init, dict)
+                and all(isinstance(n, str) and n in c.state_inputs for n in [*enc, *init])
+                and set(init.values()) <= {"repeat_first"}):  # fmt: skip
+            raise ValueError(f"{path}: stream state metadata names unknown states or rules")
+        return cls(step, tuple(enc), tuple(init))
+
+    def initial(self, first: np.ndarray, channels: tuple[int, ...], units: dict[str, int]) -> dict:
+        """The ``repeat_first`` states of fresh streams whose first half windows are ``first``
+        ``[B, channels, step]``."""
+        out = {}
+        x = first[:, list(channels), :1]  # [B, C, 1]
+        for name in self.repeat_first:
+            per, rem = divmod(units[name], max(1, x.shape[1]))
+            if rem:
+                raise InputError(f"state {name!r} ({units[name]} units) does not split over "
+                                 f"{x.shape[1]} encoder channels")  # fmt: skip
+            out[name] = np.ascontiguousarray(
+                np.repeat(x, per, axis=2).reshape(len(x), -1), np.float32
+            )
+        return out
 
 
 class PipelineSession:
@@ -229,7 +284,8 @@ class PipelineSession:
         per_window = c.bytes_per_window
         self.batch = max(1, self.RUN_BUDGET_BYTES // per_window) if per_window > 0 else 1 << 30
         self.inputs = {i.name: i for i in self.plain_session.get_inputs()}
-        _check_io(path, c, self.inputs, outs)
+        self.stream = StreamContract.parse(path, c)
+        _check_io(path, c, self.inputs, outs, None if self.stream is None else self.stream.step)
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != WINDOW_INPUT}
         self.stateful = bool(self.state_units)
@@ -324,25 +380,88 @@ class PipelineSession:
         them (``expose_spikes``) and the model's early decision when it makes one."""
         if len(x) == 0:  # onnxruntime's LSTM (the SNN) aborts the whole process on zero rows
             raise InputError("empty batch: no windows to classify")
-        feeds = {"window": x}
+        if self.stream is not None:
+            return self._run_halves(x, state, detail)
         names = list(self.state_units)
+        feeds: dict[str, np.ndarray] = {}
         if names:
             held = state.values if state is not None else {}
             zeros = self._zero_state(len(x))
-            for name in names:
-                value = held.get(name)
-                feeds[name] = zeros[name] if value is None else value
+            feeds = {n: zeros[n] if held.get(n) is None else held[n] for n in names}
+        out, new = self._call(x, feeds, detail)
+        if state is not None and names:
+            state.values = new
+        return out
+
+    def _feed_halves(self, state: StreamState, buf: np.ndarray, detail: bool) -> list[dict]:
+        """The stream path of a stream graph: one call per half window, every sample
+        transformed once; the first half of a stream starts the encoder's state."""
+        half, results = self.stream.step, []
+        while buf.shape[1] >= half:
+            x = buf[None, :, :half]
+            if state.halves == 0:
+                state.values = {**self._zero_state(1),
+                                **self.stream.initial(x, self.contract.encoder_channels,
+                                                      self.state_units)}  # fmt: skip
+                _, new = self._call(x, state.values, False)
+                state.values.update(
+                    {n: v for n, v in new.items() if n in self.stream.encoder_states}
+                )
+            else:
+                self.stats.add(stream_windows=1)
+                out, state.values = self._call(x, state.values, detail)
+                k = int(out.scores[0].argmax())
+                res = {"window_index": state.windows_done, "class": self.class_names[k],
+                       "scores": out.scores[0].tolist()}  # fmt: skip
+                if out.decision_ms is not None:
+                    res.update(self._early(k, int(out.early_class[0]), float(out.decision_ms[0])))
+                if detail:
+                    win = np.concatenate([state.last_half, x[0]], axis=1)
+                    res.update(window=win, spikes=None if out.spikes is None else out.spikes[0])
+                results.append(res)
+                state.windows_done += 1
+            state.halves += 1
+            state.last_half = x[0]
+            buf = buf[:, half:]
+        state.buffer = buf
+        return results
+
+    def _run_halves(self, x: np.ndarray, state: StreamState | None, detail: bool) -> Detail:
+        """A stream graph on whole windows ``x``: the first half from a fresh encoder state
+        (its scores discarded: no window is complete), then the second half; the model's state
+        is the stream's (or zeros) and is updated by the second call only."""
+        half = self.stream.step
+        held = dict(state.values) if state is not None else {}
+        zeros = self._zero_state(len(x))
+        first = self.stream.initial(
+            x[:, :, :half], self.contract.encoder_channels, self.state_units
+        )
+        feeds = {n: held.get(n, zeros[n]) for n in self.state_units}
+        feeds.update(first)
+        out = self._call(x[:, :, :half], feeds, False)
+        feeds.update({n: v for n, v in out[1].items() if n in self.stream.encoder_states})
+        detail_out = self._call(x[:, :, half:], feeds, detail)
+        if state is not None:
+            state.values = detail_out[1]
+        return detail_out[0]
+
+    def _call(
+        self, x: np.ndarray, feeds: dict[str, np.ndarray], detail: bool
+    ) -> tuple[Detail, dict[str, np.ndarray]]:
+        """One graph call on ``x`` (a window, or a stream graph's half) with the state ``feeds``:
+        its :class:`Detail` and every state's next value."""
+        names = list(self.state_units)
         early = list(EARLY_OUTPUTS) if self.decides_early and detail else []
         spikes = ["spikes"] if self.has_spikes and detail else []
         outputs = [*self.plain_outputs, *early, *spikes] if early or spikes else self.plain_outputs
         sess = self.session if early or spikes else self.plain_session
-        got = run_batched(sess, outputs, feeds, self.batch)
+        got = run_batched(sess, outputs, {WINDOW_INPUT: x, **feeds}, self.batch)
         scores, rest = got[0], got[1:]
         new, rest = rest[: len(names)], rest[len(names) :]
-        if state is not None and names:
-            state.values = dict(zip(names, new, strict=True))
         cls, t = (rest[0], rest[1]) if early else (None, None)
-        return Detail(scores, rest[-1] if spikes else None, cls, t)
+        return Detail(scores, rest[-1] if spikes else None, cls, t), dict(
+            zip(names, new, strict=True)
+        )
 
     def _zero_state(self, batch: int) -> dict[str, np.ndarray]:
         """Zero streaming state for ``batch`` windows, kept for the last batch size (read-only:
@@ -419,6 +538,11 @@ class PipelineSession:
         _check_float32(arr, "chunk")
         arr = arr.astype(np.float32)
         buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
+        if self.stream is not None:
+            if hop != self.stream.step:
+                raise InputError(f"this stream graph classifies a window every {self.stream.step} "
+                                 f"samples (half its window), not every {hop}")  # fmt: skip
+            return self._feed_halves(state, buf, detail)
         results = []
         while buf.shape[1] >= self.window:
             win = buf[None, :, : self.window]

@@ -41,7 +41,7 @@ def test_quick_pareto_writes_table_plot_and_a_front(tmp_path, capsys):
         assert ort[k]["test_error"] == pytest.approx(f32[k]["test_error"], abs=0.01)
     rt = res["realtime_12_taxels_2khz_gwt_snn"]
     got = [(r["gwt_hop"], r["touched_taxels"], r["precision"] == "int8",
-            (r["snn_hidden"], r["snn_dt_ms"])) for r in rt]  # fmt: skip
+            (r["snn_hidden"], r["snn_dt_ms"]), r["form"]) for r in rt]  # fmt: skip
     assert got == list(pareto.RT_ROWS)
     assert all(r["realtime_factor"] > 0 for r in rt)
     assert (out / "pareto.png").stat().st_size > 10_000 and "**yes**" in (

@@ -233,26 +233,45 @@ def realtime_session(
     touched: int | None = None,
     int8: bool = False,
     snn: tuple[int, float] = (64, 5.0),
+    form: str = "gwt",
 ) -> tuple[Callable[[], object], dict]:
-    """One real-time row's call and description: GWT + SNN on 12 taxels at 2 kHz, onnxruntime,
-    1 thread, batch 1, classifying a window every half window (random weights: cost does not
-    depend on them); ``hop``: the GWT's frame hop. With ``touched``, the activity gate is on
-    (0.5 x the training RMS) and only that many taxels carry signal (the others 1 % of it): the
-    graph encodes only the touched ones. ``int8``: the graph's window-side MatMuls dynamically
-    quantised (:func:`quantize_int8`; the Convs and the LSTM stay float32). ``snn``: its hidden
-    units and time step (ms); the default is the SNN's default."""
+    """One real-time row's call and description: a scalogram encoder + SNN on 12 taxels at
+    2 kHz, onnxruntime, 1 thread, batch 1, classifying a window every half window (random
+    weights: cost does not depend on them); ``hop``: the scalogram's frame hop. ``form``:
+    ``gwt`` (the window graph of the FFT-exact Gabor scalogram), ``cgwt`` (the window graph of
+    the causal Gabor bank) or ``cgwt stream`` (its stream graph: each call takes the next half
+    window and the state, every sample transformed once). With ``touched`` (window graphs of
+    ``gwt``), the activity gate is on (0.5 x the training RMS) and only that many taxels carry
+    signal (the others 1 % of it): the graph encodes only the touched ones. ``int8``: the
+    graph's window-side MatMuls dynamically quantised (:func:`quantize_int8`; the Convs and the
+    LSTM stay float32). ``snn``: its hidden units and time step (ms)."""
     from ...export import export_pipeline, quantize_int8
+    from ...export.stream import build_stream_graph, initial_state, stream_session
     from ...service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
-    cfg = PipelineConfig.from_flat(model="snn", channels=("all",), f_hi_hz=800.0, f_lo_hz=5.0,
-                                   gwt_hop=hop, gate=0.0 if touched is None else 0.5,
-                                   snn_hidden=snn[0], snn_dt_ms=snn[1])  # fmt: skip
+    enc = form.split()[0]
+    hop_key = "gwt_hop" if enc == "gwt" else "cgwt_hop"
+    cfg = PipelineConfig.from_flat(encoder=enc, model="snn", channels=("all",), f_hi_hz=800.0,
+                                   f_lo_hz=5.0, gate=0.0 if touched is None else 0.5,
+                                   snn_hidden=snn[0], snn_dt_ms=snn[1], **{hop_key: hop})  # fmt: skip
     pipe = SpikePipeline(cfg, fs, window, channels, ("a", "b"))
     rng = np.random.default_rng(0)
     X = rng.standard_normal((8, 12, window)).astype(np.float32)
     pipe.calibrate(X)
-    path = tmp / f"rt{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
+    info = {"form": form, "window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
+            "precision": "int8" if int8 else "float32", "snn_hidden": snn[0],
+            "snn_dt_ms": snn[1], "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
+    if form.endswith("stream"):
+        graph, _, _ = build_stream_graph(pipe)
+        sess = stream_session(graph)
+        half = window // 2
+        feeds = {"window": X[:1, :, :half].copy(), **initial_state(pipe, X[:1, :, :half])}
+        for i in sess.get_inputs():
+            feeds.setdefault(i.name, np.zeros((1, int(i.shape[1])), np.float32))
+        outs = [o.name for o in sess.get_outputs()]
+        return (lambda: sess.run(outs, feeds)), info
+    path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
         path = Path(quantize_int8(path, X, np.arange(len(X)) % 2)["path"])
@@ -260,24 +279,21 @@ def realtime_session(
     x = X[:1].copy()
     if touched is not None:
         x[:, touched:] *= 0.01
-    info = {"window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
-            "precision": "int8" if int8 else "float32", "snn_hidden": snn[0],
-            "snn_dt_ms": snn[1], "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
     return (lambda: sess.run(x)), info
 
 
 def realtime_rows(
-    rows: tuple[tuple[int, int | None, bool, tuple[int, float]], ...],
+    rows: tuple[tuple[int, int | None, bool, tuple[int, float], str], ...],
     repeats: int,
     tmp: Path,
     window: int = 1000,
     rounds: int = 5,
 ) -> list[dict]:
-    """The real-time factor of each row of :data:`RT_ROWS` (``(hop, touched, int8, snn)``):
-    every row's session is built first, then all are timed interleaved
+    """The real-time factor of each row of :data:`RT_ROWS` (``(hop, touched, int8, snn,
+    form)``): every row's session is built first, then all are timed interleaved
     (:func:`_interleaved_medians`)."""
-    built = [realtime_session(tmp, window, hop=h, touched=k, int8=q, snn=n)
-             for h, k, q, n in rows]  # fmt: skip
+    built = [realtime_session(tmp, window, hop=h, touched=k, int8=q, snn=n, form=f)
+             for h, k, q, n, f in rows]  # fmt: skip
     secs = _interleaved_medians([call for call, _ in built], repeats, rounds)
     out = []
     for (_, info), t in zip(built, secs, strict=True):
@@ -290,10 +306,14 @@ def realtime_rows(
 #: the SNN of the default task's Pareto sweep that costs least (``gwt20+snn16 dt10``)
 SMALL_SNN = (16, 10.0)
 #: the real-time rows: (GWT hop, touched taxels with the activity gate on (None = gate off),
-#: int8 MatMuls, SNN (hidden units, step ms))
-RT_ROWS = ((1, None, False, (64, 5.0)), (10, None, False, (64, 5.0)), (10, None, True, (64, 5.0)),
-           (10, 6, False, (64, 5.0)), (10, 3, False, (64, 5.0)), (10, 1, False, (64, 5.0)),
-           (10, 1, True, (64, 5.0)), (10, None, True, SMALL_SNN), (10, 1, True, SMALL_SNN))  # fmt: skip
+#: int8 MatMuls, SNN (hidden units, step ms), form (see :func:`realtime_session`))
+_G, _C, _S = "gwt", "cgwt", "cgwt stream"
+RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
+           (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
+           (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
+           (10, 1, True, (64, 5.0), _G), (10, None, True, SMALL_SNN, _G), (10, 1, True, SMALL_SNN, _G),
+           (10, None, False, (64, 5.0), _C), (10, None, False, (64, 5.0), _S),
+           (10, None, False, SMALL_SNN, _S))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -353,7 +373,8 @@ def format_rt(rt: dict) -> str:
     if rt.get("precision") == "int8":
         scene += ", int8 MatMuls"
     snn = f"SNN ({rt.get('snn_hidden', 64)} units, {rt.get('snn_dt_ms', 5.0):g} ms step)"
-    return (f"GWT (hop {rt['gwt_hop']}) + {snn}, 12 taxels @ 2 kHz{scene}, "
+    form = {"gwt": "GWT", "cgwt": "causal GWT", "cgwt stream": "causal GWT stream graph"}
+    return (f"{form[rt.get('form', 'gwt')]} (hop {rt['gwt_hop']}) + {snn}, 12 taxels @ 2 kHz{scene}, "
             f"{rt['window_samples']}-sample windows every half "
             f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
             f"{rt['ms_per_signal_s']:.2f} ms per second of signal = "

@@ -97,6 +97,9 @@ PIPELINES = (
     ("default+readout", None, "readout", "any", {}),
     ("default+snn", None, "snn", "any", {}),
     ("lif+readout", "lif", "readout", "analog", {}),  # a level converter: not for event counts
+    # the Gabor latency code on the windowed FFT scalogram and on the causal (streamable) bank
+    ("gwt+readout", "gwt", "readout", "analog", {}),
+    ("cgwt+readout", "cgwt", "readout", "analog", {}),
     # transform -> code: Gabor band envelopes into LIF converters (the bands encoder's defaults)
     ("gwt>lif+readout", "bands", "readout", "analog", {}),
     # convolutions need a taxel grid, every afferent on it (as train --data gives a grid file)

@@ -1,0 +1,161 @@
+"""Causal Gabor scalogram -> latency code as an encoder component: ``cgwt``.
+
+The ``gwt`` encoder's code (one latency spike per channel, statistic and band; the same afferent
+layout, band range, statistics, activity gate and band restriction) on the causal recursive
+Gabor bank of :mod:`.causal_gabor` instead of the windowed FFT scalogram. Each window is
+transformed from the zero state (its first sample as the constant past); a stream carries the
+state instead (:class:`~.causal_gabor.CausalGaborStream`), so every input sample is transformed
+once. Exported as the bank's own exact form: one strided convolution (the polyphase FIR of every
+band) and the frame recursion as block MatMuls, then the code.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..core.checks import check_int
+from .base import register_encoder
+from .causal_gabor import CausalGaborScalogram
+from .latency import LatencyCode
+from .scalogram_latency import ScalogramLatencyEncoder, ScalogramLatencySettings
+
+
+def auto_hop(fs_hz: float, f_hi_hz: float, window: int) -> int:
+    """Frames every ``hop`` samples, fast enough for the highest band's envelope: its magnitude
+    varies within ``+- 2 sigma_f`` (``sigma_f`` = 0.184 f_hi), so a frame rate of ``4 sigma_f``
+    samples it at twice that; at most an eighth of the window, and a divisor of half an even
+    window (so a stream step, half a window, is whole frames)."""
+    sigma_f = f_hi_hz / (math.pi * math.sqrt(3.0))  # cmor1.5-1.0: f / (pi C sqrt(2 B))
+    bound = int(max(1, min(math.floor(fs_hz / (4.0 * sigma_f)), int(window) // 8)))
+    if window % 2:
+        return bound
+    return max(d for d in range(1, bound + 1) if (window // 2) % d == 0)
+
+
+@dataclass(frozen=True)
+class CausalGWTConfig(ScalogramLatencySettings):
+    """Causal recursive Gabor bank -> latency code. ``hop``: a frame every ``hop`` samples
+    (0 = :func:`auto_hop`: from the highest band's envelope bandwidth); ``order``: poles per band."""
+
+    hop: int = 0
+    order: int = 4
+
+    FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "cgwt_hop": "hop",
+                                       "cgwt_order": "order"}  # fmt: skip
+    HELP: ClassVar[dict[str, str]] = {
+        **ScalogramLatencySettings.HELP,
+        "hop": "frame every hop samples (0 = from the highest band's envelope bandwidth)",
+        "order": "poles per band of the causal Gabor bank (4: gammatone-like)",
+    }
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int(self.hop, "hop", 0)
+        check_int(self.order, "order", 1)
+        if self.order > 16:
+            raise ValueError(f"order must be <= 16, got {self.order}")
+
+
+@register_encoder("cgwt", CausalGWTConfig)
+class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
+    """Causal (streamable) Gabor bank -> latency code."""
+
+    def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
+        hop = self.config.hop or auto_hop(self.fs_hz, float(np.max(self.freqs_hz)), self.window)
+        if hop > self.window:
+            raise ValueError(f"cgwt hop ({hop}) exceeds the window ({self.window})")
+        return CausalGaborScalogram(self.fs_hz, freqs_hz, hop=hop, order=self.config.order)
+
+    @property
+    def hop(self) -> int:
+        return self.scalogram.hop
+
+    def bytes_per_window(self) -> int:
+        # the strided FIR's output and the recursion's blocks: a few complex values per frame
+        nb, f = self.config.n_bands, self.window // self.hop
+        return 8 * self.n_channels * (self.window + 8 * nb * f)
+
+    def onnx_module(self) -> nn.Module:
+        return self._gated(_ScalogramCode(self.scalogram, self.code))
+
+    def stream_module(self) -> CausalStreamCode:
+        """The encoder's stream step (half a window per call), for the stream graph."""
+        return CausalStreamCode(self, self.window // 2)
+
+
+class _ScalogramCode(nn.Module):
+    """Window ``[B, C, W]`` -> the bank's magnitudes -> the latency code ``[B, C * stats * bands]``
+    (the bank traced as it runs: a strided Conv and block MatMuls)."""
+
+    def __init__(self, scalogram: CausalGaborScalogram, code: LatencyCode) -> None:
+        super().__init__()
+        self.scalogram, self.code = scalogram, code
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.code(self.scalogram(x))
+
+
+class CausalStreamCode(nn.Module):
+    """One stream step of the ``cgwt`` encoder: the next half window ``chunk [B, C, half]`` and the
+    encoder's state -> the spike times of the window that ends with it ``[B, afferents, 1]`` and
+    the new state. Every sample is transformed once: the bank continues from its state, and the
+    window's frames are the previous half's (kept as state) then the chunk's.
+
+    State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1`` samples
+    (a fresh stream: its first sample repeated, the bank's constant past), ``cgwt_rec`` the frame
+    recursion's values (zeros), ``cgwt_frames`` the previous half's magnitudes; ``cgwt_prev``,
+    the previous half's samples, only where the pipeline's level code reads the window.
+    """
+
+    def __init__(self, encoder: CausalGWTLatencyEncoder, half: int) -> None:
+        super().__init__()
+        if encoder.config.gate > 0:
+            raise ValueError(
+                "the activity gate skips a window's quiet channels, but a stream's recursion "
+                "needs every sample: export the stream graph of a run trained without --gate"
+            )
+        bank: CausalGaborScalogram = encoder.scalogram
+        if half % bank.hop or encoder.window != 2 * half:
+            raise ValueError(
+                f"a stream step is half the window ({encoder.window} samples): it must be a whole "
+                f"number of hops ({bank.hop})"
+            )
+        self.bank, self.code = bank, encoder.code
+        self.scatter = encoder.band_scatter if encoder.restricted else None
+        self.half, self.channels = int(half), encoder.n_channels
+        self.f_half = self.half // bank.hop
+        nb, k = bank.n_bands, bank.order
+        self.state_names = [("cgwt_tail", self.channels * (bank.n_taps - 1)),
+                            ("cgwt_rec", self.channels * nb * 2 * k),
+                            ("cgwt_frames", self.channels * nb * self.f_half)]  # fmt: skip
+        #: a fresh stream's tail is its first sample repeated (the runtime's rule); others zeros
+        self.state_init = {"cgwt_tail": "repeat_first"}
+
+    def initial_state(self, first: np.ndarray) -> dict[str, np.ndarray]:
+        """The state of a fresh stream whose first samples are ``first [B, C]`` (float32)."""
+        b = first.shape[0]
+        tail = np.repeat(first.astype(np.float32)[:, :, None], self.bank.n_taps - 1, axis=2)
+        return {"cgwt_tail": tail.reshape(b, -1),
+                **{n: np.zeros((b, u), np.float32) for n, u in self.state_names[1:]}}  # fmt: skip
+
+    def forward(
+        self, chunk: Tensor, tail: Tensor, rec: Tensor, frames: Tensor
+    ) -> tuple[Tensor, ...]:
+        b, c, n = chunk.shape
+        nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
+        buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
+        y, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
+        mag = torch.sqrt(y[:, :, 0] * y[:, :, 0] + y[:, :, 1] * y[:, :, 1])  # [rows, bands, F]
+        mag = mag.reshape(b, c, nb, self.f_half)
+        window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
+        t = self.code(window)
+        if self.scatter is not None:
+            t = self.scatter(t)
+        new_rec = state.reshape(b, -1)
+        return t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), new_rec, mag.reshape(b, -1)

@@ -1,0 +1,260 @@
+"""The stream graph: half a window in, the scores of the window that it completes out.
+
+For a pipeline whose encoder has a stream form (``encoder.stream_module()``: the ``cgwt``
+encoder's causal bank), the graph takes the next ``window / 2`` samples of every channel
+(``window`` input ``[batch, channels, window / 2]``) plus the encoder's state and the model's, and
+returns ``scores`` and every state's next value (``<name>_out``). Each input sample is transformed
+once (the window graph of a half-overlapping stream transforms every sample twice). A fresh
+stream starts from :func:`initial_state` on its first half window (whose scores are discarded:
+the window is not complete yet); ``stream_windows`` runs a whole stream, as the service would.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import Tensor, nn
+
+from ..core.graph_contract import SCORES_OUTPUT, WINDOW_INPUT, state_output
+from ..core.onnx_graph import chain, torch_to_onnx
+from ..core.onnx_prune import prune_to_outputs
+from ..pipeline import SpikePipeline
+from .onnx import PipelineEncoderGraph, build_parts
+
+#: the previous half window's samples, carried where the pipeline's level code reads the window
+PREV_STATE = "stream_prev"
+
+
+class StreamEncoderGraph(nn.Module):
+    """Half window + encoder state -> the completed window's spikes (level code and clock
+    afferents appended, as the window graph) + the next state."""
+
+    def __init__(self, pipe: SpikePipeline) -> None:
+        super().__init__()
+        make = getattr(pipe.encoder, "stream_module", None)
+        if make is None:
+            raise ValueError(
+                f"the {pipe.config.encoder_type} encoder has no stream form (the cgwt encoder has): "
+                "serve its window graph, which the service feeds a window every half window"
+            )
+        self.step = make()
+        self.graph = PipelineEncoderGraph(pipe, encoder=self.step)
+        self.with_prev = self.graph.with_level
+        n = len(pipe.channel_idx)
+        self.state_names = list(self.step.state_names)
+        if self.with_prev:
+            self.state_names.append((PREV_STATE, n * (pipe.window // 2)))
+
+    def forward(self, chunk: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
+        g = self.graph
+        x = torch.index_select(chunk, 1, g.channel_idx) if g.select else chunk
+        s, *new = self.step(x, *state[:3])
+        window = x
+        if self.with_prev:
+            window = torch.cat([state[3].reshape(x.shape), x], -1)
+            new.append(x.reshape(x.shape[0], -1))
+        return (g.append(s, window), *new)
+
+
+def build_stream_graph(
+    pipe: SpikePipeline,
+) -> tuple[onnx.ModelProto, list[tuple[str, int]], dict[str, str]]:
+    """The stream graph, its encoder state ``(name, units)`` (the model's follow in the graph's
+    inputs, as in the window graph) and how a fresh stream starts them (the runtime's rule per
+    state: ``repeat_first``; unnamed states start at zero)."""
+    graph = StreamEncoderGraph(pipe).eval()
+    half = pipe.window // 2
+    names = graph.state_names
+    _, mod = build_parts(pipe)
+    with tempfile.TemporaryDirectory() as tmp:
+        gen = torch.Generator().manual_seed(0)
+        chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
+        state = [torch.randn(2, u, generator=gen) for _, u in names]
+        enc = torch_to_onnx(graph, (chunk, *state), Path(tmp) / "stream.onnx",
+                            [WINDOW_INPUT, *(n for n, _ in names)],
+                            ["spikes", *(state_output(n) for n, _ in names)])  # fmt: skip
+    model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
+    return model, names, dict(graph.step.state_init)
+
+
+def initial_state(pipe: SpikePipeline, first_half: np.ndarray) -> dict[str, np.ndarray]:
+    """The encoder state of fresh streams whose first half windows are ``first_half [B, channels,
+    half]`` (all the run's channels), before that half is fed."""
+    graph = StreamEncoderGraph(pipe)
+    sel = np.asarray(first_half, np.float32)[:, list(pipe.channel_idx)]
+    state = graph.step.initial_state(sel[:, :, 0])
+    if graph.with_prev:
+        state[PREV_STATE] = np.zeros((len(sel), sel.shape[1] * sel.shape[2]), np.float32)
+    return state
+
+
+def stream_windows(
+    model: onnx.ModelProto,
+    pipe: SpikePipeline,
+    stream: np.ndarray,
+    spikes: bool = False,
+    carry_model: bool = True,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+    """Scores ``[windows, classes]`` of every complete window of ``stream [channels, samples]``
+    (a window every half window) through the stream graph ``model`` in onnxruntime, the
+    encoder's state carried, the model's too unless ``carry_model`` is False (then zeros for
+    each window, as torch's per-window scores). With ``spikes``, also the encoder's spike times
+    ``[windows, afferents, slots]`` (the graph's intermediate ``spikes`` value, exposed)."""
+    half = pipe.window // 2
+    n = stream.shape[1] // half
+    session = stream_session(model, expose_spikes=spikes)
+    inputs = [i.name for i in session.get_inputs()]
+    x = np.asarray(stream, np.float32)
+    state = initial_state(pipe, x[None, :, :half])
+    encoder = set(state)
+    zeros = {i.name: np.zeros((1, int(i.shape[1])), np.float32) for i in session.get_inputs()
+             if i.name != WINDOW_INPUT and i.name not in state}  # fmt: skip
+    state.update(zeros)
+    outs = [SCORES_OUTPUT, *(state_output(k) for k in inputs if k != WINDOW_INPUT)]
+    if spikes:
+        outs.append("spikes")
+    scores, times = [], []
+    for k in range(n):
+        got = session.run(outs, {WINDOW_INPUT: x[None, :, k * half : (k + 1) * half], **state})
+        for name, value in zip(outs[1:], got[1:], strict=False):
+            # the first half's window is incomplete: the model's state it gives is discarded
+            if name.endswith("_out") and (k or name[: -len("_out")] in encoder):
+                state[name[: -len("_out")]] = value
+        if not carry_model:
+            state.update(zeros)
+        if k:  # the first half completes no window
+            scores.append(got[0][0])
+            if spikes:
+                times.append(got[-1][0])
+    s = np.asarray(scores)
+    return (np.asarray(times), s) if spikes else s
+
+
+def stream_session(model: onnx.ModelProto, expose_spikes: bool = False):
+    """An onnxruntime session of the stream graph ``model`` (1 thread) that computes its scores
+    and state alone, or also exposes the encoder's ``spikes`` value (``expose_spikes``)."""
+    import onnxruntime as ort
+
+    copy = onnx.ModelProto()
+    copy.CopyFrom(model)
+    if expose_spikes:
+        copy.graph.output.append(
+            onnx.helper.make_tensor_value_info("spikes", onnx.TensorProto.FLOAT, None)
+        )
+    else:  # scores and state only: onnxruntime runs every node whatever a call asks for
+        states = [i.name for i in copy.graph.input if i.name != WINDOW_INPUT]
+        prune_to_outputs(copy.graph, [SCORES_OUTPUT, *(state_output(n) for n in states)])
+    model = copy
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+
+
+#: test windows joined end to end into the stream the export is verified on
+CHECK_WINDOWS = 64
+
+
+def reference_stream(pipe: SpikePipeline, stream: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Torch's spike times ``[windows, afferents, 1]`` and scores (each window's model from zero
+    state) of every complete window of ``stream [channels, samples]``: the bank run once over the
+    whole stream (float64), each window's frames cut from it and coded."""
+    half = pipe.window // 2
+    enc = pipe.encoder
+    x = torch.from_numpy(np.asarray(stream, np.float64)[None, list(pipe.channel_idx)])
+    hop = enc.scalogram.hop
+    with torch.no_grad():
+        mag = enc.scalogram(x).float()  # [1, C, bands, frames]
+        fh = half // hop
+        n = stream.shape[1] // half
+        t = torch.cat([enc.code(mag[..., (k - 1) * fh : (k + 1) * fh]) for k in range(1, n)])
+        if enc.restricted:
+            t = enc.band_scatter(t)
+        t = t.unsqueeze(-1)
+        wins = np.stack([stream[:, (k - 1) * half : (k + 1) * half] for k in range(1, n)])
+        graph = PipelineEncoderGraph(pipe, encoder=nn.Identity())
+        sel = torch.from_numpy(np.ascontiguousarray(wins[:, list(pipe.channel_idx)], np.float32))
+        spikes = graph.append(t, sel)
+        scores = pipe.scores(spikes).numpy()
+    return spikes.numpy(), scores
+
+
+def export_stream(
+    pipe: SpikePipeline,
+    out: Path,
+    X_check: np.ndarray,
+    metadata: dict[str, str] | None = None,
+    overwrite: bool = False,
+) -> dict:
+    """Write the stream graph of ``pipe`` to ``out`` after verifying it in onnxruntime against
+    :func:`reference_stream` on up to ``CHECK_WINDOWS`` of ``X_check`` joined into one stream:
+    spike times within the window graph's tolerances, scores (the model's state reset for each
+    window, as torch's) within its score tolerance except on its rounding-boundary allowance."""
+    from ..core.graph_contract import GraphContract
+    from ..core.version import __version__
+    from .onnx import (
+        TIME_ATOL_MS,
+        TIME_RTOL,
+        ExportError,
+        _boundary_allowance,
+        compare_spike_times,
+        score_tolerance,
+    )
+
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    model, names, init = build_stream_graph(pipe)
+    half = pipe.window // 2
+    model_states = tuple(n for n, _ in pipe.model.state_names)
+    contract = GraphContract(
+        fs_hz=pipe.fs_hz,
+        window_samples=pipe.window,
+        channels=tuple(pipe.channel_names),
+        class_names=tuple(pipe.class_names),
+        encoder=pipe.config.encoder_type,
+        model=pipe.config.model_type,
+        state_inputs=(*(n for n, _ in names), *model_states),
+        bytes_per_window=pipe.bytes_per_window(),
+        encoder_channels=tuple(int(i) for i in pipe.channel_idx),
+        units="input: the next half window in the sensor's readout units; scores: "
+        + pipe.model.score_units,
+        pipeline_config=pipe.config.to_dict(),
+        version=__version__,
+        extra={
+            **dict(metadata or {}),
+            "stream_step_samples": str(half),
+            "stream_encoder_states": json.dumps([n for n, _ in names]),
+            "stream_state_init": json.dumps(init),
+        },
+    )
+    for k, v in contract.to_metadata().items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = k, str(v)
+    onnx.checker.check_model(model)
+    X = np.asarray(X_check, np.float32)[:CHECK_WINDOWS]
+    stream = np.concatenate(list(X), axis=1) if len(X) else np.zeros((X.shape[1], 0), np.float32)
+    if stream.shape[1] < 2 * pipe.window:
+        raise ValueError("the stream graph is verified on at least two test windows; got fewer")
+    want_t, want_s = reference_stream(pipe, stream)
+    got_t, got_s = stream_windows(model, pipe, stream, spikes=True, carry_model=False)
+    tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
+    dt, flips = compare_spike_times(got_t, want_t, pipe.duration_ms, tol)
+    per = np.abs(got_s - want_s).max(1)
+    off = int((per > score_tolerance(want_s)).sum())
+    if off > _boundary_allowance(len(per)):
+        raise ExportError(f"stream graph differs from torch by up to {per.max():.3g} on {off} of "
+                          f"{len(per)} windows")  # fmt: skip
+    agree = float((got_s.argmax(1) == want_s.argmax(1)).mean())
+    tmp = out.with_name(f".{out.name}.tmp")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    onnx.save(model, str(tmp))
+    tmp.replace(out)
+    return {"path": str(out), "nodes": len(model.graph.node), "windows_checked": len(per),
+            "encoder_max_time_diff_ms": dt, "encoder_cutoff_flips": flips,
+            "max_score_diff": float(per.max()), "prediction_agreement": agree,
+            "step_samples": half, "encoder_state": dict(names)}  # fmt: skip

@@ -1,0 +1,108 @@
+"""The stream graph (half a window per call, every sample transformed once) against torch, the
+window graph and the service runtime's stream path."""
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+
+from tactilesnn.cli import main
+from tactilesnn.config import PipelineConfig
+from tactilesnn.export import export_pipeline
+from tactilesnn.export.stream import build_stream_graph, export_stream, stream_windows
+from tactilesnn.pipeline import SpikePipeline
+from tactilesnn.service.runtime import InputError, PipelineSession, StreamState
+
+FS, WINDOW = 1000.0, 200
+CHANNELS = ("a", "b", "c")
+
+
+def _pipe(model="snn", **kw):
+    flat = {"encoder": "cgwt", "model": model, "channels": ("all",), "f_lo_hz": 5.0,
+            "f_hi_hz": 300.0, **kw}  # fmt: skip
+    if flat["encoder"] == "cgwt":
+        flat.setdefault("cgwt_hop", 4)
+    pipe = SpikePipeline(PipelineConfig.from_flat(**flat), FS, WINDOW, CHANNELS, ("x", "y"))
+    pipe.calibrate(_windows(8, seed=1))
+    return pipe
+
+
+def _windows(n, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(WINDOW) / FS
+    f = rng.uniform(10, 200, (n, len(CHANNELS), 1))
+    x = np.sin(2 * np.pi * f * t) * rng.uniform(0.2, 3, (n, len(CHANNELS), 1))
+    return (x + 0.3 * rng.standard_normal(x.shape) + 5.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("model", ["tempotron", "snn"])
+def test_stream_graph_matches_torch_on_a_stream(tmp_path, model):
+    pipe = _pipe(model)
+    rep = export_stream(pipe, tmp_path / "s.onnx", _windows(20))
+    assert rep["windows_checked"] == 39 and rep["prediction_agreement"] == 1.0
+    assert rep["encoder_max_time_diff_ms"] < 1e-2 and rep["encoder_cutoff_flips"] == 0
+    meta = {p.key: p.value for p in onnx.load(tmp_path / "s.onnx").metadata_props}
+    assert meta["stream_step_samples"] == str(WINDOW // 2)
+    assert json.loads(meta["stream_state_init"]) == {"cgwt_tail": "repeat_first"}
+    with pytest.raises(FileExistsError, match="--overwrite"):  # nothing replaced silently
+        export_stream(pipe, tmp_path / "s.onnx", _windows(20))
+
+
+def test_runtime_classifies_and_streams_with_the_stream_graph(tmp_path):
+    pipe = _pipe("snn")
+    X = _windows(6, seed=3)
+    export_pipeline(pipe, tmp_path / "w.onnx", X)
+    export_stream(pipe, tmp_path / "s.onnx", X)
+    win, stream = (
+        PipelineSession(str(tmp_path / "w.onnx")),
+        PipelineSession(str(tmp_path / "s.onnx")),
+    )
+    # a window from a fresh state is the window graph's transform exactly (constant past)
+    assert np.abs(stream.run(X) - win.run(X)).max() < 1e-4
+    assert stream.classify(X[0])["classes"] == win.classify(X[0])["classes"]
+    joined = np.concatenate(list(X), axis=1)
+    st, results = StreamState(), []
+    for i in range(0, joined.shape[1], 37):  # chunks unrelated to the step
+        results += stream.feed_stream(st, joined[:, i : i + 37])
+    assert [r["window_index"] for r in results] == list(range(2 * len(X) - 1))
+    model, _, _ = build_stream_graph(pipe)
+    want = stream_windows(model, pipe, joined)  # every state carried, as the service does
+    got = np.array([r["scores"] for r in results])
+    assert np.abs(got - want).max() < 1e-5
+    assert np.abs(got[0] - win.run(X[:1])[0]).max() < 1e-4
+    with pytest.raises(InputError, match="every 100 samples"):
+        stream.feed_stream(StreamState(), joined[:, :50], hop=40)
+
+
+def test_stream_graph_refusals(tmp_path):
+    with pytest.raises(ValueError, match="no stream form"):
+        build_stream_graph(_pipe("tempotron", encoder="gwt"))
+    with pytest.raises(ValueError, match="activity gate"):
+        build_stream_graph(_pipe("tempotron", gate=0.5))
+    with pytest.raises(ValueError, match="whole number of hops"):
+        build_stream_graph(_pipe("tempotron", cgwt_hop=3))
+    # a tampered step is refused when the graph is loaded, not at the first request
+    pipe = _pipe("tempotron")
+    path = tmp_path / "s.onnx"
+    export_stream(pipe, path, _windows(4))
+    m = onnx.load(path)
+    for p in m.metadata_props:
+        if p.key == "stream_step_samples":
+            p.value = "60"
+    onnx.save(m, tmp_path / "bad.onnx")
+    with pytest.raises(ValueError, match="not half the window"):
+        PipelineSession(str(tmp_path / "bad.onnx"))
+
+
+def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--encoder", "cgwt", "--epochs", "1", "--quiet", "--no-export",
+                 "--task-kw", "n_planar=4", "--task-kw", "n_concave=2", "--task-kw",
+                 "n_convex=2", "--task-kw", "n_test=2", "--out", "run"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert main(["export", "run", "--stream", "--out", "s.onnx", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "every sample transformed once" in out and "predictions agree 100.00 %" in out
+    with pytest.raises(SystemExit, match="--quantize"):
+        main(["export", "run", "--stream", "--quantize", "--out", "q.onnx", "--quiet"])
