@@ -43,7 +43,7 @@ def test_design_unit_sinusoid_dc_and_frequency_response():
         # expanded filter (float64) at the centre and at DC
         b = gb * np.array([1.0, -1.0])
         a = np.poly(np.full(4, pb))
-        w, h = scipy.signal.freqz(b, a, worN=[2 * np.pi * f / FS, 0.0])
+        _, h = scipy.signal.freqz(b, a, worN=[2 * np.pi * f / FS, 0.0])
         assert abs(h[0] - 2.0) < 1e-6 and abs(h[1]) == 0.0
     assert np.all(np.diff(tau) < 0)  # narrower bands (lower) ring longer
     t = np.arange(int(4 * FS)) / FS
