@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,6 +46,38 @@ def torch_to_onnx(
     model = onnx.load(str(path))
     if fold_static_shapes(model) + literal_zero_reshapes(model):
         onnx.save(model, str(path))
+    return model
+
+
+def exported_to_onnx(
+    module: nn.Module,
+    args: tuple,
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    opset: int = OPSET,
+) -> onnx.ModelProto:
+    """Export ``module`` with the ``torch.export``-based exporter (``dynamo=True``, the
+    supported path; needs ``onnxscript``) with a dynamic batch axis on every input
+    (``module.forward(first, *rest)``), optimised, its static sizes folded as
+    :func:`torch_to_onnx` does. For graphs without data-dependent loops."""
+    batch = torch.export.Dim("batch")
+    shapes = ({0: batch}, tuple({0: batch} for _ in args[1:]))
+    # its registry logs a warning per torchvision op it cannot register (no torchvision here)
+    quiet = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            program = torch.onnx.export(module, args, input_names=list(inputs),
+                                        output_names=list(outputs), dynamic_shapes=shapes,
+                                        dynamo=True, opset_version=max(opset, 18), verbose=False)  # fmt: skip
+            program.optimize()
+    finally:
+        quiet.setLevel(level)
+    model = program.model_proto
+    fold_static_shapes(model)
+    literal_zero_reshapes(model)
     return model
 
 

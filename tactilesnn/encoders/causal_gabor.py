@@ -189,12 +189,18 @@ class CausalGaborScalogram(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``[batch, channels, samples]`` -> magnitude ``[batch, channels, bands, samples // hop]``."""
-        re, im = self.analytic(x)
-        return torch.sqrt(re * re + im * im)
+        y = self.window_frames(x)
+        return torch.sqrt((y * y).sum(3))
 
     def analytic(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Real and imaginary parts ``[batch, channels, bands, frames]`` of one window (from the
-        zero state). One strided convolution, then the frame recursion one block at a time."""
+        zero state)."""
+        y = self.window_frames(x)
+        return y[:, :, :, 0], y[:, :, :, 1]
+
+    def window_frames(self, x: torch.Tensor) -> torch.Tensor:
+        """``[batch, channels, bands, 2 (re, im), frames]`` of one window from the zero state: one
+        strided convolution, then the frame recursion one block at a time."""
         b, c, n = x.shape
         frames = n // self.hop
         if frames < 1:
@@ -202,8 +208,7 @@ class CausalGaborScalogram(nn.Module):
         rows = x.reshape(b * c, 1, n)[..., : frames * self.hop]
         past = rows[..., :1].expand(-1, -1, self.n_taps - 1)  # the constant past
         y, _ = self.frames_from(torch.cat([past, rows], -1), None, want_state=False)
-        y = y.reshape(b, c, self.n_bands, 2, frames)
-        return y[:, :, :, 0], y[:, :, :, 1]
+        return y.reshape(b, c, self.n_bands, 2, frames)
 
     def frames_from(
         self, buf: torch.Tensor, state: torch.Tensor | None, want_state: bool = True

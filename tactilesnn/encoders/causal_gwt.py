@@ -151,7 +151,7 @@ class CausalStreamCode(nn.Module):
         nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
         y, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
-        mag = torch.sqrt(y[:, :, 0] * y[:, :, 0] + y[:, :, 1] * y[:, :, 1])  # [rows, bands, F]
+        mag = torch.sqrt((y * y).sum(2))  # [rows, bands, F]
         mag = mag.reshape(b, c, nb, self.f_half)
         window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
         t = self.code(window)

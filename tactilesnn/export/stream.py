@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+import onnx.version_converter
 import torch
 from torch import Tensor, nn
 
 from ..core.graph_contract import SCORES_OUTPUT, WINDOW_INPUT, state_output
-from ..core.onnx_graph import chain, torch_to_onnx
+from ..core.onnx_graph import chain, exported_to_onnx, torch_to_onnx
 from ..core.onnx_prune import prune_to_outputs
 from ..pipeline import SpikePipeline
 from .onnx import PipelineEncoderGraph, build_parts
@@ -30,35 +31,35 @@ from .onnx import PipelineEncoderGraph, build_parts
 PREV_STATE = "stream_prev"
 
 
-class StreamEncoderGraph(nn.Module):
+class StreamEncoderGraph(PipelineEncoderGraph):
     """Half window + encoder state -> the completed window's spikes (level code and clock
-    afferents appended, as the window graph) + the next state."""
+    afferents appended, as the window graph) + the next state. The encoder's stream step is
+    this graph's ``encoder``."""
 
     def __init__(self, pipe: SpikePipeline) -> None:
-        super().__init__()
         make = getattr(pipe.encoder, "stream_module", None)
         if make is None:
             raise ValueError(
                 f"the {pipe.config.encoder_type} encoder has no stream form (the cgwt encoder has): "
                 "serve its window graph, which the service feeds a window every half window"
             )
-        self.step = make()
-        self.graph = PipelineEncoderGraph(pipe, encoder=self.step)
-        self.with_prev = self.graph.with_level
+        step = make()
+        super().__init__(pipe, encoder=step)
+        self.state_init = dict(step.state_init)
+        self.with_prev = self.with_level
         n = len(pipe.channel_idx)
-        self.state_names = list(self.step.state_names)
+        self.state_names = list(step.state_names)
         if self.with_prev:
             self.state_names.append((PREV_STATE, n * (pipe.window // 2)))
 
     def forward(self, chunk: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
-        g = self.graph
-        x = torch.index_select(chunk, 1, g.channel_idx) if g.select else chunk
-        s, *new = self.step(x, *state[:3])
+        x = torch.index_select(chunk, 1, self.channel_idx) if self.select else chunk
+        s, *new = self.encoder(x, *state[:3])
         window = x
         if self.with_prev:
             window = torch.cat([state[3].reshape(x.shape), x], -1)
             new.append(x.reshape(x.shape[0], -1))
-        return (g.append(s, window), *new)
+        return (self.append(s, window), *new)
 
 
 def build_stream_graph(
@@ -71,15 +72,29 @@ def build_stream_graph(
     half = pipe.window // 2
     names = graph.state_names
     _, mod = build_parts(pipe)
-    with tempfile.TemporaryDirectory() as tmp:
-        gen = torch.Generator().manual_seed(0)
-        chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
-        state = [torch.randn(2, u, generator=gen) for _, u in names]
-        enc = torch_to_onnx(graph, (chunk, *state), Path(tmp) / "stream.onnx",
-                            [WINDOW_INPUT, *(n for n, _ in names)],
-                            ["spikes", *(state_output(n) for n, _ in names)])  # fmt: skip
+    gen = torch.Generator().manual_seed(0)
+    chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
+    state = [torch.randn(2, u, generator=gen) for _, u in names]
+    io = ([WINDOW_INPUT, *(n for n, _ in names)], ["spikes", *(state_output(n) for n, _ in names)])
+    try:  # the torch.export-based exporter (supported); the TorchScript one where it is absent
+        enc = exported_to_onnx(graph, (chunk, *state), *io)
+    except ImportError:
+        with tempfile.TemporaryDirectory() as tmp:
+            enc = torch_to_onnx(graph, (chunk, *state), Path(tmp) / "stream.onnx", *io)
+    mod = _same_versions(mod, enc)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
-    return model, names, dict(graph.step.state_init)
+    return model, names, graph.state_init
+
+
+def _same_versions(model: onnx.ModelProto, like: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` at ``like``'s default-domain opset and IR version (the two parts are merged
+    into one graph; the model's part may come from the older exporter at a lower opset)."""
+    want = {o.domain: o.version for o in like.opset_import}.get("", 0)
+    have = {o.domain: o.version for o in model.opset_import}.get("", 0)
+    if have < want:
+        model = onnx.version_converter.convert_version(model, want)
+    model.ir_version = max(model.ir_version, like.ir_version)
+    return model
 
 
 def initial_state(pipe: SpikePipeline, first_half: np.ndarray) -> dict[str, np.ndarray]:
@@ -87,7 +102,7 @@ def initial_state(pipe: SpikePipeline, first_half: np.ndarray) -> dict[str, np.n
     half]`` (all the run's channels), before that half is fed."""
     graph = StreamEncoderGraph(pipe)
     sel = np.asarray(first_half, np.float32)[:, list(pipe.channel_idx)]
-    state = graph.step.initial_state(sel[:, :, 0])
+    state = graph.encoder.initial_state(sel[:, :, 0])
     if graph.with_prev:
         state[PREV_STATE] = np.zeros((len(sel), sel.shape[1] * sel.shape[2]), np.float32)
     return state

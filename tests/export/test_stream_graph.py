@@ -106,3 +106,27 @@ def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsy
     assert "every sample transformed once" in out and "predictions agree 100.00 %" in out
     with pytest.raises(SystemExit, match="--quantize"):
         main(["export", "run", "--stream", "--quantize", "--out", "q.onnx", "--quiet"])
+
+
+def test_stream_encoder_is_built_by_the_supported_exporter_with_a_fallback(tmp_path, monkeypatch):
+    import tactilesnn.export.stream as stream_mod
+
+    pipe = _pipe("tempotron")
+    calls = []
+    real = stream_mod.exported_to_onnx
+
+    def spy(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(stream_mod, "exported_to_onnx", spy)
+    a = export_stream(pipe, tmp_path / "a.onnx", _windows(6))
+    assert calls  # torch.export-based (onnxscript installed with the package)
+
+    def missing(*a, **k):
+        raise ImportError("No module named 'onnxscript'")
+
+    monkeypatch.setattr(stream_mod, "exported_to_onnx", missing)
+    b = export_stream(pipe, tmp_path / "b.onnx", _windows(6))  # the TorchScript exporter instead
+    assert a["prediction_agreement"] == b["prediction_agreement"] == 1.0
+    assert a["nodes"] <= b["nodes"]
