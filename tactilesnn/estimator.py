@@ -10,7 +10,7 @@ So ``clone``, ``GridSearchCV``, ``cross_val_score`` and ``Pipeline`` work.
 is one channel; ``[N, taxels, polarity, bins]`` event counts), or a
 :class:`~tactilesnn.core.data.WindowDataset` (its rate, channel and class names are used).
 The defaults are those of ``tactilesnn train --data`` (a user's file): every channel, the
-``readout`` model, the encoder chosen among GWT, STFT and LIF on held-out training windows
+``readout`` model, the encoder chosen among the causal GWT, STFT and LIF on held-out training windows
 (``encoder="auto"``; the ``events`` encoder for event counts).
 """
 

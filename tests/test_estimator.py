@@ -82,7 +82,7 @@ def test_a_window_dataset_fits_directly_and_auto_chooses_an_encoder(default_task
     train, test = default_task
     clf = SpikeClassifier(epochs=2).fit(train)  # rate, channel and class names from the data
     assert clf.channel_names_ == train.channel_names and set(clf.classes_) == {"hook", "loop"}
-    assert set(clf.encoder_selection_["scores"]) == {"gwt", "stft", "lif"}
+    assert set(clf.encoder_selection_["scores"]) == {"cgwt", "stft", "lif"}
     assert clf.predict(test).shape == (len(test),)
 
 

@@ -49,15 +49,17 @@ class StreamEncoderGraph(PipelineEncoderGraph):
         self.with_prev = self.with_level
         n = len(pipe.channel_idx)
         self.state_names = list(step.state_names)
+        self.n_step_states = len(self.state_names)
         if self.with_prev:
             self.state_names.append((PREV_STATE, n * (pipe.window // 2)))
 
     def forward(self, chunk: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
         x = torch.index_select(chunk, 1, self.channel_idx) if self.select else chunk
-        s, *new = self.encoder(x, *state[:3])
+        k = self.n_step_states
+        s, *new = self.encoder(x, *state[:k])
         window = x
         if self.with_prev:
-            window = torch.cat([state[3].reshape(x.shape), x], -1)
+            window = torch.cat([state[k].reshape(x.shape), x], -1)
             new.append(x.reshape(x.shape[0], -1))
         return (self.append(s, window), *new)
 

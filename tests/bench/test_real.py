@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tactilesnn.app.bench import real
+from tactilesnn.config import DATA_ENCODER_CANDIDATES
 from tactilesnn.recordings import load_data_file
 
 
@@ -46,7 +47,7 @@ def test_bench_real_table_json_png_and_references(tmp_path):
     assert rf["mean"] > 0.9
     # the 3.2 s rows are cut as train --data cuts them (7 windows each), scored per recording too
     spike = next(r for r in res["rows"] if r["kind"] == "spike")
-    assert spike["encoder"] in ("gwt", "stft", "lif")  # chosen on held-out training recordings
+    assert spike["encoder"] in DATA_ENCODER_CANDIDATES  # chosen on held-out training recordings
     assert all(0.0 <= s["per_recording_mean"] <= 1.0 for s in res["summary"])
     assert all(s["gap_measured_on"] == "per recording" for s in res["summary"])
     # the spike row is judged per window and per recording and against the amplitude baseline

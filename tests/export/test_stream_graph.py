@@ -36,15 +36,16 @@ def _windows(n, seed=0):
     return (x + 0.3 * rng.standard_normal(x.shape) + 5.0).astype(np.float32)
 
 
-@pytest.mark.parametrize("model", ["tempotron", "snn"])
-def test_stream_graph_matches_torch_on_a_stream(tmp_path, model):
-    pipe = _pipe(model)
+@pytest.mark.parametrize("model,level", [("tempotron", 0), ("snn", 0), ("readout", 2)])
+def test_stream_graph_matches_torch_on_a_stream(tmp_path, model, level):
+    pipe = _pipe(model, level_neurons=level)  # the level code reads the window: one more state
     rep = export_stream(pipe, tmp_path / "s.onnx", _windows(20))
     assert rep["windows_checked"] == 39 and rep["prediction_agreement"] == 1.0
     assert rep["encoder_max_time_diff_ms"] < 1e-2 and rep["encoder_cutoff_flips"] == 0
     meta = {p.key: p.value for p in onnx.load(tmp_path / "s.onnx").metadata_props}
     assert meta["stream_step_samples"] == str(WINDOW // 2)
     assert json.loads(meta["stream_state_init"]) == {"cgwt_tail": "repeat_first"}
+    assert ("stream_prev" in json.loads(meta["stream_encoder_states"])) == (level > 0)
     with pytest.raises(FileExistsError, match="--overwrite"):  # nothing replaced silently
         export_stream(pipe, tmp_path / "s.onnx", _windows(20))
 

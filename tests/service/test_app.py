@@ -174,3 +174,35 @@ def test_soak_thousands_of_abandoned_streams_never_lock_out(tmp_path, served):
     # the table's capacity is accepted in every wave
     assert set(codes) <= {200, 429} and codes[200] >= 20 * 64
     assert grown < 8 << 20  # bounded: 18 more waves of 100 streams add no lasting memory
+
+
+def test_the_service_serves_a_stream_graph(tmp_path):
+    from tactilesnn.export.stream import export_stream
+
+    cfg = PipelineConfig.from_flat(encoder="cgwt", epochs=2)
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
+    pipe, _ = load_run(run)
+    test = HookLoopTask(**SMALL).build()[1]
+    export_pipeline(pipe, tmp_path / "w.onnx", test.X[:32])
+    export_stream(pipe, tmp_path / "s.onnx", test.X[:32])
+    stream = np.concatenate(list(test.X[:3]), axis=1)
+    got = {}
+    for name in ("w", "s"):
+        with TestClient(
+            create_app(str(tmp_path / f"{name}.onnx")), base_url="http://127.0.0.1"
+        ) as c:
+            one = c.post("/v1/classify", json={"window": test.X[0].tolist()}).json()
+            results = []
+            for chunk in np.array_split(stream, 4, axis=1):
+                r = c.post("/v1/stream/a", content=npy(chunk),
+                           headers={"content-type": "application/x-npy"})  # fmt: skip
+                assert r.status_code == 200
+                results += r.json()["results"]
+            got[name] = (one, results)
+    # classify: a window from a fresh state is the window graph's transform
+    assert got["s"][0]["classes"] == got["w"][0]["classes"]
+    assert np.allclose(got["s"][0]["scores"], got["w"][0]["scores"], atol=1e-4)
+    # the stream: same windows; the first equals the window graph's (a fresh state), the later
+    # ones continue the bank's state instead of restarting it at each window
+    assert [r["window_index"] for r in got["s"][1]] == [r["window_index"] for r in got["w"][1]]
+    assert np.allclose(got["s"][1][0]["scores"], got["w"][1][0]["scores"], atol=1e-4)
