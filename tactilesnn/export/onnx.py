@@ -145,45 +145,64 @@ def export_pipeline(
 
     Returns a report: node count, max score difference, prediction agreement.
     """
-    out = Path(out)
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
-    if out.exists() and not out.is_file():
-        raise FileExistsError(f"{out} exists and is not a file")
+    out = check_out(out, overwrite)
     if len(X_check) == 0:
         raise ValueError("X_check holds no window: the export is verified against torch on it")
     enc, mod = build_parts(pipe)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
-    contract = GraphContract(
-        fs_hz=pipe.fs_hz,
-        window_samples=pipe.window,
-        channels=tuple(pipe.channel_names),
-        class_names=tuple(pipe.class_names),
-        encoder=pipe.config.encoder_type,
-        model=pipe.config.model_type,
-        state_inputs=tuple(n for n, _ in pipe.model.state_names),
-        bytes_per_window=pipe.bytes_per_window(),
-        encoder_channels=tuple(int(i) for i in pipe.channel_idx),
-        units="input in the sensor's readout units (see the run's task); scores: "
-        + pipe.model.score_units,
-        pipeline_config=pipe.config.to_dict(),
-        version=__version__,
-        extra=dict(metadata or {}),
-        **pipe.encoder.export_metadata(),
-    )
+    contract = pipeline_contract(pipe, tuple(n for n, _ in pipe.model.state_names),
+                                 "input in the sensor's readout units (see the run's task)",
+                                 dict(metadata or {}))  # fmt: skip
     meta = contract.to_metadata()
     for k, v in meta.items():
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
     onnx.checker.check_model(model)
     report = verify(model, pipe, X_check, parts=(enc, mod), progress=progress)
+    save_atomic(model, out)
+    report["nodes"] = len(model.graph.node)
+    report["path"] = str(out)
+    return report
+
+
+def check_out(out: Path, overwrite: bool) -> Path:
+    """``out`` as a Path, refused if it exists (unless ``overwrite``) or is not a file."""
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    if out.exists() and not out.is_file():
+        raise FileExistsError(f"{out} exists and is not a file")
+    return out
+
+
+def save_atomic(model: onnx.ModelProto, out: Path) -> None:
+    """Write ``model`` to ``out`` through a temporary file in its folder (never half-written)."""
     tmp_out = out.with_name(f".{out.name}.tmp")
     out.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(tmp_out))
     os.replace(tmp_out, out)
-    report["nodes"] = len(model.graph.node)
-    report["path"] = str(out)
-    return report
+
+
+def pipeline_contract(
+    pipe: SpikePipeline, state_inputs: tuple[str, ...], input_units: str, extra: dict[str, str]
+) -> GraphContract:
+    """The graph contract of an export of ``pipe`` (metadata written into the file)."""
+    return GraphContract(
+        fs_hz=pipe.fs_hz,
+        window_samples=pipe.window,
+        channels=tuple(pipe.channel_names),
+        class_names=tuple(pipe.class_names),
+        encoder=pipe.config.encoder_type,
+        model=pipe.config.model_type,
+        state_inputs=state_inputs,
+        bytes_per_window=pipe.bytes_per_window(),
+        encoder_channels=tuple(int(i) for i in pipe.channel_idx),
+        units=f"{input_units}; scores: {pipe.model.score_units}",
+        pipeline_config=pipe.config.to_dict(),
+        version=__version__,
+        extra=extra,
+        **pipe.encoder.export_metadata(),
+    )
 
 
 #: end to end, a spike time within float rounding of a raster step boundary may fall into the

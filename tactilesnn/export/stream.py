@@ -211,44 +211,28 @@ def export_stream(
     :func:`reference_stream` on up to ``CHECK_WINDOWS`` of ``X_check`` joined into one stream:
     spike times within the window graph's tolerances, scores (the model's state reset for each
     window, as torch's) within its score tolerance except on its rounding-boundary allowance."""
-    from ..core.graph_contract import GraphContract
-    from ..core.version import __version__
     from .onnx import (
         TIME_ATOL_MS,
         TIME_RTOL,
         ExportError,
         _boundary_allowance,
+        check_out,
         compare_spike_times,
+        pipeline_contract,
+        save_atomic,
         score_tolerance,
     )
 
-    out = Path(out)
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    out = check_out(out, overwrite)
     model, names, init = build_stream_graph(pipe)
     half = pipe.window // 2
     model_states = tuple(n for n, _ in pipe.model.state_names)
-    contract = GraphContract(
-        fs_hz=pipe.fs_hz,
-        window_samples=pipe.window,
-        channels=tuple(pipe.channel_names),
-        class_names=tuple(pipe.class_names),
-        encoder=pipe.config.encoder_type,
-        model=pipe.config.model_type,
-        state_inputs=(*(n for n, _ in names), *model_states),
-        bytes_per_window=pipe.bytes_per_window(),
-        encoder_channels=tuple(int(i) for i in pipe.channel_idx),
-        units="input: the next half window in the sensor's readout units; scores: "
-        + pipe.model.score_units,
-        pipeline_config=pipe.config.to_dict(),
-        version=__version__,
-        extra={
-            **dict(metadata or {}),
-            "stream_step_samples": str(half),
-            "stream_encoder_states": json.dumps([n for n, _ in names]),
-            "stream_state_init": json.dumps(init),
-        },
-    )
+    extra = {**dict(metadata or {}), "stream_step_samples": str(half),
+             "stream_encoder_states": json.dumps([n for n, _ in names]),
+             "stream_state_init": json.dumps(init)}  # fmt: skip
+    contract = pipeline_contract(pipe, (*(n for n, _ in names), *model_states),
+                                 "input: the next half window in the sensor's readout units",
+                                 extra)  # fmt: skip
     for k, v in contract.to_metadata().items():
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
@@ -267,10 +251,7 @@ def export_stream(
         raise ExportError(f"stream graph differs from torch by up to {per.max():.3g} on {off} of "
                           f"{len(per)} windows")  # fmt: skip
     agree = float((got_s.argmax(1) == want_s.argmax(1)).mean())
-    tmp = out.with_name(f".{out.name}.tmp")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save(model, str(tmp))
-    tmp.replace(out)
+    save_atomic(model, out)
     return {"path": str(out), "nodes": len(model.graph.node), "windows_checked": len(per),
             "encoder_max_time_diff_ms": dt, "encoder_cutoff_flips": flips,
             "max_score_diff": float(per.max()), "prediction_agreement": agree,
