@@ -151,7 +151,8 @@ class CausalStreamCode(nn.Module):
         nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
         y, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
-        mag = torch.sqrt((y * y).sum(2))  # [rows, bands, F]
+        re, im = y.unbind(2)  # one Split in the graph (a sum over the size-2 axis costs more)
+        mag = torch.sqrt(re * re + im * im)  # [rows, bands, F]
         mag = mag.reshape(b, c, nb, self.f_half)
         window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
         t = self.code(window)

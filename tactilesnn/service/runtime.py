@@ -224,16 +224,20 @@ class StreamContract:
             raise ValueError(f"{path}: stream state metadata names unknown states or rules")
         return cls(step, tuple(enc), tuple(init))
 
+    def check_units(self, path: str, units: dict[str, int], channels: int) -> None:
+        """Each ``repeat_first`` state splits evenly over the encoder's channels."""
+        for name in self.repeat_first:
+            if channels < 1 or units[name] % channels:
+                raise ValueError(f"{path}: stream state {name!r} ({units[name]} units) does not "
+                                 f"split over {channels} encoder channels")  # fmt: skip
+
     def initial(self, first: np.ndarray, channels: tuple[int, ...], units: dict[str, int]) -> dict:
         """The ``repeat_first`` states of fresh streams whose first half windows are ``first``
         ``[B, channels, step]``."""
         out = {}
         x = first[:, list(channels), :1]  # [B, C, 1]
-        for name in self.repeat_first:
-            per, rem = divmod(units[name], max(1, x.shape[1]))
-            if rem:
-                raise InputError(f"state {name!r} ({units[name]} units) does not split over "
-                                 f"{x.shape[1]} encoder channels")  # fmt: skip
+        for name in self.repeat_first:  # (check_units: whole per channel)
+            per = units[name] // x.shape[1]
             out[name] = np.ascontiguousarray(
                 np.repeat(x, per, axis=2).reshape(len(x), -1), np.float32
             )
@@ -289,6 +293,8 @@ class PipelineSession:
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != WINDOW_INPUT}
         self.stateful = bool(self.state_units)
+        if self.stream is not None:
+            self.stream.check_units(path, self.state_units, len(c.encoder_channels))
         # activity gate of the encoder: the graph encodes only the channels above their RMS
         # threshold (the rest is silent); a window in which every channel is silent has the
         # same scores each time for a stateless model, so the stream path answers it from a
