@@ -67,6 +67,9 @@ FULL = (
     Point("gwt20+snn16 dt10", {"model": "snn", "snn_hidden": 16, "snn_dt_ms": 10.0}),
     Point("gwt20+snn64 dt5", {"model": "snn", "snn_hidden": 64}),
     Point("lif+readout", {"encoder": "lif", "model": "readout"}),
+    # the causal (streamable) Gabor bank with the same code
+    Point("cgwt20+tempotron", {"encoder": "cgwt"}),
+    Point("cgwt20+readout", {"encoder": "cgwt", "model": "readout"}),
 )
 QUICK = (Point("gwt10 hop5+tempotron", {"n_bands": 10, "gwt_hop": 5}), Point("stft10+readout",
          {"encoder": "stft", "n_bands": 10, "model": "readout"}))  # fmt: skip
