@@ -9,7 +9,7 @@ import pytest
 
 import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
-from tactilesnn.config import PipelineConfig
+from tactilesnn.config import DATA_ENCODER_CANDIDATES, PipelineConfig
 from tactilesnn.core.files import load_arrays
 from tests.helpers import run_task
 
@@ -117,7 +117,7 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     assert m["n_test_windows"] == 9 * 7 and m["n_test_recordings"] == 9
     sel = m["encoder_selection"]
     assert (
-        set(sel["scores"]) == {"gwt", "stft", "lif"}
+        set(sel["scores"]) == set(DATA_ENCODER_CANDIDATES)
         and sel["chosen"] == cfg["pipeline"]["encoder"]["type"]
     )
     # ranked by what is printed: per window, then per recording

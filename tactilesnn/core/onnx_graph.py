@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import warnings
 from collections.abc import Sequence
@@ -44,7 +45,7 @@ def torch_to_onnx(
             dynamo=False,
         )
     model = onnx.load(str(path))
-    if fold_static_shapes(model) + literal_zero_reshapes(model):
+    if fold_static_shapes(model) + literal_zero_reshapes(model) + merge_constants(model):
         onnx.save(model, str(path))
     return model
 
@@ -78,7 +79,49 @@ def exported_to_onnx(
     model = program.model_proto
     fold_static_shapes(model)
     literal_zero_reshapes(model)
+    merge_constants(model)
     return model
+
+
+#: Constant tensors at least this large are merged when identical (:func:`merge_constants`)
+MERGE_BYTES = 1024
+
+
+def merge_constants(model: onnx.ModelProto) -> int:
+    """Keeps one of each set of identical large ``Constant`` nodes of the main graph: the
+    tracer copies a tensor into the graph at every use (a block matrix read by 49 blocks became
+    49 copies, 127 MB). Returns how many were removed."""
+    g = model.graph
+    first: dict[tuple, str] = {}
+    rename: dict[str, str] = {}
+    keep = []
+    for node in g.node:
+        if (
+            node.op_type == "Constant"
+            and len(node.attribute) == 1
+            and node.attribute[0].name == "value"
+        ):
+            t = node.attribute[0].t
+            raw = t.raw_data
+            if len(raw) >= MERGE_BYTES:
+                key = (t.data_type, tuple(t.dims), hashlib.sha256(raw).digest())
+                if key in first:
+                    rename[node.output[0]] = first[key]
+                    continue
+                first[key] = node.output[0]
+        keep.append(node)
+    if not rename:
+        return 0
+    for node in keep:
+        for i, name in enumerate(node.input):
+            if name in rename:
+                node.input[i] = rename[name]
+    outputs = {o.name for o in g.output}
+    if outputs & set(rename):  # a graph output that is a merged constant: keep it (rare)
+        return 0
+    del g.node[:]
+    g.node.extend(keep)
+    return len(rename)
 
 
 def literal_zero_reshapes(model: onnx.ModelProto) -> int:

@@ -262,6 +262,7 @@ class CausalGaborScalogram(nn.Module):
             if state_out:
                 top = np.concatenate([top, np.concatenate([S, P], 2) if state_in else S], 1)
             w = _real_form(top.transpose(0, 2, 1), f, self.order, state_in, state_out)
+            # (a traced graph copies it at every block; the export merges identical constants)
             self._tensors[key] = torch.from_numpy(w).to(dtype)
         return self._tensors[key]
 

@@ -29,13 +29,16 @@ from .scalogram_latency import ScalogramLatencyEncoder, ScalogramLatencySettings
 def auto_hop(fs_hz: float, f_hi_hz: float, window: int) -> int:
     """Frames every ``hop`` samples, fast enough for the highest band's envelope: its magnitude
     varies within ``+- 2 sigma_f`` (``sigma_f`` = 0.184 f_hi), so a frame rate of ``4 sigma_f``
-    samples it at twice that; at most an eighth of the window, and a divisor of half an even
-    window (so a stream step, half a window, is whole frames)."""
+    samples it at twice that; at most an eighth of the window. The largest such hop that divides
+    half an even window (a stream step, half a window, is then whole frames: the stream graph
+    needs it) unless that is under half the bound (3,250-sample windows would get hop 1 instead of
+    3: three times the frames), then the bound."""
     sigma_f = f_hi_hz / (math.pi * math.sqrt(3.0))  # cmor1.5-1.0: f / (pi C sqrt(2 B))
     bound = int(max(1, min(math.floor(fs_hz / (4.0 * sigma_f)), int(window) // 8)))
     if window % 2:
         return bound
-    return max(d for d in range(1, bound + 1) if (window // 2) % d == 0)
+    best = max(d for d in range(1, bound + 1) if (window // 2) % d == 0)
+    return best if 2 * best >= bound else bound
 
 
 @dataclass(frozen=True)
