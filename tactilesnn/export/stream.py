@@ -78,6 +78,8 @@ def build_stream_graph(
     chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
     state = [torch.randn(2, u, generator=gen) for _, u in names]
     io = ([WINDOW_INPUT, *(n for n, _ in names)], ["spikes", *(state_output(n) for n, _ in names)])
+    with torch.no_grad():  # builds the bank's cached matrices: torch.export refuses tensors
+        graph(chunk, *state)  # assigned while it traces
     try:  # the torch.export-based exporter (supported); the TorchScript one where it is absent
         enc = exported_to_onnx(graph, (chunk, *state), *io)
     except ImportError:
