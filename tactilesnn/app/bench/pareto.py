@@ -39,6 +39,7 @@ import torch
 from ...config import PipelineConfig
 from ...core.spikes import clock_times
 from ...datasets_synth import TASKS, get_task
+from ...encoders import ENCODERS
 from ...pipeline import SpikePipeline, accuracy_ci95
 from ...training import fit_and_evaluate
 from ..runs import RunWriter
@@ -254,7 +255,7 @@ def realtime_session(
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
     enc = form.split()[0]
-    hop_key = "gwt_hop" if enc == "gwt" else "cgwt_hop"
+    hop_key = {f: k for k, f in ENCODERS.config_class(enc).FLAGS.items()}["hop"]  # its hop flag
     cfg = PipelineConfig.from_flat(encoder=enc, model="snn", channels=("all",), f_hi_hz=800.0,
                                    f_lo_hz=5.0, gate=0.0 if touched is None else 0.5,
                                    snn_hidden=snn[0], snn_dt_ms=snn[1], **{hop_key: hop})  # fmt: skip
