@@ -104,6 +104,15 @@ class _ScalogramCode(nn.Module):
         return self.code(self.scalogram(x))
 
 
+def _modulus(re: Tensor, im: Tensor) -> Tensor:
+    """``|re + i im|`` without squaring a large or tiny value (float32 squares overflow above
+    ~1.8e19 and lose precision below ~1e-19): ``m sqrt(1 + (n / m)^2)``, ``m`` the larger part."""
+    a, b = re.abs(), im.abs()
+    m, n = torch.maximum(a, b), torch.minimum(a, b)
+    r = n / m.clamp_min(torch.finfo(m.dtype).tiny)
+    return m * torch.sqrt(1.0 + r * r)
+
+
 class CausalStreamCode(nn.Module):
     """One stream step of the ``cgwt`` encoder: the next half window ``chunk [B, C, half]`` and the
     encoder's state -> the spike times of the window that ends with it ``[B, afferents, 1]`` and
@@ -112,7 +121,7 @@ class CausalStreamCode(nn.Module):
 
     State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1`` samples
     (a fresh stream: its first sample repeated, the bank's constant past), ``cgwt_rec`` the frame
-    recursion's values (zeros), ``cgwt_frames`` the previous half's magnitudes; ``cgwt_prev``,
+    recursion's values (zeros), ``cgwt_frames`` the previous half's magnitudes; ``stream_prev``,
     the previous half's samples, only where the pipeline's level code reads the window.
     """
 
@@ -154,11 +163,13 @@ class CausalStreamCode(nn.Module):
         nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
         y, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
-        re, im = y.unbind(2)  # one Split in the graph (a sum over the size-2 axis costs more)
-        mag = torch.sqrt(re * re + im * im)  # [rows, bands, F]
-        mag = mag.reshape(b, c, nb, self.f_half)
+        mag = _modulus(*y.unbind(2)).reshape(b, c, nb, self.f_half)  # [B, C, bands, F]
         window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
-        t = self.code(window)
+        # the code is scale-free per window and channel; dividing by the window's largest frame
+        # keeps its squares in float32 range whatever the sensor's units (the window graph
+        # divides the samples by their peak instead: a stream's bank cannot)
+        peak = window.amax((-2, -1), keepdim=True).clamp_min(torch.finfo(window.dtype).tiny)
+        t = self.code(window / peak)
         if self.scatter is not None:
             t = self.scatter(t)
         new_rec = state.reshape(b, -1)

@@ -59,8 +59,11 @@ def test_runtime_classifies_and_streams_with_the_stream_graph(tmp_path):
         PipelineSession(str(tmp_path / "w.onnx")),
         PipelineSession(str(tmp_path / "s.onnx")),
     )
-    # a window from a fresh state is the window graph's transform exactly (constant past)
-    assert np.abs(stream.run(X) - win.run(X)).max() < 1e-4
+    # a window from a fresh state is the window graph's transform exactly (constant past), in
+    # any units: 1e-30 farads or 1e30 pascals (the window graph divides samples by their peak;
+    # the stream graph cannot, and takes the modulus and the code's squares scale-safely)
+    for scale in (1.0, 1e-30, 1e30):
+        assert np.abs(stream.run(X * scale) - win.run(X * scale)).max() < 1e-4, scale
     assert stream.classify(X[0])["classes"] == win.classify(X[0])["classes"]
     joined = np.concatenate(list(X), axis=1)
     st, results = StreamState(), []
