@@ -71,7 +71,7 @@ def amplitude_span(quick: bool) -> tuple[float, str]:
     x = rng.standard_normal((4, 1, 200)).astype(np.float32)
     scales = [1e-12, 1e-6, 1.0, 1e6, 1e12, 1e30] if not quick else [1e-12, 1.0, 1e30]
     worst = 0.0
-    for name in ("gwt", "stft"):
+    for name in ("gwt", "cgwt", "stft"):
         enc = _encoder(name)
         ref = enc.encode(x).numpy()
         for a in scales:
@@ -115,15 +115,17 @@ def dc_step_impulse(quick: bool) -> tuple[float, str]:
     cases = {"zeros": np.zeros(n), "dc": 1e3 + noise, "impulse": np.eye(1, n, n // 2)[0],
              "step": np.r_[np.zeros(n // 2), np.ones(n // 2)]}  # fmt: skip
     bad = 0
-    for name in ("gwt", "stft", "lif", "delta"):
+    for name in ("gwt", "cgwt", "stft", "lif", "delta"):
         enc = _encoder(name)
         enc.fit(np.stack([c[None] for c in cases.values()]).astype(np.float32) + 1e-3)
         for case, x in cases.items():
             s = enc.encode(x[None, None].astype(np.float32)).numpy()
             bad += int(np.isnan(s).any())
-            if case == "zeros" and name in ("gwt", "stft"):
+            if case == "zeros" and name in ("gwt", "cgwt", "stft"):
                 bad += int(np.isfinite(s).any())
-    return float(bad), "NaN spike times, or spikes from an all-zero window (gwt/stft/lif/delta)"
+    return float(
+        bad
+    ), "NaN spike times, or spikes from an all-zero window (gwt/cgwt/stft/lif/delta)"
 
 
 def near_nyquist(quick: bool) -> tuple[float, str]:
