@@ -406,13 +406,7 @@ class PipelineSession:
         while buf.shape[1] >= half:
             x = buf[None, :, :half]
             if state.halves == 0:
-                state.values = {**self._zero_state(1),
-                                **self.stream.initial(x, self.contract.encoder_channels,
-                                                      self.state_units)}  # fmt: skip
-                _, new = self._call(x, state.values, False)
-                state.values.update(
-                    {n: v for n, v in new.items() if n in self.stream.encoder_states}
-                )
+                state.values = self._started(x, dict(self._zero_state(1)))
             else:
                 self.stats.add(stream_windows=1)
                 out, state.values = self._call(x, state.values, detail)
@@ -439,17 +433,21 @@ class PipelineSession:
         half = self.stream.step
         held = dict(state.values) if state is not None else {}
         zeros = self._zero_state(len(x))
-        first = self.stream.initial(
-            x[:, :, :half], self.contract.encoder_channels, self.state_units
-        )
-        feeds = {n: held.get(n, zeros[n]) for n in self.state_units}
-        feeds.update(first)
-        out = self._call(x[:, :, :half], feeds, False)
-        feeds.update({n: v for n, v in out[1].items() if n in self.stream.encoder_states})
-        detail_out = self._call(x[:, :, half:], feeds, detail)
+        feeds = self._started(x[:, :, :half], {n: held.get(n, zeros[n]) for n in self.state_units})
+        out, new = self._call(x[:, :, half:], feeds, detail)
         if state is not None:
-            state.values = detail_out[1]
-        return detail_out[0]
+            state.values = new
+        return out
+
+    def _started(self, first: np.ndarray, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``feeds`` with the encoder's state after fresh streams' first half windows ``first``
+        (its ``repeat_first`` states set from them, then the half fed); the model's state in
+        ``feeds`` is kept (that call completes no window)."""
+        feeds = {**feeds, **self.stream.initial(first, self.contract.encoder_channels,
+                                                self.state_units)}  # fmt: skip
+        _, new = self._call(first, feeds, False)
+        feeds.update({n: v for n, v in new.items() if n in self.stream.encoder_states})
+        return feeds
 
     def _call(
         self, x: np.ndarray, feeds: dict[str, np.ndarray], detail: bool
