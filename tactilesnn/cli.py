@@ -132,6 +132,11 @@ def cmd_train(args: argparse.Namespace) -> int:
             f"{_parity(m['onnx'])}"
         )
     print(f"run folder: {path}")
+    from .encoders import ENCODERS
+
+    if "onnx" in m and hasattr(ENCODERS.get(encoder), "stream_module"):
+        print(f"for streams (each sample transformed once): tactilesnn export {path} --stream "
+              f"--out {path / 'stream.onnx'}")  # fmt: skip
     return 0
 
 

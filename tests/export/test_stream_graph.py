@@ -101,10 +101,10 @@ def test_stream_graph_refusals(tmp_path):
 
 def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    assert main(["train", "--encoder", "cgwt", "--epochs", "1", "--quiet", "--no-export",
-                 "--task-kw", "n_planar=4", "--task-kw", "n_concave=2", "--task-kw",
-                 "n_convex=2", "--task-kw", "n_test=2", "--out", "run"]) == 0  # fmt: skip
-    capsys.readouterr()
+    assert main(["train", "--encoder", "cgwt", "--epochs", "1", "--quiet", "--task-kw",
+                 "n_planar=4", "--task-kw", "n_concave=2", "--task-kw", "n_convex=2", "--task-kw",
+                 "n_test=2", "--out", "run"]) == 0  # fmt: skip
+    assert "tactilesnn export run --stream --out run/stream.onnx" in capsys.readouterr().out
     assert main(["export", "run", "--stream", "--out", "s.onnx", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "every sample transformed once" in out and "predictions agree 100.00 %" in out
