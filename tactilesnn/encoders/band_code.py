@@ -4,9 +4,10 @@
 ``lif`` and ``delta`` code the raw samples. This component composes the two kinds, so a filter
 bank can feed any code of analog channels:
 
-* a **transform** from :data:`TRANSFORMS` (``gwt``: the Gabor scalogram; ``stft``: the Hann STFT
-  pooled into the same bands) turns each channel into ``n_bands`` magnitude envelopes, one frame
-  every ``hop = window // frames`` samples (frame ``i`` at sample ``i * hop``);
+* a **transform** from :data:`TRANSFORMS` (``gwt``: the Gabor scalogram; ``cgwt``: the causal
+  Gabor bank, its frame ``i`` at sample ``(i + 1) hop - 1``; ``stft``: the Hann STFT pooled into
+  the same bands) turns each channel into ``n_bands`` magnitude envelopes, one frame every
+  ``hop = window // frames`` samples (frame ``i`` at sample ``i * hop``);
 * a **code** (``code``): any registered encoder that codes analog channels (its class says so
   with ``codes_envelopes``: ``lif``, seed 000's LIF converters on seed 001's scalogram, or
   ``delta``, level crossings) codes the ``channels x bands`` envelope rows as if they were sensor
