@@ -91,6 +91,15 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         """The encoder's stream step (half a window per call), for the stream graph."""
         return CausalStreamCode(self, self.window // 2)
 
+    def stream_reference(self, x: Tensor, half: int) -> Tensor:
+        """What the stream step must give on a whole stream ``x [1, channels, samples]`` (float64
+        for a reference): the bank run once over it, each complete window's frames (a window
+        every ``half`` samples) coded -> spike times ``[windows, afferents, 1]``."""
+        mag = self.scalogram(x).float()  # [1, C, bands, frames]
+        fh, n = half // self.hop, x.shape[-1] // half
+        t = torch.cat([self.code(mag[..., (k - 1) * fh : (k + 1) * fh]) for k in range(1, n)])
+        return (self.band_scatter(t) if self.restricted else t).unsqueeze(-1)
+
 
 class _ScalogramCode(nn.Module):
     """Window ``[B, C, W]`` -> the bank's magnitudes -> the latency code ``[B, C * stats * bands]``

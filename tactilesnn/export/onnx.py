@@ -108,28 +108,34 @@ def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
 def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
     """The encoder graph (``window -> spikes``) and the model graph (``spikes_in`` + state ->
     ``scores`` + state), each owned by its component."""
+    mod = build_model_part(pipe)
+    with tempfile.TemporaryDirectory() as tmp:
+        # a signal, not zeros: traced on all-silent windows, the activity gate's row count
+        # would be 0, a size the tracer may fix as a constant
+        gen = torch.Generator().manual_seed(0)
+        dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
+        enc = torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), Path(tmp) / "enc.onnx",
+                            ["window"], ["spikes"], scripted=pipe.encoder.onnx_scripted)  # fmt: skip
+    return enc, mod
+
+
+def build_model_part(pipe: SpikePipeline) -> onnx.ModelProto:
+    """The model's graph (``spikes_in`` + state -> ``scores`` + state, and the early decision
+    where the model makes one), shared by the window and the stream graphs."""
     problem = pipe.model.export_problem()
     if problem:
         raise ValueError(f"cannot export this pipeline: {problem}")
     pipe.model.eval()
     states = list(pipe.model.state_names)
+    spikes = torch.rand(2, pipe.n_afferents, pipe.max_spikes) * pipe.duration_ms
+    args = (spikes, *(torch.zeros(2, units) for _, units in states))
+    names_in = ["spikes_in", *(n for n, _ in states)]
+    names_out = ["scores", *(f"{n}_out" for n, _ in states)]
+    if pipe.model.decides_early:
+        names_out += list(EARLY_OUTPUTS)
     with tempfile.TemporaryDirectory() as tmp:
-        enc_path, model_path = Path(tmp) / "enc.onnx", Path(tmp) / "model.onnx"
-        # a signal, not zeros: traced on all-silent windows, the activity gate's row count
-        # would be 0, a size the tracer may fix as a constant
-        gen = torch.Generator().manual_seed(0)
-        dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
-        enc = torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), enc_path, ["window"],
-                            ["spikes"], scripted=pipe.encoder.onnx_scripted)  # fmt: skip
-        spikes = torch.rand(2, pipe.n_afferents, pipe.max_spikes) * pipe.duration_ms
-        args = (spikes, *(torch.zeros(2, units) for _, units in states))
-        names_in = ["spikes_in", *(n for n, _ in states)]
-        names_out = ["scores", *(f"{n}_out" for n, _ in states)]
-        if pipe.model.decides_early:
-            names_out += list(EARLY_OUTPUTS)
-        mod = torch_to_onnx(pipe.model.onnx_module(), args, model_path, names_in, names_out,
-                            scripted=pipe.model.onnx_scripted)  # fmt: skip
-    return enc, mod
+        return torch_to_onnx(pipe.model.onnx_module(), args, Path(tmp) / "model.onnx", names_in,
+                             names_out, scripted=pipe.model.onnx_scripted)  # fmt: skip
 
 
 def export_pipeline(

@@ -25,7 +25,7 @@ from ..core.graph_contract import SCORES_OUTPUT, WINDOW_INPUT, state_output
 from ..core.onnx_graph import chain, exported_to_onnx, torch_to_onnx
 from ..core.onnx_prune import prune_to_outputs
 from ..pipeline import SpikePipeline
-from .onnx import PipelineEncoderGraph, build_parts
+from .onnx import PipelineEncoderGraph, build_model_part
 
 #: the previous half window's samples, carried where the pipeline's level code reads the window
 PREV_STATE = "stream_prev"
@@ -73,7 +73,7 @@ def build_stream_graph(
     graph = StreamEncoderGraph(pipe).eval()
     half = pipe.window // 2
     names = graph.state_names
-    _, mod = build_parts(pipe)
+    mod = build_model_part(pipe)  # (the window encoder's graph is not needed here)
     gen = torch.Generator().manual_seed(0)
     chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
     state = [torch.randn(2, u, generator=gen) for _, u in names]
@@ -168,10 +168,9 @@ def stream_session(model: onnx.ModelProto, expose_spikes: bool = False):
     else:  # scores and state only: onnxruntime runs every node whatever a call asks for
         states = [i.name for i in copy.graph.input if i.name != WINDOW_INPUT]
         prune_to_outputs(copy.graph, [SCORES_OUTPUT, *(state_output(n) for n in states)])
-    model = copy
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
-    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+    return ort.InferenceSession(copy.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
 #: test windows joined end to end into the stream the export is verified on
@@ -180,20 +179,14 @@ CHECK_WINDOWS = 64
 
 def reference_stream(pipe: SpikePipeline, stream: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Torch's spike times ``[windows, afferents, 1]`` and scores (each window's model from zero
-    state) of every complete window of ``stream [channels, samples]``: the bank run once over the
-    whole stream (float64), each window's frames cut from it and coded."""
+    state) of every complete window of ``stream [channels, samples]``: the encoder's
+    ``stream_reference`` (float64; ``cgwt``: its bank run once over the whole stream), then the
+    level code and clock afferents of each window, as the graph appends them."""
     half = pipe.window // 2
-    enc = pipe.encoder
     x = torch.from_numpy(np.asarray(stream, np.float64)[None, list(pipe.channel_idx)])
-    hop = enc.scalogram.hop
+    n = stream.shape[1] // half
     with torch.no_grad():
-        mag = enc.scalogram(x).float()  # [1, C, bands, frames]
-        fh = half // hop
-        n = stream.shape[1] // half
-        t = torch.cat([enc.code(mag[..., (k - 1) * fh : (k + 1) * fh]) for k in range(1, n)])
-        if enc.restricted:
-            t = enc.band_scatter(t)
-        t = t.unsqueeze(-1)
+        t = pipe.encoder.stream_reference(x, half)  # the encoder's own reference
         wins = np.stack([stream[:, (k - 1) * half : (k + 1) * half] for k in range(1, n)])
         graph = PipelineEncoderGraph(pipe, encoder=nn.Identity())
         sel = torch.from_numpy(np.ascontiguousarray(wins[:, list(pipe.channel_idx)], np.float32))
