@@ -3,7 +3,12 @@ examples on every run, so a landing is judged on a fixed set; elsewhere each run
 ones (that is how the lying-header case of ``test_fuzz_hostile.py`` was found).
 
 The CLI fits torch's threads to the CPUs other processes leave (``core/perf.py``); tests that
-compare two in-process runs bit for bit need one count throughout, so the suite fixes it."""
+compare two in-process runs bit for bit need one count throughout, so the suite fixes it.
+
+Graphs are exported with the TorchScript-based exporter here (``TACTILESNN_ONNX_EXPORTER``): the
+suite exports ~170 component graphs, which the supported ``torch.export``-based exporter (the
+product's default) writes 5-15x slower; ``tests/export/test_exporters.py`` exports every
+traced component and the stream graph with it and checks the same parity."""
 
 import os
 
@@ -11,6 +16,7 @@ import torch
 from hypothesis import settings
 
 os.environ.setdefault("TACTILESNN_THREADS", str(torch.get_num_threads()))
+os.environ.setdefault("TACTILESNN_ONNX_EXPORTER", "torchscript")
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")

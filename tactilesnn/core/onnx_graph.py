@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import hashlib
+import inspect
 import logging
+import os
+import tempfile
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import onnx
@@ -15,6 +18,64 @@ from torch import nn
 from .onnx_shapes import fold_static_shapes
 
 OPSET = 17
+
+#: custom torch ops (``namespace::name``) -> their ONNX translation for the ``torch.export``-based
+#: exporter (onnxscript nodes), registered by the component that defines the op
+_TRANSLATIONS: dict[str, Callable] = {}
+
+
+def register_translation(op_name: str, translation: Callable) -> None:
+    """Export the custom torch op ``op_name`` (``namespace::name``, its default overload) with
+    ``translation`` in :func:`exported_to_onnx`."""
+    _TRANSLATIONS[op_name] = translation
+
+
+def _translation_table() -> dict:
+    table = {}
+    for name, fn in _TRANSLATIONS.items():
+        ns, op = name.split("::")
+        table[getattr(getattr(torch.ops, ns), op).default] = fn
+    return table
+
+
+#: which exporter writes the graphs of components that are traced (not scripted)
+EXPORTER_ENV = "TACTILESNN_ONNX_EXPORTER"
+#: ``torch.export``: the supported ``torch.export``-based exporter (the default); ``torchscript``:
+#: the deprecated TorchScript-based one, 5-15x faster to export (the test suite's choice, where
+#: dedicated tests cover both); scripted components (time loops as ``Loop`` nodes) always take it
+EXPORTERS = ("torch.export", "torchscript")
+
+log = logging.getLogger(__name__)
+
+
+def chosen_exporter(exporter: str | None = None) -> str:
+    """``exporter``, else :data:`EXPORTER_ENV`'s value, else ``torch.export``; checked."""
+    name = exporter or os.environ.get(EXPORTER_ENV) or EXPORTERS[0]
+    if name not in EXPORTERS:
+        raise ValueError(f"unknown ONNX exporter {name!r}; choose one of: {', '.join(EXPORTERS)}")
+    return name
+
+
+def component_to_onnx(
+    module: nn.Module,
+    args: tuple,
+    inputs: Sequence[str],
+    outputs: Sequence[str],
+    scripted: bool = False,
+    exporter: str | None = None,
+) -> onnx.ModelProto:
+    """One component's graph (dynamic batch axis 0 on every input): :func:`exported_to_onnx`
+    unless the component is ``scripted``, :func:`chosen_exporter` is ``torchscript`` or
+    ``onnxscript`` is not installed, then :func:`torch_to_onnx`."""
+    if not scripted and chosen_exporter(exporter) == "torch.export":
+        with torch.no_grad():  # builds cached tensors: torch.export refuses tensors assigned
+            module(*args)  # while it traces
+        try:
+            return exported_to_onnx(module, args, inputs, outputs)
+        except ImportError as e:
+            log.warning("onnxscript is not installed (%s): the TorchScript-based exporter", e)
+    with tempfile.TemporaryDirectory() as tmp:
+        return torch_to_onnx(module, args, Path(tmp) / "part.onnx", inputs, outputs, scripted)
 
 
 def torch_to_onnx(
@@ -56,31 +117,81 @@ def exported_to_onnx(
     inputs: Sequence[str],
     outputs: Sequence[str],
     opset: int = OPSET,
+    batch_axes: Sequence[int] | None = None,
 ) -> onnx.ModelProto:
     """Export ``module`` with the ``torch.export``-based exporter (``dynamo=True``, the
-    supported path; needs ``onnxscript``) with a dynamic batch axis on every input
-    (``module.forward(first, *rest)``), optimised, its static sizes folded as
-    :func:`torch_to_onnx` does. For graphs without data-dependent loops."""
+    supported path; needs ``onnxscript``) with a dynamic batch axis on every input (axis 0, or
+    ``batch_axes[i]`` of input ``i``), optimised, its static sizes folded as
+    :func:`torch_to_onnx` does; custom ops through their :func:`register_translation`. For graphs
+    without data-dependent loops."""
     batch = torch.export.Dim("batch")
-    shapes = ({0: batch}, tuple({0: batch} for _ in args[1:]))
-    # its registry logs a warning per torchvision op it cannot register (no torchvision here)
-    quiet = logging.getLogger("torch.onnx._internal.exporter._registration")
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)
+    axes = list(batch_axes) if batch_axes is not None else [0] * len(args)
+    shapes = _grouped_like_forward(module, [{a: batch} for a in axes])
+    # its registry logs a warning per torchvision op it cannot register (no torchvision here),
+    # its optimiser a line per pass at INFO (the CLI logs at INFO)
+    quiet = [logging.getLogger(n) for n in QUIET_LOGGERS]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.ERROR)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            program = torch.onnx.export(module, args, input_names=list(inputs),
+            program = torch.onnx.export(module, tuple(args), input_names=list(inputs),
                                         output_names=list(outputs), dynamic_shapes=shapes,
-                                        dynamo=True, opset_version=max(opset, 18), verbose=False)  # fmt: skip
-            program.optimize()
+                                        dynamo=True, opset_version=max(opset, 18), verbose=False,
+                                        custom_translation_table=_translation_table())  # fmt: skip
+            # the exporter's own optimize() folds only inputs up to 8,192 values: a slice of
+            # a 100-step decay matrix (10,000) stayed three nodes
+            import onnxscript.optimizer
+
+            program.model = onnxscript.optimizer.optimize(
+                program.model,
+                input_size_limit=FOLD_INPUT_VALUES,
+                output_size_limit=FOLD_OUTPUT_VALUES,
+            )
     finally:
-        quiet.setLevel(level)
+        for q, level in zip(quiet, levels, strict=True):
+            q.setLevel(level)
     model = program.model_proto
+    _strip_trace_metadata(model.graph)
     fold_static_shapes(model)
     literal_zero_reshapes(model)
     merge_constants(model)
     return model
+
+
+#: loggers silenced (below ERROR) while the torch.export-based exporter runs
+QUIET_LOGGERS = ("torch.onnx._internal.exporter._registration", "onnxscript", "onnx_ir")
+
+#: constant folding limits (values) of the torch.export-based path's optimiser
+FOLD_INPUT_VALUES = 1 << 20
+FOLD_OUTPUT_VALUES = 1 << 20
+
+
+def _strip_trace_metadata(graph: onnx.GraphProto) -> None:
+    """Drops the tracer's per-node and per-value records (source lines, module paths): nearly
+    half of a small graph's bytes (a small GWT + tempotron graph: 294 kB -> 153 kB)."""
+    for node in graph.node:
+        del node.metadata_props[:]
+        node.doc_string = ""
+        for attr in node.attribute:
+            if attr.type == onnx.AttributeProto.GRAPH:
+                _strip_trace_metadata(attr.g)
+    for v in (*graph.input, *graph.output, *graph.value_info):
+        del v.metadata_props[:]
+        v.doc_string = ""
+    for t in graph.initializer:
+        del t.metadata_props[:]
+
+
+def _grouped_like_forward(module: nn.Module, specs: list) -> tuple:
+    """Per-argument ``specs`` grouped as ``module.forward``'s signature takes them (a ``*args``
+    parameter takes the rest as one tuple), the structure ``torch.export`` matches."""
+    params = list(inspect.signature(module.forward).parameters.values())
+    for i, p in enumerate(params):
+        if p.kind is inspect.Parameter.VAR_POSITIONAL:
+            return (*specs[:i], tuple(specs[i:]))
+    return tuple(specs)
 
 
 #: Constant tensors at least this large are merged when identical (:func:`merge_constants`)
@@ -148,6 +259,12 @@ def literal_zero_reshapes(model: onnx.ModelProto) -> int:
     return changed
 
 
+def operator_nodes(model: onnx.ModelProto) -> int:
+    """Nodes of the main graph that compute (``Constant`` nodes, which one exporter writes for
+    what the other stores as initializers, not counted)."""
+    return sum(n.op_type != "Constant" for n in model.graph.node)
+
+
 def chain(
     first: onnx.ModelProto,
     second: onnx.ModelProto,
@@ -156,8 +273,7 @@ def chain(
 ) -> onnx.ModelProto:
     """Feed outputs of ``first`` into inputs of ``second`` (``io`` pairs); names stay unprefixed
     on the graph boundary, internal names get ``tags``."""
-    a = prefixed(first, tags[0])
-    b = prefixed(second, tags[1])
+    a, b = _same_versions(prefixed(first, tags[0]), prefixed(second, tags[1]))
     merged = onnx.compose.merge_models(a, b, io_map=list(io))
     # merge_models lists the default domain once per input model; tools that look it up
     # (onnxruntime's quantizer) need one entry per domain
@@ -167,6 +283,26 @@ def chain(
     del merged.opset_import[:]
     merged.opset_import.extend(onnx.helper.make_opsetid(d, v) for d, v in versions.items())
     return merged
+
+
+def _same_versions(
+    a: onnx.ModelProto, b: onnx.ModelProto
+) -> tuple[onnx.ModelProto, onnx.ModelProto]:
+    """``a`` and ``b`` at the higher of their default-domain opsets and IR versions (parts from
+    the two exporters: 17 and 18), converted where lower, so that they merge into one graph."""
+    import onnx.version_converter
+
+    def opset(m: onnx.ModelProto) -> int:
+        return {o.domain: o.version for o in m.opset_import}.get("", 0)
+
+    want, ir = max(opset(a), opset(b)), max(a.ir_version, b.ir_version)
+    out = []
+    for m in (a, b):
+        if opset(m) < want:
+            m = onnx.version_converter.convert_version(m, want)
+        m.ir_version = ir
+        out.append(m)
+    return out[0], out[1]
 
 
 def prefixed(model: onnx.ModelProto, prefix: str) -> onnx.ModelProto:

@@ -20,7 +20,6 @@ import hashlib
 import json
 import logging
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ from torch import Tensor, nn
 
 from ..core.files import file_sha256
 from ..core.graph_contract import EARLY_OUTPUTS, SCORES_OUTPUT, WINDOW_INPUT, GraphContract
-from ..core.onnx_graph import chain, torch_to_onnx
+from ..core.onnx_graph import chain, component_to_onnx, operator_nodes
 from ..core.onnx_run import run_batched
 from ..core.spikes import clock_times
 from ..core.version import __version__
@@ -99,27 +98,29 @@ class PipelineEncoderGraph(nn.Module):
         return s
 
 
-def build_graph(pipe: SpikePipeline) -> onnx.ModelProto:
+def build_graph(pipe: SpikePipeline, exporter: str | None = None) -> onnx.ModelProto:
     """The pipeline as one ONNX graph: ``window`` (+ model state) -> ``scores`` (+ new state)."""
-    enc, model = build_parts(pipe)
+    enc, model = build_parts(pipe, exporter)
     return chain(enc, model, [("spikes", "spikes_in")], tags=("enc/", "model/"))
 
 
-def build_parts(pipe: SpikePipeline) -> tuple[onnx.ModelProto, onnx.ModelProto]:
+def build_parts(
+    pipe: SpikePipeline, exporter: str | None = None
+) -> tuple[onnx.ModelProto, onnx.ModelProto]:
     """The encoder graph (``window -> spikes``) and the model graph (``spikes_in`` + state ->
-    ``scores`` + state), each owned by its component."""
-    mod = build_model_part(pipe)
-    with tempfile.TemporaryDirectory() as tmp:
-        # a signal, not zeros: traced on all-silent windows, the activity gate's row count
-        # would be 0, a size the tracer may fix as a constant
-        gen = torch.Generator().manual_seed(0)
-        dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
-        enc = torch_to_onnx(PipelineEncoderGraph(pipe), (dummy,), Path(tmp) / "enc.onnx",
-                            ["window"], ["spikes"], scripted=pipe.encoder.onnx_scripted)  # fmt: skip
+    ``scores`` + state), each owned by its component, each written by
+    :func:`~tactilesnn.core.onnx_graph.component_to_onnx` (``exporter``: see there)."""
+    mod = build_model_part(pipe, exporter)
+    # a signal, not zeros: traced on all-silent windows, the activity gate's row count
+    # would be 0, a size the tracer may fix as a constant
+    gen = torch.Generator().manual_seed(0)
+    dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
+    enc = component_to_onnx(PipelineEncoderGraph(pipe), (dummy,), ["window"], ["spikes"],
+                            pipe.encoder.onnx_scripted, exporter)  # fmt: skip
     return enc, mod
 
 
-def build_model_part(pipe: SpikePipeline) -> onnx.ModelProto:
+def build_model_part(pipe: SpikePipeline, exporter: str | None = None) -> onnx.ModelProto:
     """The model's graph (``spikes_in`` + state -> ``scores`` + state, and the early decision
     where the model makes one), shared by the window and the stream graphs."""
     problem = pipe.model.export_problem()
@@ -133,9 +134,8 @@ def build_model_part(pipe: SpikePipeline) -> onnx.ModelProto:
     names_out = ["scores", *(f"{n}_out" for n, _ in states)]
     if pipe.model.decides_early:
         names_out += list(EARLY_OUTPUTS)
-    with tempfile.TemporaryDirectory() as tmp:
-        return torch_to_onnx(pipe.model.onnx_module(), args, Path(tmp) / "model.onnx", names_in,
-                             names_out, scripted=pipe.model.onnx_scripted)  # fmt: skip
+    return component_to_onnx(pipe.model.onnx_module(), args, names_in, names_out,
+                             pipe.model.onnx_scripted, exporter)  # fmt: skip
 
 
 def export_pipeline(
@@ -145,16 +145,19 @@ def export_pipeline(
     metadata: dict[str, str] | None = None,
     overwrite: bool = False,
     progress: bool = False,
+    exporter: str | None = None,
 ) -> dict:
     """Write ``pipe`` as ONNX to ``out`` after verifying it against torch on ``X_check``
-    (progress bars over the verification's batches if ``progress``).
+    (progress bars over the verification's batches if ``progress``; ``exporter``: see
+    :func:`~tactilesnn.core.onnx_graph.chosen_exporter`).
 
-    Returns a report: node count, max score difference, prediction agreement.
+    Returns a report: operator nodes (``Constant`` nodes not counted), max score difference,
+    prediction agreement.
     """
     out = check_out(out, overwrite)
     if len(X_check) == 0:
         raise ValueError("X_check holds no window: the export is verified against torch on it")
-    enc, mod = build_parts(pipe)
+    enc, mod = build_parts(pipe, exporter)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     contract = pipeline_contract(pipe, tuple(n for n, _ in pipe.model.state_names),
                                  "input in the sensor's readout units (see the run's task)",
@@ -166,7 +169,7 @@ def export_pipeline(
     onnx.checker.check_model(model)
     report = verify(model, pipe, X_check, parts=(enc, mod), progress=progress)
     save_atomic(model, out)
-    report["nodes"] = len(model.graph.node)
+    report["nodes"] = operator_nodes(model)
     report["path"] = str(out)
     return report
 

@@ -12,17 +12,15 @@ the window is not complete yet); ``stream_windows`` runs a whole stream, as the 
 from __future__ import annotations
 
 import json
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import onnx
-import onnx.version_converter
 import torch
 from torch import Tensor, nn
 
 from ..core.graph_contract import SCORES_OUTPUT, WINDOW_INPUT, state_output
-from ..core.onnx_graph import chain, exported_to_onnx, torch_to_onnx
+from ..core.onnx_graph import chain, component_to_onnx, operator_nodes
 from ..core.onnx_prune import prune_to_outputs
 from ..pipeline import SpikePipeline
 from .onnx import PipelineEncoderGraph, build_model_part
@@ -65,40 +63,23 @@ class StreamEncoderGraph(PipelineEncoderGraph):
 
 
 def build_stream_graph(
-    pipe: SpikePipeline,
+    pipe: SpikePipeline, exporter: str | None = None
 ) -> tuple[onnx.ModelProto, list[tuple[str, int]], dict[str, str]]:
     """The stream graph, its encoder state ``(name, units)`` (the model's follow in the graph's
     inputs, as in the window graph) and how a fresh stream starts them (the runtime's rule per
-    state: ``repeat_first``; unnamed states start at zero)."""
+    state: ``repeat_first``; unnamed states start at zero). Both parts from
+    :func:`~tactilesnn.core.onnx_graph.component_to_onnx` (``exporter``: see there)."""
     graph = StreamEncoderGraph(pipe).eval()
     half = pipe.window // 2
     names = graph.state_names
-    mod = build_model_part(pipe)  # (the window encoder's graph is not needed here)
+    mod = build_model_part(pipe, exporter)  # (the window encoder's graph is not needed here)
     gen = torch.Generator().manual_seed(0)
     chunk = torch.randn(2, len(pipe.channel_names), half, generator=gen)
     state = [torch.randn(2, u, generator=gen) for _, u in names]
     io = ([WINDOW_INPUT, *(n for n, _ in names)], ["spikes", *(state_output(n) for n, _ in names)])
-    with torch.no_grad():  # builds the bank's cached matrices: torch.export refuses tensors
-        graph(chunk, *state)  # assigned while it traces
-    try:  # the torch.export-based exporter (supported); the TorchScript one where it is absent
-        enc = exported_to_onnx(graph, (chunk, *state), *io)
-    except ImportError:
-        with tempfile.TemporaryDirectory() as tmp:
-            enc = torch_to_onnx(graph, (chunk, *state), Path(tmp) / "stream.onnx", *io)
-    mod = _same_versions(mod, enc)
+    enc = component_to_onnx(graph, (chunk, *state), *io, exporter=exporter)
     model = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     return model, names, graph.state_init
-
-
-def _same_versions(model: onnx.ModelProto, like: onnx.ModelProto) -> onnx.ModelProto:
-    """``model`` at ``like``'s default-domain opset and IR version (the two parts are merged
-    into one graph; the model's part may come from the older exporter at a lower opset)."""
-    want = {o.domain: o.version for o in like.opset_import}.get("", 0)
-    have = {o.domain: o.version for o in model.opset_import}.get("", 0)
-    if have < want:
-        model = onnx.version_converter.convert_version(model, want)
-    model.ir_version = max(model.ir_version, like.ir_version)
-    return model
 
 
 def initial_state(pipe: SpikePipeline, first_half: np.ndarray) -> dict[str, np.ndarray]:
@@ -201,6 +182,7 @@ def export_stream(
     X_check: np.ndarray,
     metadata: dict[str, str] | None = None,
     overwrite: bool = False,
+    exporter: str | None = None,
 ) -> dict:
     """Write the stream graph of ``pipe`` to ``out`` after verifying it in onnxruntime against
     :func:`reference_stream` on up to ``CHECK_WINDOWS`` of ``X_check`` joined into one stream:
@@ -219,7 +201,7 @@ def export_stream(
     )
 
     out = check_out(out, overwrite)
-    model, names, init = build_stream_graph(pipe)
+    model, names, init = build_stream_graph(pipe, exporter)
     half = pipe.window // 2
     model_states = tuple(n for n, _ in pipe.model.state_names)
     extra = {**dict(metadata or {}), "stream_step_samples": str(half),
@@ -247,7 +229,7 @@ def export_stream(
                           f"{len(per)} windows")  # fmt: skip
     agree = float((got_s.argmax(1) == want_s.argmax(1)).mean())
     save_atomic(model, out)
-    return {"path": str(out), "nodes": len(model.graph.node), "windows_checked": len(per),
+    return {"path": str(out), "nodes": operator_nodes(model), "windows_checked": len(per),
             "encoder_max_time_diff_ms": dt, "encoder_cutoff_flips": flips,
             "max_score_diff": float(per.max()), "prediction_agreement": agree,
             "step_samples": half, "encoder_state": dict(names)}  # fmt: skip

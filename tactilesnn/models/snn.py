@@ -47,7 +47,7 @@ from .functional import (
     reduce_readout,
     running_readout,
 )
-from .onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
+from .onnx_ops import lif_as_lstm, lif_lstm_buffers, raster_current
 
 SURROGATES = ("fast_sigmoid", "arctan")
 RESETS = ("subtract", "zero")
@@ -505,7 +505,7 @@ class _SNNGraph(nn.Module):
     def hidden_layer(
         self, spikes: Tensor, h: Tensor, hs: Tensor | None
     ) -> tuple[Tensor, Tensor, Tensor]:
-        cur = RasterCurrent.apply(
+        cur = raster_current(
             spikes, self.fc1.weight, self.fc1.bias, self.updates, self.dt, self.steps
         )
         return self.lstm1(cur, h, hs, self.w_rec)
@@ -534,7 +534,7 @@ class _SNNGraph(nn.Module):
 
 
 class _LSTMWeights(nn.Module):
-    """The ``LSTM`` weights of one LIF layer (:class:`.onnx_ops.LIFAsLSTM`) and its call.
+    """The ``LSTM`` weights of one LIF layer (:func:`.onnx_ops.lif_as_lstm`) and its call.
 
     A feed-forward layer's units are independent, so its ``H`` units run as ``g`` rows of
     ``H / g`` units each (the batch axis grows ``g`` times): the node's per-step ``R`` product
@@ -563,7 +563,7 @@ class _LSTMWeights(nn.Module):
             cur = cur.reshape(t, b * g, width)
             u0 = u0.reshape(b * g, width)
             s0 = None if s0 is None else s0.reshape(b * g, width)
-        spikes, u, s = LIFAsLSTM.apply(
+        spikes, u, s = lif_as_lstm(
             cur, u0, s0, w_rec, self.W, self.R, self.B, self.beta, self.theta, self.subtract
         )
         if g > 1:

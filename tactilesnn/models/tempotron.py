@@ -108,7 +108,10 @@ class Tempotron(nn.Module):
                 f"expected spike times [batch, {self.n_inputs}] or [batch, {self.n_inputs}, k], "
                 f"got shape {tuple(spike_times.shape)}"
             )
-        if not torch.jit.is_tracing() and torch.isnan(spike_times).any():
+        if (
+            not (torch.jit.is_tracing() or torch.compiler.is_exporting())
+            and torch.isnan(spike_times).any()
+        ):
             raise ValueError("spike times contain NaN; use +inf for 'no spike'")
         b, n, k = spike_times.shape
         t = spike_times.reshape(b, n * k).to(self.weight.dtype)

@@ -112,25 +112,26 @@ def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsy
         main(["export", "run", "--stream", "--quantize", "--out", "q.onnx", "--quiet"])
 
 
-def test_stream_encoder_is_built_by_the_supported_exporter_with_a_fallback(tmp_path, monkeypatch):
-    import tactilesnn.export.stream as stream_mod
+def test_stream_graph_is_built_by_the_supported_exporter_with_a_fallback(tmp_path, monkeypatch):
+    import tactilesnn.core.onnx_graph as graph_mod
 
+    monkeypatch.setenv("TACTILESNN_ONNX_EXPORTER", "torch.export")  # the product's default
     pipe = _pipe("tempotron")
     calls = []
-    real = stream_mod.exported_to_onnx
+    real = graph_mod.exported_to_onnx
 
     def spy(*a, **k):
         calls.append(1)
         return real(*a, **k)
 
-    monkeypatch.setattr(stream_mod, "exported_to_onnx", spy)
+    monkeypatch.setattr(graph_mod, "exported_to_onnx", spy)
     a = export_stream(pipe, tmp_path / "a.onnx", _windows(6))
-    assert calls  # torch.export-based (onnxscript installed with the package)
+    assert len(calls) == 2  # both parts torch.export-based (onnxscript comes with the package)
 
     def missing(*a, **k):
         raise ImportError("No module named 'onnxscript'")
 
-    monkeypatch.setattr(stream_mod, "exported_to_onnx", missing)
+    monkeypatch.setattr(graph_mod, "exported_to_onnx", missing)
     b = export_stream(pipe, tmp_path / "b.onnx", _windows(6))  # the TorchScript exporter instead
     assert a["prediction_agreement"] == b["prediction_agreement"] == 1.0
     assert a["nodes"] <= b["nodes"]

@@ -11,6 +11,7 @@ import pytest
 import torch
 from torch import nn
 
+from tactilesnn.core.onnx_graph import exported_to_onnx
 from tactilesnn.core.spikes import spike_raster
 from tactilesnn.models.functional import (
     li_closed,
@@ -19,20 +20,38 @@ from tactilesnn.models.functional import (
     lif_rec_scan,
     lif_scan,
 )
-from tactilesnn.models.onnx_ops import LIFAsLSTM, RasterCurrent, lif_lstm_buffers
+from tactilesnn.models.onnx_ops import lif_as_lstm, lif_lstm_buffers, raster_current
+
+#: the TorchScript-based exporter (autograd symbolics) and the torch.export-based one (custom ops
+#: and their onnxscript translations)
+EXPORTERS = ("torchscript", "torch.export")
 
 
-def _run_onnx(module: nn.Module, args: tuple, names: list[str]) -> list[np.ndarray]:
+def _export(module: nn.Module, args: tuple, names: list[str], exporter: str) -> onnx.ModelProto:
+    if exporter == "torch.export":
+        got = module(*args)
+        outs = [f"out{i}" for i in range(len(got) if isinstance(got, tuple) else 1)]
+        axes = [1 if n == "cur" else 0 for n in names]  # cur is time-major [T, B, H]
+        return exported_to_onnx(module, args, names, outs, batch_axes=axes)
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "m.onnx"
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             torch.onnx.export(module, args, str(path), input_names=names, opset_version=17,
                               dynamo=False, dynamic_axes={n: {0: "b"} for n in names[:1]})  # fmt: skip
-        sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-        ops = {n.op_type for n in onnx.load(str(path)).graph.node}
-        assert "Loop" not in ops
-        return sess.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
+        return onnx.load(str(path))
+
+
+def _run_onnx(
+    module: nn.Module, args: tuple, names: list[str], exporter: str = "torchscript"
+) -> list[np.ndarray]:
+    model = _export(module, args, names, exporter)
+    ops = [n.op_type for n in model.graph.node]
+    assert "Loop" not in ops
+    # one vectorised node, whichever exporter: no step unrolled
+    assert ops.count("LSTM") + ops.count("ScatterND") == 1
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return sess.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
 
 
 def test_leaky_integrator_closed_form_matches_the_scan_in_float64():
@@ -57,12 +76,13 @@ class _LIF(nn.Module):
         self.cfg = (beta, theta, subtract)
 
     def forward(self, cur, u0, s0):
-        return LIFAsLSTM.apply(cur, u0, s0, self.w_rec, self.W, self.R, self.B, *self.cfg)
+        return lif_as_lstm(cur, u0, s0, self.w_rec, self.W, self.R, self.B, *self.cfg)
 
 
+@pytest.mark.parametrize("exporter", EXPORTERS)
 @pytest.mark.parametrize("subtract", [True, False])
 @pytest.mark.parametrize("recurrent", [False, True])
-def test_lif_as_one_lstm_node_spikes_exactly_like_the_scan(subtract, recurrent):
+def test_lif_as_one_lstm_node_spikes_exactly_like_the_scan(subtract, recurrent, exporter):
     g = torch.Generator().manual_seed(1)
     steps, batch, hidden = 200, 4, 24
     beta = 0.9048  # exp(-5 ms / 50 ms), rounded
@@ -84,7 +104,7 @@ def test_lif_as_one_lstm_node_spikes_exactly_like_the_scan(subtract, recurrent):
     else:
         ref_s, ref_u = lif_scan(cur, u0, beta, 1.0, subtract)
     mod = _LIF(hidden, beta, 1.0, subtract, w_rec)
-    spikes, u_t, s_t = _run_onnx(mod, (cur, u0, s0), ["cur", "u0", "s0"])
+    spikes, u_t, s_t = _run_onnx(mod, (cur, u0, s0), ["cur", "u0", "s0"], exporter)
     assert ref_s.sum() > 500  # an active layer, not a trivially silent one
     assert ref_s[0, 0].sum() == hidden
     assert np.array_equal(spikes, ref_s.numpy())  # every spike at its step
@@ -100,10 +120,11 @@ class _Raster(nn.Module):
 
     def forward(self, spikes):
         w, b = self.fc.weight, self.fc.bias
-        return RasterCurrent.apply(spikes, w, b, self.updates, self.dt, self.steps)
+        return raster_current(spikes, w, b, self.updates, self.dt, self.steps)
 
 
-def test_raster_current_scatter_equals_the_dense_raster_product():
+@pytest.mark.parametrize("exporter", EXPORTERS)
+def test_raster_current_scatter_equals_the_dense_raster_product(exporter):
     torch.manual_seed(2)
     steps, dt, k = 40, 5.0, 3
     fc = nn.Linear(30, 7)
@@ -113,7 +134,7 @@ def test_raster_current_scatter_equals_the_dense_raster_product():
     spikes[2, 4] = torch.tensor([-1.0, 250.0, float("nan")])  # outside the window: dropped
     spikes[3] = float("inf")  # a silent window
     ref = nn.functional.linear(spike_raster(spikes, dt, steps), fc.weight, fc.bias)
-    (got,) = _run_onnx(_Raster(fc, k, dt, steps).eval(), (spikes,), ["spikes"])
+    (got,) = _run_onnx(_Raster(fc, k, dt, steps).eval(), (spikes,), ["spikes"], exporter)
     assert got.shape == (steps, 5, 7)
     assert np.abs(got - ref.detach().numpy()).max() < 1e-5
 

@@ -1,0 +1,82 @@
+"""The supported ``torch.export``-based exporter (the product's default; the rest of the suite
+exports with the TorchScript-based one for speed, see ``tests/conftest.py``): every traced
+component and the stream graph, with the same parity checks and no more operator nodes."""
+
+import numpy as np
+import onnx
+import pytest
+
+from tactilesnn.config import PipelineConfig
+from tactilesnn.core.onnx_graph import chosen_exporter, operator_nodes
+from tactilesnn.export import export_pipeline
+from tactilesnn.export.onnx import build_graph
+from tactilesnn.export.stream import export_stream, stream_windows
+from tactilesnn.pipeline import SpikePipeline
+from tactilesnn.service.runtime import PipelineSession
+
+
+def _calibrated(fs: float, window: int, channels: int, seed: int = 0, **flat):
+    cfg = PipelineConfig.from_flat(channels=("all",), **flat)
+    names = tuple(f"c{i}" for i in range(channels))
+    pipe = SpikePipeline(cfg, fs, window, names, ("x", "y", "z"))
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((24, channels, window)).astype(np.float32)
+    X *= rng.uniform(0.2, 3.0, (24, channels, 1)).astype(np.float32)
+    pipe.calibrate(X)
+    return pipe, X
+
+
+def _opset(model: onnx.ModelProto) -> int:
+    return {o.domain: o.version for o in model.opset_import}[""]
+
+
+#: traced encoder x model pairs (the activity gate's data-dependent row count among them), and
+#: a scripted encoder (Loop nodes: always the TorchScript-based exporter) chained to a model
+#: part from torch.export (opsets 17 and 18 in one graph)
+PIPELINES = [
+    {"encoder": "gwt", "model": "tempotron", "gate": 0.5},
+    {"encoder": "stft", "model": "readout"},
+    {"encoder": "delta", "model": "snn", "snn_hidden": 8, "snn_recurrent": True},
+    {"encoder": "cgwt", "model": "snn", "snn_hidden": 8},
+    {"encoder": "lif", "model": "snn", "snn_hidden": 8},
+]
+
+
+@pytest.mark.parametrize("flat", PIPELINES, ids=lambda f: f"{f['encoder']}+{f['model']}")
+def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_path, flat):
+    pipe, X = _calibrated(400.0, 200, 3, **flat)
+    if flat.get("gate"):
+        X[:8, 1:] *= 1e-3  # windows with silent channels: the gate drops their rows
+    legacy = build_graph(pipe, exporter="torchscript")
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", X, exporter="torch.export")  # verified
+    model = onnx.load(str(tmp_path / "m.onnx"))
+    ops = [n.op_type for n in model.graph.node]
+    assert "Loop" not in ops or flat["encoder"] == "lif"
+    assert _opset(model) == 18
+    assert rep["nodes"] <= operator_nodes(legacy)
+    assert rep["prediction_agreement"] == 1.0
+    got = PipelineSession(str(tmp_path / "m.onnx")).run(X)
+    ref = pipe.scores(pipe.encode(X)).numpy()
+    assert np.abs(got - ref).max() <= 1e-4 * max(1.0, np.abs(ref).max())
+
+
+def test_the_stream_graph_from_the_supported_exporter_matches_the_legacy_one(tmp_path):
+    pipe, X = _calibrated(400.0, 200, 3, encoder="cgwt", model="snn", snn_hidden=8)
+    a = export_stream(pipe, tmp_path / "a.onnx", X, exporter="torch.export")
+    b = export_stream(pipe, tmp_path / "b.onnx", X, exporter="torchscript")
+    assert a["nodes"] <= b["nodes"]
+    stream = np.concatenate(list(X[:6]), axis=1)
+    ga = stream_windows(onnx.load(str(tmp_path / "a.onnx")), pipe, stream)
+    gb = stream_windows(onnx.load(str(tmp_path / "b.onnx")), pipe, stream)
+    assert np.abs(ga - gb).max() <= 1e-5 * max(1.0, np.abs(gb).max())
+
+
+def test_the_exporter_is_chosen_by_name_and_an_unknown_one_is_refused(monkeypatch):
+    monkeypatch.delenv("TACTILESNN_ONNX_EXPORTER", raising=False)
+    assert chosen_exporter() == "torch.export"
+    monkeypatch.setenv("TACTILESNN_ONNX_EXPORTER", "torchscript")
+    assert chosen_exporter() == "torchscript"
+    assert chosen_exporter("torch.export") == "torch.export"
+    monkeypatch.setenv("TACTILESNN_ONNX_EXPORTER", "dynamo")
+    with pytest.raises(ValueError, match="unknown ONNX exporter 'dynamo'"):
+        chosen_exporter()
