@@ -63,19 +63,22 @@ def component_to_onnx(
     outputs: Sequence[str],
     scripted: bool = False,
     exporter: str | None = None,
+    opset: int = OPSET,
 ) -> onnx.ModelProto:
     """One component's graph (dynamic batch axis 0 on every input): :func:`exported_to_onnx`
-    unless the component is ``scripted``, :func:`chosen_exporter` is ``torchscript`` or
-    ``onnxscript`` is not installed, then :func:`torch_to_onnx`."""
+    (opset at least 18) unless the component is ``scripted``, :func:`chosen_exporter` is
+    ``torchscript`` or ``onnxscript`` is not installed, then :func:`torch_to_onnx`."""
     if not scripted and chosen_exporter(exporter) == "torch.export":
         with torch.no_grad():  # builds cached tensors: torch.export refuses tensors assigned
             module(*args)  # while it traces
         try:
-            return exported_to_onnx(module, args, inputs, outputs)
+            return exported_to_onnx(module, args, inputs, outputs, opset)
         except ImportError as e:
             log.warning("onnxscript is not installed (%s): the TorchScript-based exporter", e)
     with tempfile.TemporaryDirectory() as tmp:
-        return torch_to_onnx(module, args, Path(tmp) / "part.onnx", inputs, outputs, scripted)
+        return torch_to_onnx(
+            module, args, Path(tmp) / "part.onnx", inputs, outputs, scripted, opset
+        )
 
 
 def torch_to_onnx(

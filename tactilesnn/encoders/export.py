@@ -395,10 +395,14 @@ def _cut_points(m: int, groups: int):
 def export_window_encoder(
     encoder: WindowEncoder, n_channels: int, path: str | Path, opset: int = 17
 ) -> Path:
-    """Write ``encoder`` as ONNX with a dynamic batch axis; returns the path."""
-    from ..core.onnx_graph import torch_to_onnx
+    """Write ``encoder`` as ONNX with a dynamic batch axis (opset at least ``opset``: the
+    ``torch.export``-based exporter writes 18); returns the path."""
+    import onnx
+
+    from ..core.onnx_graph import component_to_onnx
 
     path = Path(path)
-    dummy = torch.zeros(1, n_channels, encoder.window)
-    torch_to_onnx(encoder, (dummy,), path, ["window"], ["spike_times_ms"], opset=opset)
+    dummy = torch.randn(2, n_channels, encoder.window, generator=torch.Generator().manual_seed(0))
+    model = component_to_onnx(encoder, (dummy,), ["window"], ["spike_times_ms"], opset=opset)
+    onnx.save(model, str(path))
     return path

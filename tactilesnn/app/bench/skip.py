@@ -52,23 +52,22 @@ def _windows(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(v.transpose(1, 0, 2))
 
 
-def _encoder_session(encoder, n_channels: int, tmp: Path):
+def _encoder_session(encoder, n_channels: int):
     """The encoder's exported graph (``[B, C, window]`` -> spike times) in onnxruntime, 1 thread."""
     import onnxruntime as ort
 
-    from ...core.onnx_graph import torch_to_onnx
+    from ...core.onnx_graph import component_to_onnx
 
-    path = tmp / f"enc{len(list(tmp.iterdir()))}.onnx"
     dummy = torch.randn(2, n_channels, WINDOW, generator=torch.Generator().manual_seed(0))
-    torch_to_onnx(encoder.onnx_module(), (dummy,), path, ["window"], ["spikes"])
+    graph = component_to_onnx(encoder.onnx_module(), (dummy,), ["window"], ["spikes"],
+                              encoder.onnx_scripted)  # fmt: skip
     so = ort.SessionOptions()
     so.intra_op_num_threads = so.inter_op_num_threads = 1
-    sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+    sess = ort.InferenceSession(graph.SerializeToString(), so, providers=["CPUExecutionProvider"])
     return lambda x: sess.run(None, {"window": x})[0]
 
 
 def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
-    import tempfile
 
     from ...encoders import build_encoder
     from ...encoders.base import ENCODERS
@@ -80,39 +79,38 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
     gated = build_encoder(cfg(gate=GATE), 200.0, WINDOW, 12).fit(Xtr)
     plain = build_encoder(cfg(), 200.0, WINDOW, 12)
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        ort_plain = _encoder_session(plain, 12, Path(tmp))
-        ort_gated = _encoder_session(gated, 12, Path(tmp))
-        for touched in (1, 3) if quick else (1, 3, 6, 12):
-            x, _ = taxel_streams(12, touched)
-            X = _windows(x)
-            if quick:
-                X = X[:64]
-            ref = plain.encode(X).numpy()
-            gated.gate_counts = [0, 0]
-            out = gated.encode(X).numpy()
-            skipped = gated.skip_stats()["activity_gate"]["skipped_fraction"]
-            t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
-            t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
-            both = np.isfinite(ref) & np.isfinite(out)
-            Xf = X.astype(np.float32)
-            o_plain = statistics.median(_time(ort_plain, Xf) for _ in range(repeats))
-            o_gated = statistics.median(_time(ort_gated, Xf) for _ in range(repeats))
-            got = ort_gated(Xf)
-            fin = np.isfinite(out)
-            rows.append({
-                "touched_taxels": touched, "windows": int(X.shape[0]),
-                "ms_ungated": 1000 * t_plain, "ms_gated": 1000 * t_gated,
-                "speedup": t_plain / t_gated, "skipped_fraction": skipped,
-                "max_time_change_ms_transformed": float(np.abs(ref[both] - out[both]).max())
-                if both.any() else 0.0,
-                "slots_changed_fraction": float((np.isfinite(ref) != np.isfinite(out)).mean()),
-                "ort_ms_ungated": 1000 * o_plain, "ort_ms_gated": 1000 * o_gated,
-                "ort_speedup": o_plain / o_gated,
-                "ort_gated_same_slots": bool(np.array_equal(np.isfinite(got), fin)),
-                "ort_gated_max_diff_ms": float(np.abs(got[fin] - out[fin]).max())
-                if fin.any() else 0.0,
-            })  # fmt: skip
+    ort_plain = _encoder_session(plain, 12)
+    ort_gated = _encoder_session(gated, 12)
+    for touched in (1, 3) if quick else (1, 3, 6, 12):
+        x, _ = taxel_streams(12, touched)
+        X = _windows(x)
+        if quick:
+            X = X[:64]
+        ref = plain.encode(X).numpy()
+        gated.gate_counts = [0, 0]
+        out = gated.encode(X).numpy()
+        skipped = gated.skip_stats()["activity_gate"]["skipped_fraction"]
+        t_plain = statistics.median(_time(plain.encode, X) for _ in range(repeats))
+        t_gated = statistics.median(_time(gated.encode, X) for _ in range(repeats))
+        both = np.isfinite(ref) & np.isfinite(out)
+        Xf = X.astype(np.float32)
+        o_plain = statistics.median(_time(ort_plain, Xf) for _ in range(repeats))
+        o_gated = statistics.median(_time(ort_gated, Xf) for _ in range(repeats))
+        got = ort_gated(Xf)
+        fin = np.isfinite(out)
+        rows.append({
+            "touched_taxels": touched, "windows": int(X.shape[0]),
+            "ms_ungated": 1000 * t_plain, "ms_gated": 1000 * t_gated,
+            "speedup": t_plain / t_gated, "skipped_fraction": skipped,
+            "max_time_change_ms_transformed": float(np.abs(ref[both] - out[both]).max())
+            if both.any() else 0.0,
+            "slots_changed_fraction": float((np.isfinite(ref) != np.isfinite(out)).mean()),
+            "ort_ms_ungated": 1000 * o_plain, "ort_ms_gated": 1000 * o_gated,
+            "ort_speedup": o_plain / o_gated,
+            "ort_gated_same_slots": bool(np.array_equal(np.isfinite(got), fin)),
+            "ort_gated_max_diff_ms": float(np.abs(got[fin] - out[fin]).max())
+            if fin.any() else 0.0,
+        })  # fmt: skip
     return rows
 
 
