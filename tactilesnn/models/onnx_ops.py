@@ -29,6 +29,8 @@ from ..core.spikes import spike_raster
 from .functional import lif_lstm_activations, lif_lstm_parameters, lif_rec_scan, lif_scan
 
 _I64 = 7  # onnx.TensorProto.INT64
+#: the LIF form's outputs: spikes, membrane and spikes of the last step
+_Three = tuple[Tensor, Tensor, Tensor]
 
 
 class _TorchScriptNodes:
@@ -202,18 +204,8 @@ def _(spikes, weight, bias, updates, dt_ms, steps):
 
 
 @torch.library.custom_op("tactilesnn::lif_as_lstm", mutates_args=())
-def _lif_op(
-    cur: Tensor,
-    u0: Tensor,
-    s0: Tensor | None,
-    w_rec: Tensor,
-    w: Tensor,
-    r: Tensor,
-    b: Tensor,
-    beta: float,
-    theta: float,
-    subtract: bool,
-) -> tuple[Tensor, Tensor, Tensor]:
+def _lif_op(cur: Tensor, u0: Tensor, s0: Tensor | None, w_rec: Tensor, w: Tensor, r: Tensor,
+            b: Tensor, beta: float, theta: float, subtract: bool) -> _Three:  # fmt: skip
     spikes, u, s = _lif_reference(cur, u0, s0, w_rec, beta, theta, subtract)
     return spikes, u, s.clone()  # (a custom op's outputs may not alias one another)
 
@@ -243,18 +235,8 @@ def raster_current(spikes: Tensor, weight: Tensor, bias: Tensor, updates: Tensor
     return RasterCurrent.apply(spikes, weight, bias, updates, dt_ms, steps)
 
 
-def lif_as_lstm(
-    cur: Tensor,
-    u0: Tensor,
-    s0: Tensor | None,
-    w_rec: Tensor,
-    w: Tensor,
-    r: Tensor,
-    b: Tensor,
-    beta: float,
-    theta: float,
-    subtract: bool,
-) -> tuple[Tensor, Tensor, Tensor]:
+def lif_as_lstm(cur: Tensor, u0: Tensor, s0: Tensor | None, w_rec: Tensor, w: Tensor, r: Tensor,
+                b: Tensor, beta: float, theta: float, subtract: bool) -> _Three:  # fmt: skip
     """:class:`LIFAsLSTM`, or its custom op while ``torch.export`` traces."""
     if torch.compiler.is_exporting():
         return _lif_op(cur, u0, s0, w_rec, w, r, b, float(beta), float(theta), bool(subtract))
