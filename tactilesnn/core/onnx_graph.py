@@ -64,11 +64,13 @@ def component_to_onnx(
     scripted: bool = False,
     exporter: str | None = None,
     opset: int = OPSET,
+    exportable: bool = True,
 ) -> onnx.ModelProto:
     """One component's graph (dynamic batch axis 0 on every input): :func:`exported_to_onnx`
-    (opset at least 18) unless the component is ``scripted``, :func:`chosen_exporter` is
-    ``torchscript`` or ``onnxscript`` is not installed, then :func:`torch_to_onnx`."""
-    if not scripted and chosen_exporter(exporter) == "torch.export":
+    (opset at least 18) unless the component is not ``exportable`` (traces only as a scripted
+    module), :func:`chosen_exporter` is ``torchscript`` or ``onnxscript`` is not installed,
+    then :func:`torch_to_onnx` (``scripted``: scripted first)."""
+    if exportable and chosen_exporter(exporter) == "torch.export":
         with torch.no_grad():  # builds cached tensors: torch.export refuses tensors assigned
             module(*args)  # while it traces
         try:

@@ -173,6 +173,7 @@ class BandCodeEncoder(SpikeEncoder):
         self.code = build_encoder(code_config, self.frame_hz, self.frames,
                                   self.n_channels * config.n_bands)  # fmt: skip
         self.onnx_scripted = self.code.onnx_scripted
+        self.onnx_exportable = self.code.onnx_exportable
 
     @property
     def n_afferents(self) -> int:

@@ -46,6 +46,9 @@ class SpikeEncoder(nn.Module):
 
     #: the exported module must be scripted (it has a data-dependent loop) rather than traced
     onnx_scripted: ClassVar[bool] = False
+    #: the exported module traces under ``torch.export`` (the supported exporter; a scripted
+    #: module's loops then as scan operators): else only the TorchScript-based exporter writes it
+    onnx_exportable: ClassVar[bool] = True
     #: True when :meth:`fit` learns state that :meth:`encode` needs
     needs_fit: ClassVar[bool] = False
     #: buffers a saved run may lack (added later); they keep their constructed, neutral value

@@ -133,6 +133,8 @@ class LIFPopulationEncoder(SpikeEncoder):
     """Population of LIF analog-to-spike converters per channel; see the module docstring."""
 
     onnx_scripted = True
+    #: its sample loop holds a data-dependent inner loop (several spikes per sample)
+    onnx_exportable = False
     needs_fit = True
     codes_envelopes = True
     #: runs written before the prescaler existed load with every = 1 (their first-k behaviour)

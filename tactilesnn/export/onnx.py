@@ -116,7 +116,8 @@ def build_parts(
     gen = torch.Generator().manual_seed(0)
     dummy = torch.randn(2, len(pipe.channel_names), pipe.window, generator=gen)
     enc = component_to_onnx(PipelineEncoderGraph(pipe), (dummy,), ["window"], ["spikes"],
-                            pipe.encoder.onnx_scripted, exporter)  # fmt: skip
+                            pipe.encoder.onnx_scripted, exporter,
+                            exportable=pipe.encoder.onnx_exportable)  # fmt: skip
     return enc, mod
 
 
@@ -135,7 +136,8 @@ def build_model_part(pipe: SpikePipeline, exporter: str | None = None) -> onnx.M
     if pipe.model.decides_early:
         names_out += list(EARLY_OUTPUTS)
     return component_to_onnx(pipe.model.onnx_module(), args, names_in, names_out,
-                             pipe.model.onnx_scripted, exporter)  # fmt: skip
+                             pipe.model.onnx_scripted, exporter,
+                             exportable=pipe.model.onnx_exportable)  # fmt: skip
 
 
 def export_pipeline(

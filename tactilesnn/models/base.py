@@ -54,6 +54,9 @@ class SpikeModel(nn.Module):
     learns_by_rule: ClassVar[bool] = False
     #: the exported module must be scripted (it has a time loop) rather than traced
     onnx_scripted: ClassVar[bool] = False
+    #: the exported module traces under ``torch.export`` (the supported exporter; a scripted
+    #: module's loops then as scan operators): else only the TorchScript-based exporter writes it
+    onnx_exportable: ClassVar[bool] = True
     #: what the scores mean (written into the exported graph's metadata)
     score_units: ClassVar[str] = "class scores (larger = more likely)"
 

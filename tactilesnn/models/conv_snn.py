@@ -29,7 +29,7 @@ from torch import Tensor, nn
 from ..core.checks import check_choice, check_int, check_positive, check_range
 from ..core.spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model, seeded
-from .functional import decay_factor, li_scan, lif_scan, reduce_readout
+from .functional import decay_factor, li_scan, li_scan_op, lif_scan, lif_scan_op, reduce_readout
 from .snn import _LIFScan
 
 READOUTS = ("max", "mean")
@@ -248,7 +248,8 @@ class ConvSNNModel(SpikeModel):
 
 class _ConvSNNGraph(nn.Module):
     """Exported network: the same layers, :func:`~tactilesnn.models.functional.lif_scan` /
-    ``li_scan`` as ONNX ``Loop``s, streaming state in and out."""
+    ``li_scan`` as ONNX ``Loop``s (scripted, the TorchScript-based exporter) or as ``Scan``s
+    (their scan-operator forms, ``torch.export``), streaming state in and out."""
 
     def __init__(self, model: ConvSNNModel) -> None:
         super().__init__()
@@ -261,7 +262,18 @@ class _ConvSNNGraph(nn.Module):
         raster = spike_raster(spikes, self.dt, self.steps)
         steps, batch = raster.shape[0], raster.shape[1]
         cur1 = c.conv1(c.conv_input(raster)).reshape(steps, batch, c.n1)
-        s1, h1_new = lif_scan(cur1, h1, c.beta, 1.0, True)
-        s2, h2_new = lif_scan(c.layer2_input(s1), h2, c.beta, 1.0, True)
-        out, o_new = li_scan(c.readout_input(s2, raster), o, c.beta)
+        if torch.jit.is_scripting():
+            s1, h1_new = lif_scan(cur1, h1, c.beta, 1.0, True)
+            s2, h2_new = lif_scan(c.layer2_input(s1), h2, c.beta, 1.0, True)
+            out, o_new = li_scan(c.readout_input(s2, raster), o, c.beta)
+        else:
+            s1, h1_new, s2, h2_new, out, o_new = self._scans(cur1, raster, h1, h2, o)
         return reduce_readout(out, self.readout), h1_new, h2_new, o_new
+
+    @torch.jit.unused
+    def _scans(self, cur1: Tensor, raster: Tensor, h1: Tensor, h2: Tensor, o: Tensor):
+        c = self.core
+        s1, h1_new = lif_scan_op(cur1, h1, c.beta, 1.0, True)
+        s2, h2_new = lif_scan_op(c.layer2_input(s1), h2, c.beta, 1.0, True)
+        out, o_new = li_scan_op(c.readout_input(s2, raster), o, c.beta)
+        return s1, h1_new, s2, h2_new, out, o_new

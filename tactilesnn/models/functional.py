@@ -115,6 +115,31 @@ def li_scan(cur: Tensor, v0: Tensor, beta: float):
     return torch.stack(out), v
 
 
+def lif_scan_op(cur: Tensor, u0: Tensor, beta: float, theta: float, subtract: bool):
+    """:func:`lif_scan` as one scan operator (``torch.export`` writes an ONNX ``Scan``; not
+    scriptable), the same step."""
+    from torch._higher_order_ops.scan import scan
+
+    def step(u: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
+        s, u, _ = lif_step(u, c, beta, theta, subtract)
+        return u, s
+
+    u, spikes = scan(step, u0, cur)
+    return spikes, u
+
+
+def li_scan_op(cur: Tensor, v0: Tensor, beta: float):
+    """:func:`li_scan` as one scan operator (see :func:`lif_scan_op`)."""
+    from torch._higher_order_ops.scan import scan
+
+    def step(v: Tensor, c: Tensor) -> tuple[Tensor, Tensor]:
+        v = li_step(v, c, beta)
+        return v, v.clone()  # (a scan's carry and output may not alias)
+
+    v, out = scan(step, v0, cur)
+    return out, v
+
+
 def li_decay_matrix(steps: int, beta: float, dtype: torch.dtype = torch.float32) -> Tensor:
     """``L [T, T]`` with ``L[t, s] = beta^(t - s)`` for ``s <= t``, else 0 (computed in float64)."""
     t = torch.arange(int(steps), dtype=torch.float64)

@@ -30,10 +30,12 @@ def _opset(model: onnx.ModelProto) -> int:
     return {o.domain: o.version for o in model.opset_import}[""]
 
 
-#: traced encoder x model pairs (the activity gate's data-dependent row count among them), and
-#: a scripted encoder (Loop nodes: always the TorchScript-based exporter) chained to a model
+#: traced encoder x model pairs (the activity gate's data-dependent row count among them), the
+#: conv SNN (scripted for the older exporter: its scans as Scan nodes here), and the LIF
+#: population encoder (Loop nodes: always the TorchScript-based exporter) chained to a model
 #: part from torch.export (opsets 17 and 18 in one graph)
 PIPELINES = [
+    {"encoder": "delta", "model": "csnn", "csnn_channels": 2},
     {"encoder": "gwt", "model": "tempotron", "gate": 0.5},
     {"encoder": "stft", "model": "readout"},
     {"encoder": "delta", "model": "snn", "snn_hidden": 8, "snn_recurrent": True},
@@ -52,6 +54,7 @@ def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_pa
     model = onnx.load(str(tmp_path / "m.onnx"))
     ops = [n.op_type for n in model.graph.node]
     assert "Loop" not in ops or flat["encoder"] == "lif"
+    assert ("Scan" in ops) == (flat["model"] == "csnn")
     assert _opset(model) == 18
     assert rep["nodes"] <= operator_nodes(legacy)
     assert rep["prediction_agreement"] == 1.0

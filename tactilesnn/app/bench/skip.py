@@ -60,7 +60,7 @@ def _encoder_session(encoder, n_channels: int):
 
     dummy = torch.randn(2, n_channels, WINDOW, generator=torch.Generator().manual_seed(0))
     graph = component_to_onnx(encoder.onnx_module(), (dummy,), ["window"], ["spikes"],
-                              encoder.onnx_scripted)  # fmt: skip
+                              encoder.onnx_scripted, exportable=encoder.onnx_exportable)  # fmt: skip
     so = ort.SessionOptions()
     so.intra_op_num_threads = so.inter_op_num_threads = 1
     sess = ort.InferenceSession(graph.SerializeToString(), so, providers=["CPUExecutionProvider"])
