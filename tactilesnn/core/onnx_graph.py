@@ -38,11 +38,12 @@ def _translation_table() -> dict:
     return table
 
 
-#: which exporter writes the graphs of components that are traced (not scripted)
+#: the environment variable that chooses the exporter (:func:`chosen_exporter`)
 EXPORTER_ENV = "TACTILESNN_ONNX_EXPORTER"
 #: ``torch.export``: the supported ``torch.export``-based exporter (the default); ``torchscript``:
 #: the deprecated TorchScript-based one, 5-15x faster to export (the test suite's choice, where
-#: dedicated tests cover both); scripted components (time loops as ``Loop`` nodes) always take it
+#: dedicated tests cover both); a component it cannot trace (``onnx_exportable`` False: the lif
+#: encoder's data-dependent loop) always takes the TorchScript-based one
 EXPORTERS = ("torch.export", "torchscript")
 
 log = logging.getLogger(__name__)
@@ -52,7 +53,10 @@ def chosen_exporter(exporter: str | None = None) -> str:
     """``exporter``, else :data:`EXPORTER_ENV`'s value, else ``torch.export``; checked."""
     name = exporter or os.environ.get(EXPORTER_ENV) or EXPORTERS[0]
     if name not in EXPORTERS:
-        raise ValueError(f"unknown ONNX exporter {name!r}; choose one of: {', '.join(EXPORTERS)}")
+        source = "" if exporter else f" (from {EXPORTER_ENV})"
+        raise ValueError(
+            f"unknown ONNX exporter {name!r}{source}; choose one of: {', '.join(EXPORTERS)}"
+        )
     return name
 
 

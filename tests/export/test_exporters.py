@@ -86,5 +86,7 @@ def test_the_exporter_is_chosen_by_name_and_an_unknown_one_is_refused(monkeypatc
     assert chosen_exporter() == "torchscript"
     assert chosen_exporter("torch.export") == "torch.export"
     monkeypatch.setenv("TACTILESNN_ONNX_EXPORTER", "dynamo")
-    with pytest.raises(ValueError, match="unknown ONNX exporter 'dynamo'"):
+    with pytest.raises(
+        ValueError, match=r"unknown ONNX exporter 'dynamo' \(from TACTILESNN_ONNX_EXPORTER\)"
+    ):
         chosen_exporter()
