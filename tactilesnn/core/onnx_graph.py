@@ -137,11 +137,12 @@ def exported_to_onnx(
     axes = list(batch_axes) if batch_axes is not None else [0] * len(args)
     shapes = _grouped_like_forward(module, [{a: batch} for a in axes])
     # its registry logs a warning per torchvision op it cannot register (no torchvision here),
-    # its optimiser a line per pass at INFO (the CLI logs at INFO)
+    # its optimiser a line per pass at INFO (the CLI logs at INFO), the tracer an error line
+    # for a scan's unsupported classification that it then handles
     quiet = [logging.getLogger(n) for n in QUIET_LOGGERS]
     levels = [q.level for q in quiet]
     for q in quiet:
-        q.setLevel(logging.ERROR)
+        q.setLevel(logging.CRITICAL)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -169,8 +170,9 @@ def exported_to_onnx(
     return model
 
 
-#: loggers silenced (below ERROR) while the torch.export-based exporter runs
-QUIET_LOGGERS = ("torch.onnx._internal.exporter._registration", "onnxscript", "onnx_ir")
+#: loggers silenced while the torch.export-based exporter runs (its failures still raise)
+QUIET_LOGGERS = ("torch.onnx._internal.exporter._registration", "onnxscript", "onnx_ir",
+                 "torch.export._trace")  # fmt: skip
 
 #: constant folding limits (values) of the torch.export-based path's optimiser
 FOLD_INPUT_VALUES = 1 << 20

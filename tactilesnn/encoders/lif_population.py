@@ -36,7 +36,7 @@ from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
 from ..core.spikes import keep_every
 from .base import SpikeEncoder, register_encoder
-from .spiking import lif_first_spikes
+from .spiking import lif_first_spikes, lif_first_spikes_op
 
 NORMS = ("train", "window")
 KEEPS = ("spread", "first")
@@ -87,7 +87,8 @@ class LIFPopulationConfig:
 
 
 class _LIFPopulationGraph(nn.Module):
-    """Scaling + converters; scripted for export (the sample loop becomes an ONNX ``Loop``)."""
+    """Scaling + converters; the sample loop becomes an ONNX ``Loop`` (scripted, for the
+    TorchScript-based exporter) or ``Scan`` (``torch.export``)."""
 
     def __init__(self, ref: Tensor, inv_thr: Tensor, every: Tensor, dt_ms: float, tau_ms: float,
                  k: int, window_norm: bool) -> None:  # fmt: skip
@@ -106,9 +107,17 @@ class _LIFPopulationGraph(nn.Module):
         return x / self.ref.view(1, -1, 1)
 
     def spikes(self, x: Tensor, k: int, every: Tensor) -> tuple[Tensor, Tensor]:
-        """Spike times ``[N, C * neurons, k]`` (ms) and counts ``[N, C * neurons]``."""
+        """Spike times ``[N, C * neurons, k]`` (ms) and counts ``[N, C * neurons]``: the sample
+        loop scripted (an ONNX ``Loop``) or as a scan operator (``torch.export``: a ``Scan``)."""
         gain = self.inv_thr.to(x.dtype)
+        if not torch.jit.is_scripting():  # (TorchScript compiles nothing inside this branch)
+            if torch.compiler.is_exporting():
+                return self._scanned(x, k, every, gain)
         return lif_first_spikes(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
+
+    @torch.jit.unused
+    def _scanned(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:
+        return lif_first_spikes_op(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
 
     def forward(self, x: Tensor) -> Tensor:
         return self.spikes(x, self.k, self.every)[0]
@@ -133,8 +142,6 @@ class LIFPopulationEncoder(SpikeEncoder):
     """Population of LIF analog-to-spike converters per channel; see the module docstring."""
 
     onnx_scripted = True
-    #: its sample loop holds a data-dependent inner loop (several spikes per sample)
-    onnx_exportable = False
     needs_fit = True
     codes_envelopes = True
     #: runs written before the prescaler existed load with every = 1 (their first-k behaviour)

@@ -131,13 +131,52 @@ def lif_first_spikes(
     # global spike number kept in each slot: m, 2m, ..., k m
     wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
     for i in range(w):
-        d = (drive[:, :, i].unsqueeze(-1) * g).flatten(1)
-        fired, s1, isi, v = lif_hold_sample(v, d, dt_ms, tau_ms)
-        j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
-        hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
-        t_abs = i * dt_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)
-        times = torch.where(hit, t_abs, times)
-        count = count + fired
+        v, count, times = first_spikes_step(
+            v, count, times, drive[:, :, i], i * dt_ms, g, wanted, dt_ms, tau_ms
+        )
+    return times, count
+
+
+def first_spikes_step(
+    v: Tensor,
+    count: Tensor,
+    times: Tensor,
+    drive_i: Tensor,
+    t0_ms: float,
+    gain: Tensor,
+    wanted: Tensor,
+    dt_ms: float,
+    tau_ms: float,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """One sample of :func:`lif_first_spikes`: ``drive_i [N, C]`` held from ``t0_ms``; returns the
+    converters' potential, spike counts and kept spike times after it."""
+    d = (drive_i.unsqueeze(-1) * gain).flatten(1)
+    fired, s1, isi, v = lif_hold_sample(v, d, dt_ms, tau_ms)
+    j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
+    hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
+    t_abs = t0_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)
+    return v, count + fired, torch.where(hit, t_abs, times)
+
+
+def lif_first_spikes_op(
+    drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor, gain: Tensor
+) -> tuple[Tensor, Tensor]:
+    """:func:`lif_first_spikes` with its sample loop as one scan operator (``torch.export``
+    writes an ONNX ``Scan``; not scriptable), the same step (:func:`first_spikes_step`)."""
+    from torch._higher_order_ops.scan import scan
+
+    g = gain.to(drive.dtype)
+    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
+    m = every.to(drive.dtype).view(1, a)
+    wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    init = (drive.new_zeros(n, a), drive.new_zeros(n, a), drive.new_full((n, a, k), math.inf))
+    t0 = torch.arange(w, dtype=drive.dtype) * dt_ms
+
+    def step(carry, x):
+        v, count, times = first_spikes_step(*carry, x[0], x[1], g, wanted, dt_ms, tau_ms)
+        return (v, count, times), v.new_zeros(1)  # (a scan must give an output per step)
+
+    (_, count, times), _ = scan(step, init, (drive.permute(2, 0, 1), t0))
     return times, count
 
 

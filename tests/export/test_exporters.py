@@ -32,10 +32,9 @@ def _opset(model: onnx.ModelProto) -> int:
     return {o.domain: o.version for o in model.opset_import}[""]
 
 
-#: traced encoder x model pairs (the activity gate's data-dependent row count among them), the
-#: conv SNN (scripted for the older exporter: its scans as Scan nodes here), and the LIF
-#: population encoder (Loop nodes: always the TorchScript-based exporter) chained to a model
-#: part from torch.export (opsets 17 and 18 in one graph)
+#: encoder x model pairs: the activity gate's data-dependent row count, the conv SNN and the LIF
+#: population (scripted for the older exporter: their loops as Scan nodes here; bands' default
+#: code is the LIF population)
 PIPELINES = [
     {"encoder": "delta", "model": "csnn", "csnn_channels": 2},
     {"encoder": "gwt", "model": "tempotron", "gate": 0.5},
@@ -57,15 +56,25 @@ def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_pa
     rep = export_pipeline(pipe, tmp_path / "m.onnx", X, exporter="torch.export")  # verified
     model = onnx.load(str(tmp_path / "m.onnx"))
     ops = [n.op_type for n in model.graph.node]
-    # Loops only from an encoder the new exporter cannot trace (lif; bands' default code is lif)
-    assert ("Loop" in ops) == (not pipe.encoder.onnx_exportable)
-    assert ("Scan" in ops) == (flat["model"] == "csnn")
+    assert "Loop" not in ops
+    assert ("Scan" in ops) == (flat["model"] == "csnn" or flat["encoder"] in ("lif", "bands"))
     assert _opset(model) == 18
     assert rep["nodes"] <= operator_nodes(legacy)
     assert rep["prediction_agreement"] == 1.0
     got = PipelineSession(str(tmp_path / "m.onnx")).run(X)
     ref = pipe.scores(pipe.encode(X)).numpy()
     assert np.abs(got - ref).max() <= 1e-4 * max(1.0, np.abs(ref).max())
+
+
+def test_a_part_only_the_older_exporter_writes_is_chained_at_the_newer_opset(tmp_path):
+    """A component that cannot trace under torch.export (``onnx_exportable`` False) is written
+    by the TorchScript-based exporter (opset 17, Loops) and chained to a torch.export part."""
+    pipe, X = _calibrated(400.0, 200, 3, encoder="lif", model="snn", snn_hidden=8)
+    pipe.encoder.onnx_exportable = False
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", X, exporter="torch.export")  # verified
+    model = onnx.load(str(tmp_path / "m.onnx"))
+    assert "Loop" in [n.op_type for n in model.graph.node] and _opset(model) == 18
+    assert rep["prediction_agreement"] == 1.0
 
 
 def test_the_stream_graph_from_the_supported_exporter_matches_the_legacy_one(tmp_path):
