@@ -243,14 +243,15 @@ def realtime_session(
     2 kHz, onnxruntime, 1 thread, batch 1, classifying a window every half window (random
     weights: cost does not depend on them); ``hop``: the scalogram's frame hop. ``form``:
     ``gwt`` (the window graph of the FFT-exact Gabor scalogram), ``cgwt`` (the window graph of
-    the causal Gabor bank) or ``cgwt stream`` (its stream graph: each call takes the next half
-    window and the state, every sample transformed once). With ``touched`` (window graphs of
-    ``gwt``), the activity gate is on (0.5 x the training RMS) and only that many taxels carry
-    signal (the others 1 % of it): the graph encodes only the touched ones. ``int8``: the
+    the causal Gabor bank), ``cgwt stream`` (its stream graph: each call takes the next half
+    window and the state, every sample transformed once), or that graph's encoder or model part
+    alone (``cgwt stream encoder`` / ``cgwt stream model``: :func:`_stream_call`). With
+    ``touched`` (window graphs of ``gwt``), the activity gate is on (0.5 x the training RMS)
+    and only that many taxels carry signal (the others 1 % of it): the graph encodes only the
+    touched ones. ``int8``: the
     graph's window-side MatMuls dynamically quantised (:func:`quantize_int8`; the Convs and the
     LSTM stay float32). ``snn``: its hidden units and time step (ms)."""
     from ...export import export_pipeline, quantize_int8
-    from ...export.stream import build_stream_graph, initial_state, stream_session
     from ...service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
@@ -266,15 +267,8 @@ def realtime_session(
     info = {"form": form, "window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
             "precision": "int8" if int8 else "float32", "snn_hidden": snn[0],
             "snn_dt_ms": snn[1], "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
-    if form.endswith("stream"):
-        graph, _, _ = build_stream_graph(pipe)
-        sess = stream_session(graph)
-        half = window // 2
-        feeds = {"window": X[:1, :, :half].copy(), **initial_state(pipe, X[:1, :, :half])}
-        for i in sess.get_inputs():
-            feeds.setdefault(i.name, np.zeros((1, int(i.shape[1])), np.float32))
-        outs = [o.name for o in sess.get_outputs()]
-        return (lambda: sess.run(outs, feeds)), info
+    if form.startswith(_S):
+        return _stream_call(pipe, X, form), info
     path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
@@ -284,6 +278,45 @@ def realtime_session(
     if touched is not None:
         x[:, touched:] *= 0.01
     return (lambda: sess.run(x)), info
+
+
+def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], object]:
+    """A stream-graph row's call: the whole graph (``cgwt stream``: the next half window and
+    the state in, scores and state out), its encoder part alone (``... encoder``: up to the
+    window's spikes and the encoder's next state) or its model part alone (``... model``: one
+    window's spikes and the model's state in)."""
+    import onnx
+    import onnxruntime as ort
+
+    from ...core.onnx_prune import prune_to_outputs
+    from ...export.onnx import build_model_part
+    from ...export.stream import build_stream_graph, initial_state, stream_session
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    if form == _SM:
+        model = build_model_part(pipe)
+        sess = ort.InferenceSession(model.SerializeToString(), opts,
+                                    providers=["CPUExecutionProvider"])  # fmt: skip
+        feeds = {"spikes_in": pipe.encode(X[:1]).numpy().astype(np.float32)}
+    else:
+        graph, names, _ = build_stream_graph(pipe)
+        if form == _SE:  # the spikes and the encoder's next state only
+            graph = onnx.ModelProto.FromString(graph.SerializeToString())
+            keep = ["spikes", *(f"{n}_out" for n, _ in names)]
+            graph.graph.output.append(onnx.helper.make_tensor_value_info("spikes", 1, None))
+            prune_to_outputs(graph.graph, keep)
+            sess = ort.InferenceSession(graph.SerializeToString(), opts,
+                                        providers=["CPUExecutionProvider"])  # fmt: skip
+        else:
+            sess = stream_session(graph)
+        half = pipe.window // 2
+        feeds = {"window": X[:1, :, :half].copy(), **initial_state(pipe, X[:1, :, :half])}
+    feeds = {k: v for k, v in feeds.items() if k in {i.name for i in sess.get_inputs()}}
+    for i in sess.get_inputs():
+        feeds.setdefault(i.name, np.zeros((1, int(i.shape[1])), np.float32))
+    outs = [o.name for o in sess.get_outputs()]
+    return lambda: sess.run(outs, feeds)
 
 
 def realtime_rows(
@@ -312,12 +345,15 @@ SMALL_SNN = (16, 10.0)
 #: the real-time rows: (GWT hop, touched taxels with the activity gate on (None = gate off),
 #: int8 MatMuls, SNN (hidden units, step ms), form (see :func:`realtime_session`))
 _G, _C, _S = "gwt", "cgwt", "cgwt stream"
+#: the stream graph's two parts timed alone (where its time goes, in the same run)
+_SE, _SM = "cgwt stream encoder", "cgwt stream model"
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
            (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
            (10, 1, True, (64, 5.0), _G), (10, None, True, SMALL_SNN, _G), (10, 1, True, SMALL_SNN, _G),
            (10, None, False, (64, 5.0), _C), (10, None, False, (64, 5.0), _S),
-           (10, None, False, SMALL_SNN, _S))  # fmt: skip
+           (10, None, False, (64, 5.0), _SE), (10, None, False, (64, 5.0), _SM),
+           (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -377,8 +413,13 @@ def format_rt(rt: dict) -> str:
     if rt.get("precision") == "int8":
         scene += ", int8 MatMuls"
     snn = f"SNN ({rt.get('snn_hidden', 64)} units, {rt.get('snn_dt_ms', 5.0):g} ms step)"
-    form = {"gwt": "GWT", "cgwt": "causal GWT", "cgwt stream": "causal GWT stream graph"}
-    return (f"{form[rt.get('form', 'gwt')]} (hop {rt['gwt_hop']}) + {snn}, 12 taxels @ 2 kHz{scene}, "
+    form = rt.get("form", "gwt")
+    name = {"gwt": f"GWT (hop {rt['gwt_hop']}) + {snn}",
+            "cgwt": f"causal GWT (hop {rt['gwt_hop']}) + {snn}",
+            _S: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}",
+            _SE: f"causal GWT stream graph (hop {rt['gwt_hop']}), its encoder part alone",
+            _SM: f"{snn} alone (one window's spikes in)"}[form]  # fmt: skip
+    return (f"{name}, 12 taxels @ 2 kHz{scene}, "
             f"{rt['window_samples']}-sample windows every half "
             f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
             f"{rt['ms_per_signal_s']:.2f} ms per second of signal = "
