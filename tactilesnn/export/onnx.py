@@ -6,10 +6,12 @@ streaming state (:attr:`~tactilesnn.models.base.SpikeModel.state_names`, e.g. th
 ``h_state`` / ``o_state`` / ``hs_state``, ``[batch, units]``) takes it as extra inputs and returns
 ``<name>_out``, so a client can carry it across consecutive windows; zeros start a fresh stream.
 
-Each component owns its graph (``onnx_module()``): the encoder's (channel selection and clock
-afferents added here) is chained into the model's with ``onnx.compose``; scripted components
-(time loops) become ONNX ``Loop``s and the SNN's scans single ``LSTM`` / ``MatMul`` nodes
-(:mod:`~tactilesnn.models.onnx_ops`), so the graph does not grow with the number of steps.
+Each component owns its graph (``onnx_module()``), written by the ``torch.export``-based
+exporter unless another is chosen (:func:`~tactilesnn.core.onnx_graph.component_to_onnx`); the
+encoder's (channel selection and clock afferents added here) is chained into the model's with
+``onnx.compose``; time loops become ONNX ``Scan`` nodes (``Loop`` nodes from the older exporter)
+and the SNN's scans single ``LSTM`` / ``MatMul`` nodes (:mod:`~tactilesnn.models.onnx_ops`), so
+the graph does not grow with the number of steps.
 Every export is run in onnxruntime and compared with torch before it is written; a graph whose
 state inputs do not change its outputs is refused.
 """
