@@ -262,18 +262,13 @@ class _ConvSNNGraph(nn.Module):
         raster = spike_raster(spikes, self.dt, self.steps)
         steps, batch = raster.shape[0], raster.shape[1]
         cur1 = c.conv1(c.conv_input(raster)).reshape(steps, batch, c.n1)
-        if torch.jit.is_scripting():
-            s1, h1_new = lif_scan(cur1, h1, c.beta, 1.0, True)
-            s2, h2_new = lif_scan(c.layer2_input(s1), h2, c.beta, 1.0, True)
-            out, o_new = li_scan(c.readout_input(s2, raster), o, c.beta)
-        else:
-            s1, h1_new, s2, h2_new, out, o_new = self._scans(cur1, raster, h1, h2, o)
+        if not torch.jit.is_scripting():  # (TorchScript compiles nothing inside this branch)
+            if torch.compiler.is_exporting():
+                s1, h1_new = lif_scan_op(cur1, h1, c.beta, 1.0, True)
+                s2, h2_new = lif_scan_op(c.layer2_input(s1), h2, c.beta, 1.0, True)
+                out, o_new = li_scan_op(c.readout_input(s2, raster), o, c.beta)
+                return reduce_readout(out, self.readout), h1_new, h2_new, o_new
+        s1, h1_new = lif_scan(cur1, h1, c.beta, 1.0, True)
+        s2, h2_new = lif_scan(c.layer2_input(s1), h2, c.beta, 1.0, True)
+        out, o_new = li_scan(c.readout_input(s2, raster), o, c.beta)
         return reduce_readout(out, self.readout), h1_new, h2_new, o_new
-
-    @torch.jit.unused
-    def _scans(self, cur1: Tensor, raster: Tensor, h1: Tensor, h2: Tensor, o: Tensor):
-        c = self.core
-        s1, h1_new = lif_scan_op(cur1, h1, c.beta, 1.0, True)
-        s2, h2_new = lif_scan_op(c.layer2_input(s1), h2, c.beta, 1.0, True)
-        out, o_new = li_scan_op(c.readout_input(s2, raster), o, c.beta)
-        return s1, h1_new, s2, h2_new, out, o_new
