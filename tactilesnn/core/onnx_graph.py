@@ -72,8 +72,9 @@ def component_to_onnx(
 ) -> onnx.ModelProto:
     """One component's graph (dynamic batch axis 0 on every input): :func:`exported_to_onnx`
     (opset at least 18) unless the component is not ``exportable`` (traces only as a scripted
-    module), :func:`chosen_exporter` is ``torchscript`` or ``onnxscript`` is not installed,
-    then :func:`torch_to_onnx` (``scripted``: scripted first)."""
+    module), :func:`chosen_exporter` is ``torchscript``, ``onnxscript`` is not installed or
+    torch.export fails on it (logged), then :func:`torch_to_onnx` (``scripted``: scripted
+    first)."""
     if exportable and chosen_exporter(exporter) == "torch.export":
         with torch.no_grad():  # builds cached tensors: torch.export refuses tensors assigned
             module(*args)  # while it traces
@@ -81,6 +82,11 @@ def component_to_onnx(
             return exported_to_onnx(module, args, inputs, outputs, opset)
         except ImportError as e:
             log.warning("onnxscript is not installed (%s): the TorchScript-based exporter", e)
+        except Exception as e:  # a component torch.export cannot trace (a user's own, say)
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            log.warning("torch.export could not export %s (%s): the TorchScript-based exporter "
+                        "writes it; the export is verified against torch either way",
+                        type(module).__name__, first[:200])  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         return torch_to_onnx(
             module, args, Path(tmp) / "part.onnx", inputs, outputs, scripted, opset

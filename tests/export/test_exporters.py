@@ -2,12 +2,16 @@
 exports with the TorchScript-based one for speed, see ``tests/conftest.py``): every traced
 component and the stream graph, with the same parity checks and no more operator nodes."""
 
+import logging
+
 import numpy as np
 import onnx
+import onnxruntime as ort
 import pytest
+import torch
 
 from tactilesnn.config import PipelineConfig
-from tactilesnn.core.onnx_graph import chosen_exporter, operator_nodes
+from tactilesnn.core.onnx_graph import chosen_exporter, component_to_onnx, operator_nodes
 from tactilesnn.export import export_pipeline
 from tactilesnn.export.onnx import build_graph
 from tactilesnn.export.stream import export_stream, stream_windows
@@ -99,3 +103,22 @@ def test_the_exporter_is_chosen_by_name_and_an_unknown_one_is_refused(monkeypatc
         ValueError, match=r"unknown ONNX exporter 'dynamo' \(from TACTILESNN_ONNX_EXPORTER\)"
     ):
         chosen_exporter()
+
+
+class _DataDependent(torch.nn.Module):
+    """A branch on a tensor's value: torch.export cannot trace it, TorchScript traces one side."""
+
+    def forward(self, x):
+        if float(x.abs().max()) > 0:
+            return x * 2.0
+        return x
+
+
+def test_a_component_torch_export_refuses_falls_back_to_the_older_exporter(caplog):
+    x = torch.ones(2, 3)
+    with caplog.at_level(logging.WARNING, logger="tactilesnn.core.onnx_graph"):
+        model = component_to_onnx(_DataDependent(), (x,), ["x"], ["y"], exporter="torch.export")
+    assert "torch.export could not export _DataDependent" in caplog.text
+    assert _opset(model) == 17  # the TorchScript-based exporter's
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    assert np.allclose(sess.run(None, {"x": x.numpy()})[0], 2.0)
