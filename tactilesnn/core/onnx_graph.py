@@ -42,8 +42,8 @@ def _translation_table() -> dict:
 EXPORTER_ENV = "TACTILESNN_ONNX_EXPORTER"
 #: ``torch.export``: the supported ``torch.export``-based exporter (the default); ``torchscript``:
 #: the deprecated TorchScript-based one, 5-15x faster to export (the test suite's choice, where
-#: dedicated tests cover both); a component it cannot trace (``onnx_exportable`` False: the lif
-#: encoder's data-dependent loop) always takes the TorchScript-based one
+#: dedicated tests cover both); a component marked ``onnx_exportable = False`` (none is now)
+#: or one that torch.export refuses takes the TorchScript-based one
 EXPORTERS = ("torch.export", "torchscript")
 
 log = logging.getLogger(__name__)
