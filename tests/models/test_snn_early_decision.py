@@ -8,7 +8,9 @@ import pytest
 import torch
 
 from tactilesnn.models.functional import (
+    POOLED_MAX_STEPS,
     decide_by_margin,
+    pooled_prefix_max,
     prefix_max,
     reduce_readout,
     running_readout,
@@ -20,6 +22,38 @@ from tactilesnn.models.snn import SNNConfig, SNNModel
 def test_prefix_max_is_the_running_maximum(steps):
     x = torch.randn(steps, 3, 4, generator=torch.Generator().manual_seed(steps))
     assert torch.equal(prefix_max(x), torch.cummax(x, 0).values)
+
+
+@pytest.mark.parametrize("steps", [1, 2, 7, 100, POOLED_MAX_STEPS])
+def test_the_pooled_running_maximum_is_exact(steps):
+    x = torch.randn(steps, 3, 4, generator=torch.Generator().manual_seed(steps))
+    x[steps // 2] = -1e30  # far below the rest: the -inf padding never wins
+    assert torch.equal(pooled_prefix_max(x), torch.cummax(x, 0).values)
+
+
+@pytest.mark.parametrize("exporter", ["torch.export", "torchscript"])
+@pytest.mark.parametrize("steps", [100, POOLED_MAX_STEPS + 1])
+def test_the_exported_running_maximum_is_one_max_pool_up_to_its_step_limit(exporter, steps):
+    import onnx
+    import onnxruntime as ort
+
+    from tactilesnn.core.onnx_graph import component_to_onnx
+
+    class Running(torch.nn.Module):  # batch first, as components take it
+        def forward(self, x):
+            return prefix_max(x.transpose(0, 1)).transpose(0, 1)
+
+    x = torch.randn(2, steps, 3, generator=torch.Generator().manual_seed(0))
+    model = component_to_onnx(Running(), (x,), ["x"], ["run"], exporter=exporter)
+    ops = [n.op_type for n in model.graph.node]
+    pooled = steps <= POOLED_MAX_STEPS
+    assert ("MaxPool" in ops) == pooled and (ops.count("Max") == 0) == pooled
+    onnx.checker.check_model(model)
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    for batch in (1, 5):  # the batch axis stays free
+        xb = torch.randn(batch, steps, 3, generator=torch.Generator().manual_seed(batch))
+        (got,) = sess.run(None, {"x": xb.numpy()})
+        np.testing.assert_array_equal(got, torch.cummax(xb, 1).values.numpy())
 
 
 @pytest.mark.parametrize("readout", ["count", "max", "mean"])

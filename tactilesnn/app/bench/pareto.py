@@ -244,8 +244,9 @@ def realtime_session(
     weights: cost does not depend on them); ``hop``: the scalogram's frame hop. ``form``:
     ``gwt`` (the window graph of the FFT-exact Gabor scalogram), ``cgwt`` (the window graph of
     the causal Gabor bank), ``cgwt stream`` (its stream graph: each call takes the next half
-    window and the state, every sample transformed once), or that graph's encoder or model part
-    alone (``cgwt stream encoder`` / ``cgwt stream model``: :func:`_stream_call`). With
+    window and the state, every sample transformed once), that graph's encoder or model part
+    alone (``cgwt stream encoder`` / ``cgwt stream model``: :func:`_stream_call`), or its
+    heavy operators alone (``cgwt stream heavy``: :func:`heavy_operators`, the floor). With
     ``touched`` (window graphs of ``gwt``), the activity gate is on (0.5 x the training RMS)
     and only that many taxels carry signal (the others 1 % of it): the graph encodes only the
     touched ones. ``int8``: the
@@ -283,8 +284,9 @@ def realtime_session(
 def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], object]:
     """A stream-graph row's call: the whole graph (``cgwt stream``: the next half window and
     the state in, scores and state out), its encoder part alone (``... encoder``: up to the
-    window's spikes and the encoder's next state) or its model part alone (``... model``: one
-    window's spikes and the model's state in)."""
+    window's spikes and the encoder's next state), its model part alone (``... model``: one
+    window's spikes and the model's state in), or the floor (``... heavy``: the whole graph's
+    :func:`heavy_operators` alone)."""
     import onnx
     import onnxruntime as ort
 
@@ -315,8 +317,72 @@ def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], 
     feeds = {k: v for k, v in feeds.items() if k in {i.name for i in sess.get_inputs()}}
     for i in sess.get_inputs():
         feeds.setdefault(i.name, np.zeros((1, int(i.shape[1])), np.float32))
+    if form == _SH:
+        heavy, feeds = heavy_operators(graph, feeds)
+        sess = ort.InferenceSession(heavy.SerializeToString(), opts,
+                                    providers=["CPUExecutionProvider"])  # fmt: skip
     outs = [o.name for o in sess.get_outputs()]
     return lambda: sess.run(outs, feeds)
+
+
+#: an operator doing at least this many multiply-adds per call counts as heavy
+HEAVY_MACS = 100_000
+
+
+def heavy_operators(
+    model, feeds: dict[str, np.ndarray], min_macs: int = HEAVY_MACS
+) -> tuple[object, dict[str, np.ndarray]]:
+    """The floor of a graph's cost: its ``Conv``, ``MatMul`` / ``Gemm`` and ``LSTM`` nodes that
+    do at least ``min_macs`` multiply-adds on ``feeds``, alone in one graph (each node's inputs
+    as graph inputs, with the values the whole graph computes for them on ``feeds``, returned
+    as the new graph's feeds). No exact rewrite of the rest of the graph can make a call
+    cheaper than this graph's call."""
+    import onnx
+    import onnxruntime as ort
+
+    kinds = {"Conv", "MatMul", "Gemm", "LSTM"}
+    inits = {i.name: i for i in model.graph.initializer}
+    nodes = [n for n in model.graph.node if n.op_type in kinds]
+    wanted = sorted({v for n in nodes for v in (*n.input, *n.output) if v and v not in inits})
+    probe = onnx.ModelProto()
+    probe.CopyFrom(model)
+    have = {o.name for o in probe.graph.output} | {i.name for i in probe.graph.input}
+    probe.graph.output.extend(onnx.ValueInfoProto(name=v) for v in wanted if v not in have)
+    opts = ort.SessionOptions()
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+    sess = ort.InferenceSession(probe.SerializeToString(), opts,
+                                providers=["CPUExecutionProvider"])  # fmt: skip
+    names = [o.name for o in sess.get_outputs()]
+    values = {**feeds, **dict(zip(names, sess.run(names, feeds), strict=True))}
+    for i in inits.values():
+        values[i.name] = onnx.numpy_helper.to_array(i)
+
+    def macs(n) -> int:
+        out = values[n.output[0]]
+        if n.op_type == "LSTM":  # seq x batch x 4H gates, each over input + hidden
+            x, w = values[n.input[0]], values[n.input[1]]
+            hidden = w.shape[1] // 4
+            return int(x.shape[0] * x.shape[1] * w.shape[1] * (w.shape[2] + hidden))
+        if n.op_type == "Conv":  # each output: in-channels per group x kernel
+            w = values[n.input[1]]
+            return int(out.size * np.prod(w.shape[1:]))
+        return int(out.size * values[n.input[0]].shape[-1])
+
+    def info(v: str):
+        dtype = onnx.helper.np_dtype_to_tensor_dtype(values[v].dtype)
+        return onnx.helper.make_tensor_value_info(v, dtype, values[v].shape)
+
+    keep = [n for n in nodes if macs(n) >= min_macs]
+    graph = onnx.helper.make_graph(
+        keep, "heavy_operators",
+        [info(v) for v in dict.fromkeys(i for n in keep for i in n.input if i and i not in inits)],
+        [info(o) for n in keep for o in n.output if o],
+        [inits[i] for i in dict.fromkeys(i for n in keep for i in n.input) if i in inits],
+    )  # fmt: skip
+    heavy = onnx.helper.make_model(graph, opset_imports=model.opset_import)
+    heavy.ir_version = model.ir_version
+    fed = {i.name: np.ascontiguousarray(values[i.name]) for i in graph.input}
+    return heavy, fed
 
 
 def realtime_rows(
@@ -347,12 +413,15 @@ SMALL_SNN = (16, 10.0)
 _G, _C, _S = "gwt", "cgwt", "cgwt stream"
 #: the stream graph's two parts timed alone (where its time goes, in the same run)
 _SE, _SM = "cgwt stream encoder", "cgwt stream model"
+#: the floor: the stream graph's heavy operators alone (:func:`heavy_operators`)
+_SH = "cgwt stream heavy"
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
            (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
            (10, 1, True, (64, 5.0), _G), (10, None, True, SMALL_SNN, _G), (10, 1, True, SMALL_SNN, _G),
            (10, None, False, (64, 5.0), _C), (10, None, False, (64, 5.0), _S),
            (10, None, False, (64, 5.0), _SE), (10, None, False, (64, 5.0), _SM),
+           (10, None, False, (64, 5.0), _SH),
            (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM))  # fmt: skip
 
 
@@ -418,7 +487,9 @@ def format_rt(rt: dict) -> str:
             "cgwt": f"causal GWT (hop {rt['gwt_hop']}) + {snn}",
             _S: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}",
             _SE: f"causal GWT stream graph (hop {rt['gwt_hop']}), its encoder part alone",
-            _SM: f"{snn} alone (one window's spikes in)"}[form]  # fmt: skip
+            _SM: f"{snn} alone (one window's spikes in)",
+            _SH: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}: its Conv, MatMul "
+                 f"and LSTM nodes of >= {HEAVY_MACS:,} multiply-adds alone"}[form]  # fmt: skip
     return (f"{name}, 12 taxels @ 2 kHz{scene}, "
             f"{rt['window_samples']}-sample windows every half "
             f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
