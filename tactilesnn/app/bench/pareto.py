@@ -422,7 +422,8 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, False, (64, 5.0), _C), (10, None, False, (64, 5.0), _S),
            (10, None, False, (64, 5.0), _SE), (10, None, False, (64, 5.0), _SM),
            (10, None, False, (64, 5.0), _SH),
-           (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM))  # fmt: skip
+           (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM),
+           (10, None, False, SMALL_SNN, _SH))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
