@@ -71,6 +71,11 @@ FULL = (
     # the causal (streamable) Gabor bank with the same code
     Point("cgwt20+tempotron", {"encoder": "cgwt"}),
     Point("cgwt20+readout", {"encoder": "cgwt", "model": "readout"}),
+    # 20 frames per window (the default task's 100-sample windows): the real-time rows' fastest
+    Point(
+        "cgwt20 hop5+snn16 dt10",
+        {"encoder": "cgwt", "cgwt_hop": 5, "model": "snn", "snn_hidden": 16, "snn_dt_ms": 10.0},
+    ),
 )
 QUICK = (Point("gwt10 hop5+tempotron", {"n_bands": 10, "gwt_hop": 5}), Point("stft10+readout",
          {"encoder": "stft", "n_bands": 10, "model": "readout"}))  # fmt: skip
@@ -247,7 +252,7 @@ def realtime_session(
     window and the state, every sample transformed once), that graph's encoder or model part
     alone (``cgwt stream encoder`` / ``cgwt stream model``: :func:`_stream_call`), or its
     heavy operators alone (``cgwt stream heavy``: :func:`heavy_operators`, the floor). With
-    ``touched`` (window graphs of ``gwt``), the activity gate is on (0.5 x the training RMS)
+    ``touched`` (window graphs, ``gwt`` or ``cgwt``), the activity gate is on (0.5 x the training RMS)
     and only that many taxels carry signal (the others 1 % of it): the graph encodes only the
     touched ones. ``int8``: the
     graph's window-side MatMuls dynamically quantised (:func:`quantize_int8`; the Convs and the
@@ -423,7 +428,10 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, False, (64, 5.0), _SE), (10, None, False, (64, 5.0), _SM),
            (10, None, False, (64, 5.0), _SH),
            (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM),
-           (10, None, False, SMALL_SNN, _SH))  # fmt: skip
+           (10, None, False, SMALL_SNN, _SH),
+           # 20 frames per window: the sweep's "cgwt20 hop5+snn16 dt10" at 2 kHz
+           (50, None, False, (64, 5.0), _S), (50, None, False, SMALL_SNN, _S),
+           (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
