@@ -189,37 +189,34 @@ class CausalGaborScalogram(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``[batch, channels, samples]`` -> magnitude ``[batch, channels, bands, samples // hop]``."""
-        re, im = self.window_frames(x).unbind(3)  # one Split (a size-2 sum costs more in a graph)
+        re, im = self.analytic(x)  # (a size-2 sum over a stacked axis costs more in a graph)
         return torch.sqrt(re * re + im * im)
 
     def analytic(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Real and imaginary parts ``[batch, channels, bands, frames]`` of one window (from the
-        zero state)."""
-        y = self.window_frames(x)
-        return y[:, :, :, 0], y[:, :, :, 1]
-
-    def window_frames(self, x: torch.Tensor) -> torch.Tensor:
-        """``[batch, channels, bands, 2 (re, im), frames]`` of one window from the zero state: one
-        strided convolution, then the frame recursion one block at a time."""
+        """Real and imaginary parts ``[batch, channels, bands, frames]`` of one window from the
+        zero state: one strided convolution, then the frame recursion one block at a time."""
         b, c, n = x.shape
         frames = n // self.hop
         if frames < 1:
             raise ValueError(f"a window of {n} samples holds no frame of hop {self.hop}")
         rows = x.reshape(b * c, 1, n)[..., : frames * self.hop]
         past = rows[..., :1].expand(-1, -1, self.n_taps - 1)  # the constant past
-        y, _ = self.frames_from(torch.cat([past, rows], -1), None, want_state=False)
-        return y.reshape(b, c, self.n_bands, 2, frames)
+        re, im, _ = self.frames_from(torch.cat([past, rows], -1), None, want_state=False)
+        shape = (b, c, self.n_bands, frames)
+        return re.reshape(shape), im.reshape(shape)
 
     def frames_from(
         self, buf: torch.Tensor, state: torch.Tensor | None, want_state: bool = True
-    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """The frames of ``buf [rows, 1, taps - 1 + frames * hop]`` (the ``taps - 1`` samples
         before the first frame's hop, then the hops) continuing from ``state [rows, bands, 2 K]``
-        (real parts, then imaginary; None: zero). Returns ``y [rows, bands, 2, frames]`` (real,
-        imaginary) and the state after the last frame (None unless ``want_state``).
+        (real parts, then imaginary; None: zero). Returns the real and imaginary parts
+        ``[rows, bands, frames]`` and the state after the last frame (None unless
+        ``want_state``).
 
         Each block of ``f`` frames is one real MatMul per band: ``[v_re, v_im, s_re, s_im] @ W``
-        gives ``[y_re, y_im, s'_re, s'_im]`` (:meth:`block_matrix`)."""
+        gives ``[y_re, y_im, s'_re, s'_im]`` (:meth:`block_matrix`), cut by one ``split`` (one
+        ``Split`` node in a graph, where slicing and squeezing took seven)."""
         rows = buf.shape[0]
         frames = (buf.shape[-1] - (self.n_taps - 1)) // self.hop
         nb = self.n_bands
@@ -227,7 +224,7 @@ class CausalGaborScalogram(nn.Module):
         v = nn.functional.conv1d(buf[..., self.hop - 1 :], self.fir.to(buf.dtype), stride=self.hop)
         v = v.reshape(rows, nb, 2, frames)  # band-major channels: (band, re / im)
         block = min(frames, BLOCK_FRAMES)
-        outs = []
+        res, ims = [], []
         for start in range(0, frames, block):
             f = min(block, frames - start)
             keep = want_state or start + f < frames
@@ -237,13 +234,14 @@ class CausalGaborScalogram(nn.Module):
                 u = torch.cat([u, state], -1)
             w = self.block_matrix(f, state is not None, keep, buf.dtype)
             out = (u.transpose(0, 1) @ w).transpose(0, 1)  # [rows, bands, 2 f (+ 2 K)]
-            outs.append(
-                out[..., : 2 * f].reshape(rows, nb, 2, f) if keep else out.reshape(rows, nb, 2, f)
-            )
+            parts = out.split([f, f, out.shape[-1] - 2 * f] if keep else [f, f], -1)
+            res.append(parts[0])
+            ims.append(parts[1])
             if keep:
-                state = out[..., 2 * f :]
-        y = outs[0] if len(outs) == 1 else torch.cat(outs, -1)
-        return y, (state if want_state else None)
+                state = parts[2]
+        re = res[0] if len(res) == 1 else torch.cat(res, -1)
+        im = ims[0] if len(ims) == 1 else torch.cat(ims, -1)
+        return re, im, (state if want_state else None)
 
     def block_matrix(
         self, f: int, state_in: bool, state_out: bool, dtype: torch.dtype

@@ -171,8 +171,8 @@ class CausalStreamCode(nn.Module):
         b, c, n = chunk.shape
         nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
-        y, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
-        mag = _modulus(*y.unbind(2)).reshape(b, c, nb, self.f_half)  # [B, C, bands, F]
+        re, im, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
+        mag = _modulus(re, im).reshape(b, c, nb, self.f_half)  # [B, C, bands, F]
         window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
         # the code is scale-free per window and channel; dividing by the window's largest frame
         # keeps its squares in float32 range whatever the sensor's units (the window graph
