@@ -34,6 +34,7 @@ from .config import (
 )
 from .core.checks import check_float32_range
 from .core.data import WindowDataset
+from .core.device import resolve_device
 from .encoders import ENCODERS
 from .models.base import seeded
 from .pipeline import SpikePipeline
@@ -137,10 +138,11 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         pipe = SpikePipeline(config, data.fs_hz, data.X.shape[-1], data.channel_names,
                              [str(c) for c in self.classes_])  # fmt: skip
         pipe.calibrate(fit_set.X)
-        spikes = pipe.encode(fit_set.X, progress=self.progress)
+        dev = resolve_device(config.train.device)  # the encoder runs where the training does
+        spikes = pipe.encode(fit_set.X, progress=self.progress, device=dev)
         val = None
         if val_set is not None:
-            val = (pipe.encode(val_set.X), val_set.y)
+            val = (pipe.encode(val_set.X, device=dev), val_set.y)
         trainer = Trainer(pipe.model, config.train, progress=self.progress)
         self.history_ = trainer.fit(spikes, fit_set.y, val=val, groups=fit_set.scan)
         self.pipeline_ = pipe

@@ -119,13 +119,16 @@ class SpikePipeline:
         if self.level is not None:
             self.level.fit(x)
 
-    def encode(self, X: np.ndarray, progress: bool = False) -> torch.Tensor:
-        """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent): the encoder's,
-        the level code's (one slot each), the clock's."""
+    def encode(
+        self, X: np.ndarray, progress: bool = False, device: torch.device | str | None = None
+    ) -> torch.Tensor:
+        """``X [N, C, W]`` -> spike times ``[N, afferents, k]`` (ms; inf = silent, on the CPU):
+        the encoder's (computed on ``device``, default the CPU), the level code's (one slot
+        each), the clock's."""
         n = np.shape(X)[0] if np.ndim(X) == 3 else 0
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
         x = self.encoder_input(X)
-        spikes = self.encoder.encode(x, progress=progress)
+        spikes = self.encoder.encode(x, progress=progress, device=device)
         if self.level is not None:
             spikes = torch.cat([spikes, self.level_spikes(x)], dim=1)
         if self.n_clock:

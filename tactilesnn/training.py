@@ -20,6 +20,7 @@ from sklearn.metrics import confusion_matrix
 
 from .config import PipelineConfig
 from .core.data import WindowDataset
+from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
 from .pipeline import SpikePipeline, accuracy_ci95
@@ -88,9 +89,10 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
         raise ValueError(f"this pipeline cannot be exported ({problem}); pass --no-export")
     t0 = time.perf_counter()
     pipe.calibrate(fit_set.X)
-    s_train = pipe.encode(fit_set.X, progress=progress)
-    s_val = pipe.encode(val_set.X, progress=progress) if val_set is not None else None
-    s_test = pipe.encode(test.X, progress=progress)
+    dev = resolve_device(config.train.device)  # the encoder runs where the training does
+    s_train = pipe.encode(fit_set.X, progress=progress, device=dev)
+    s_val = pipe.encode(val_set.X, progress=progress, device=dev) if val_set is not None else None
+    s_test = pipe.encode(test.X, progress=progress, device=dev)
     t_enc = time.perf_counter() - t0
     trainer = Trainer(pipe.model, config.train, progress=progress)
     history = trainer.fit(

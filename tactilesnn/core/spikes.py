@@ -56,7 +56,8 @@ def first_spike_times(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) 
     it in their exported graphs too.
     """
     cum = torch.cumsum(counts, dim=-1)
-    t = (t0_ms + torch.arange(cum.shape[-1], dtype=counts.dtype) * dt_ms).view(1, 1, -1)
+    t = torch.arange(cum.shape[-1], dtype=counts.dtype, device=counts.device)
+    t = (t0_ms + t * dt_ms).view(1, 1, -1)
     slots = []
     for j in range(int(k)):
         hit = cum >= float(j + 1)

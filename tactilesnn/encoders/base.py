@@ -91,9 +91,17 @@ class SpikeEncoder(nn.Module):
         return 64 * self.n_channels * self.window
 
     @torch.no_grad()
-    def encode(self, X: np.ndarray, budget_bytes: int = 1 << 27, progress: bool = False) -> Tensor:
-        """``X [N, channels, samples]`` -> spike times ``[N, afferents, max_spikes]`` (ms), in
-        batches of at most ``budget_bytes`` working memory (a progress bar if ``progress``)."""
+    def encode(
+        self,
+        X: np.ndarray,
+        budget_bytes: int = 1 << 27,
+        progress: bool = False,
+        device: torch.device | str | None = None,
+    ) -> Tensor:
+        """``X [N, channels, samples]`` -> spike times ``[N, afferents, max_spikes]`` (ms, on the
+        CPU), in batches of at most ``budget_bytes`` working memory (a progress bar if
+        ``progress``). ``device``: where the batches are encoded (default: the CPU); the encoder
+        is moved there for the call and back to the CPU after it."""
         self.check_fitted()
         arr = np.asarray(X)
         if arr.ndim != 3 or arr.shape[1:] != (self.n_channels, self.window):
@@ -105,9 +113,17 @@ class SpikeEncoder(nn.Module):
         starts = range(0, arr.shape[0], batch)
         bar = tqdm(starts, desc=f"encode ({self.registry_name})", unit="batch",
                    disable=not progress or len(starts) < 2)  # fmt: skip
-        for i in bar:
-            chunk = torch.from_numpy(np.ascontiguousarray(arr[i : i + batch], dtype=np.float32))
-            out[i : i + batch] = self.encode_batch(chunk)
+        dev = torch.device("cpu") if device is None else torch.device(device)
+        moved = dev.type != "cpu"
+        if moved:
+            self.to(dev)
+        try:
+            for i in bar:
+                chunk = torch.from_numpy(np.ascontiguousarray(arr[i : i + batch], np.float32))
+                out[i : i + batch] = self.encode_batch(chunk.to(dev) if moved else chunk).cpu()
+        finally:
+            if moved:
+                self.to("cpu")
         return out
 
     def transform(self, x: np.ndarray | Tensor) -> Tensor:

@@ -221,7 +221,8 @@ class CausalGaborScalogram(nn.Module):
         frames = (buf.shape[-1] - (self.n_taps - 1)) // self.hop
         nb = self.n_bands
         # drop the first hop's leading samples: output i then ends at the i-th hop's last sample
-        v = nn.functional.conv1d(buf[..., self.hop - 1 :], self.fir.to(buf.dtype), stride=self.hop)
+        fir = self.fir.to(device=buf.device, dtype=buf.dtype)
+        v = nn.functional.conv1d(buf[..., self.hop - 1 :], fir, stride=self.hop)
         v = v.reshape(rows, nb, 2, frames)  # band-major channels: (band, re / im)
         block = min(frames, BLOCK_FRAMES)
         res, ims = [], []
@@ -232,7 +233,7 @@ class CausalGaborScalogram(nn.Module):
             u = blk.reshape(rows, nb, 2 * f)
             if state is not None:
                 u = torch.cat([u, state], -1)
-            w = self.block_matrix(f, state is not None, keep, buf.dtype)
+            w = self.block_matrix(f, state is not None, keep, buf.dtype, buf.device)
             out = (u.transpose(0, 1) @ w).transpose(0, 1)  # [rows, bands, 2 f (+ 2 K)]
             parts = out.split([f, f, out.shape[-1] - 2 * f] if keep else [f, f], -1)
             res.append(parts[0])
@@ -244,12 +245,18 @@ class CausalGaborScalogram(nn.Module):
         return re, im, (state if want_state else None)
 
     def block_matrix(
-        self, f: int, state_in: bool, state_out: bool, dtype: torch.dtype
+        self,
+        f: int,
+        state_in: bool,
+        state_out: bool,
+        dtype: torch.dtype,
+        device: torch.device | None = None,
     ) -> torch.Tensor:
         """``[bands, 2 f (+ 2 K), 2 f (+ 2 K)]``: a block of ``f`` frames (and the state before
         it, ``state_in``) -> its outputs (and the state after it, ``state_out``): the complex
         maps of :func:`block_maps` in real form, for a row vector ``[re..., im...]`` times it."""
-        key = (f, state_in, state_out, dtype)
+        device = torch.device("cpu") if device is None else torch.device(device)
+        key = (f, state_in, state_out, dtype, device)
         if key not in self._tensors:
             m = self.maps(max(f, BLOCK_FRAMES))
             big = m["T"].shape[1]
@@ -261,7 +268,7 @@ class CausalGaborScalogram(nn.Module):
                 top = np.concatenate([top, np.concatenate([S, P], 2) if state_in else S], 1)
             w = _real_form(top.transpose(0, 2, 1), f, self.order, state_in, state_out)
             # (a traced graph copies it at every block; the export merges identical constants)
-            self._tensors[key] = torch.from_numpy(w).to(dtype)
+            self._tensors[key] = torch.from_numpy(w).to(device=device, dtype=dtype)
         return self._tensors[key]
 
 

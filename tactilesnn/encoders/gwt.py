@@ -131,7 +131,7 @@ class GaborScalogram(nn.Module):
         self.bandwidth = check_positive(bandwidth, "bandwidth")
         self.center = check_positive(center, "center")
         self.padding = check_choice(padding, "padding", PADDINGS)
-        self._cache: dict[tuple[int, torch.dtype], torch.Tensor] = {}
+        self._cache: dict[tuple, torch.Tensor] = {}
 
     @property
     def n_bands(self) -> int:
@@ -147,12 +147,16 @@ class GaborScalogram(nn.Module):
         p = int(np.ceil(6 * self.time_sigma_s().max() * self.fs_hz))
         return min(p, n - 1) if self.padding == "reflect" else p
 
-    def _filters(self, n_fft: int, dtype: torch.dtype) -> torch.Tensor:
-        key = (n_fft, dtype)
+    def _filters(
+        self, n_fft: int, dtype: torch.dtype, device: torch.device | None = None
+    ) -> torch.Tensor:
+        """Each band's response ``[bands, n_fft // 2 + 1]`` (cached per length, dtype, device)."""
+        device = torch.device("cpu") if device is None else torch.device(device)
+        key = (n_fft, dtype, device)
         if key not in self._cache:
             f = np.fft.rfftfreq(n_fft, 1.0 / self.fs_hz)
             h = gabor_response(self.freqs_hz, f, self.bandwidth, self.center, self.fs_hz / 2)
-            self._cache[key] = torch.from_numpy(h).to(dtype)
+            self._cache[key] = torch.from_numpy(h).to(device=device, dtype=dtype)
         return self._cache[key]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -272,7 +276,7 @@ class GaborScalogram(nn.Module):
         # periodic: the FFT length must be the signal length, or the period would change
         n_fft = n if self.padding == "periodic" else scipy.fft.next_fast_len(x.shape[-1])
         spec = torch.fft.rfft(x, n=n_fft)  # [B, C, K]
-        h = self._filters(n_fft, x.dtype)  # [F, K]
+        h = self._filters(n_fft, x.dtype, x.device)  # [F, K]
         if bands is not None:
             h = h[bands]
         # zero negative frequencies: ifft of a half spectrum padded with zeros is analytic

@@ -267,7 +267,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         n, c = x.shape[0], x.shape[1]
         active = x.std(-1, unbiased=False) > self.gate_rms.to(x.dtype)  # [n, C]
         per = len(self.config.stats) * self.config.n_bands
-        out = torch.full((n, c, per), math.inf, dtype=torch.float32)
+        out = torch.full((n, c, per), math.inf, dtype=torch.float32, device=x.device)
         b, ch = active.nonzero(as_tuple=True)
         if b.numel():  # only the active (window, channel) pairs are transformed
             sub = x[b, ch].unsqueeze(1)

@@ -122,14 +122,17 @@ def lif_first_spikes(
     afferent ``c * P + j`` seeing ``drive[:, c] * gain[j]`` (``A = C * P``); the product is formed
     one sample at a time, so memory stays that of the channels, not of the afferents.
     """
-    g = torch.ones(1, dtype=drive.dtype) if gain is None else gain.to(drive.dtype)
+    dev = drive.device
+    g = (torch.ones(1, dtype=drive.dtype, device=dev) if gain is None
+         else gain.to(device=dev, dtype=drive.dtype))  # fmt: skip
     n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
-    v = torch.zeros(n, a, dtype=drive.dtype)
-    count = torch.zeros(n, a, dtype=drive.dtype)
-    times = torch.full((n, a, k), math.inf, dtype=drive.dtype)
-    m = torch.ones(1, a, dtype=drive.dtype) if every is None else every.to(drive.dtype).view(1, a)
+    v = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    count = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    times = torch.full((n, a, k), math.inf, dtype=drive.dtype, device=dev)
+    m = (torch.ones(1, a, dtype=drive.dtype, device=dev) if every is None
+         else every.to(device=dev, dtype=drive.dtype).view(1, a))  # fmt: skip
     # global spike number kept in each slot: m, 2m, ..., k m
-    wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
     for i in range(w):
         v, count, times = first_spikes_step(
             v, count, times, drive[:, :, i], i * dt_ms, g, wanted, dt_ms, tau_ms
@@ -165,12 +168,13 @@ def lif_first_spikes_op(
     writes an ONNX ``Scan``; not scriptable), the same step (:func:`first_spikes_step`)."""
     from torch._higher_order_ops.scan import scan
 
-    g = gain.to(drive.dtype)
+    dev = drive.device
+    g = gain.to(device=dev, dtype=drive.dtype)
     n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
-    m = every.to(drive.dtype).view(1, a)
-    wanted = (torch.arange(k, dtype=drive.dtype).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    m = every.to(device=dev, dtype=drive.dtype).view(1, a)
+    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
     init = (drive.new_zeros(n, a), drive.new_zeros(n, a), drive.new_full((n, a, k), math.inf))
-    t0 = torch.arange(w, dtype=drive.dtype) * dt_ms
+    t0 = torch.arange(w, dtype=drive.dtype, device=dev) * dt_ms
 
     def step(carry, x):
         v, count, times = first_spikes_step(*carry, x[0], x[1], g, wanted, dt_ms, tau_ms)

@@ -81,7 +81,7 @@ class STFTScalogram(nn.Module):
         wf = torch.fft.rfft(win)
         self._n_detrend = int((wf.abs() > 1e-9 * wf.abs().max()).nonzero().max()) + 1
         self.register_buffer("window_dft", wf[: self._n_detrend], persistent=False)
-        self._cast: dict[torch.dtype, tuple[torch.Tensor, ...]] = {}
+        self._cast: dict[tuple, tuple[torch.Tensor, ...]] = {}
 
     @property
     def n_bands(self) -> int:
@@ -99,7 +99,7 @@ class STFTScalogram(nn.Module):
             raise ValueError(f"need at least nperseg={self.nperseg} samples, got {x.shape[-1]}")
         b, c, n = x.shape
         flat = x.reshape(b * c, n)
-        win, wdft, _ = self._tensors(x.dtype)
+        win, wdft, _ = self._tensors(x.dtype, x.device)
         spec = torch.stft(
             flat, self.nperseg, self.hop, window=win, center=False, return_complex=True
         )  # [BC, K, T], already divided by sum(window) through the window's scaling
@@ -119,24 +119,27 @@ class STFTScalogram(nn.Module):
         eye = torch.eye(int(window), dtype=torch.float64).unsqueeze(1)  # unit impulses
         return self.spectrum(eye)[:, 0], self._tensors(torch.float64)[2]
 
-    def _tensors(self, dtype: torch.dtype) -> tuple[torch.Tensor, ...]:
-        """Window / sum(window), its DFT, and 2 x band weights, cast once per dtype."""
-        if dtype not in self._cast:
+    def _tensors(
+        self, dtype: torch.dtype, device: torch.device | None = None
+    ) -> tuple[torch.Tensor, ...]:
+        """Window / sum(window), its DFT, and 2 x band weights, cast once per dtype and device."""
+        device = self.window.device if device is None else torch.device(device)
+        key = (dtype, device)
+        if key not in self._cast:
             w = self.window / self.window.sum()
-            self._cast[dtype] = (
-                w.to(dtype),
-                (self.window_dft / self.window.sum()).to(
-                    torch.complex64 if dtype == torch.float32 else torch.complex128
-                ),
-                (2.0 * self.bands).to(dtype),
+            complex_dtype = torch.complex64 if dtype == torch.float32 else torch.complex128
+            self._cast[key] = (
+                w.to(device=device, dtype=dtype),
+                (self.window_dft / self.window.sum()).to(device=device, dtype=complex_dtype),
+                (2.0 * self.bands).to(device=device, dtype=dtype),
             )
-        return self._cast[dtype]
+        return self._cast[key]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``[batch, channels, samples]`` -> band magnitudes ``[batch, channels, bands, frames]``."""
         spec = self.spectrum(x)
         # one-sided: x2 so that a unit sinusoid gives 1 at its bin; folded into the band weights
-        return torch.matmul(self._tensors(x.dtype)[2], spec.abs())
+        return torch.matmul(self._tensors(x.dtype, x.device)[2], spec.abs())
 
     def transform(self, x: np.ndarray, dtype: np.dtype | type = np.float32) -> np.ndarray:
         """NumPy entry point with validation."""
