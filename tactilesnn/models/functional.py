@@ -298,6 +298,7 @@ def decide_by_margin(
     first = hit.argmax(0)  # the first hit (ties: the first index)
     decided = hit.amax(0) > 0
     leader = leaders.gather(0, first.unsqueeze(0)).squeeze(0)
-    t_ms = torch.clamp((first + 1).to(running.dtype) * dt_ms, max=duration_ms)
-    return (torch.where(decided, leader, final),
-            torch.where(decided, t_ms, torch.full_like(t_ms, duration_ms)))  # fmt: skip
+    # each step's end, capped: a table (a constant in a graph) read at the first hit
+    ends = torch.arange(1, running.shape[0] + 1, dtype=running.dtype, device=running.device)
+    t_ms = torch.clamp(ends * dt_ms, max=duration_ms)[first]
+    return torch.where(decided, leader, final), torch.where(decided, t_ms, duration_ms)

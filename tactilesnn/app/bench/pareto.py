@@ -249,9 +249,11 @@ def realtime_session(
     weights: cost does not depend on them); ``hop``: the scalogram's frame hop. ``form``:
     ``gwt`` (the window graph of the FFT-exact Gabor scalogram), ``cgwt`` (the window graph of
     the causal Gabor bank), ``cgwt stream`` (its stream graph: each call takes the next half
-    window and the state, every sample transformed once), that graph's encoder or model part
-    alone (``cgwt stream encoder`` / ``cgwt stream model``: :func:`_stream_call`), or its
-    heavy operators alone (``cgwt stream heavy``: :func:`heavy_operators`, the floor). With
+    window and the state, every sample transformed once; scores and state asked for), the same
+    graph asked for its early decision too (``cgwt stream decision``: the service's stream
+    path), that graph's encoder or model part alone (``cgwt stream encoder`` / ``cgwt stream
+    model``: :func:`_stream_call`), or its heavy operators alone (``cgwt stream heavy``:
+    :func:`heavy_operators`, the floor). With
     ``touched`` (window graphs, ``gwt`` or ``cgwt``), the activity gate is on (0.5 x the training RMS)
     and only that many taxels carry signal (the others 1 % of it): the graph encodes only the
     touched ones. ``int8``: the
@@ -290,8 +292,9 @@ def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], 
     """A stream-graph row's call: the whole graph (``cgwt stream``: the next half window and
     the state in, scores and state out), its encoder part alone (``... encoder``: up to the
     window's spikes and the encoder's next state), its model part alone (``... model``: one
-    window's spikes and the model's state in), or the floor (``... heavy``: the whole graph's
-    :func:`heavy_operators` alone)."""
+    window's spikes and the model's state in), the whole graph asked for every output (``...
+    decision``: the early decision too, as the service's stream path asks), or the floor
+    (``... heavy``: the whole graph's :func:`heavy_operators` alone)."""
     import onnx
     import onnxruntime as ort
 
@@ -313,6 +316,9 @@ def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], 
             keep = ["spikes", *(f"{n}_out" for n, _ in names)]
             graph.graph.output.append(onnx.helper.make_tensor_value_info("spikes", 1, None))
             prune_to_outputs(graph.graph, keep)
+            sess = ort.InferenceSession(graph.SerializeToString(), opts,
+                                        providers=["CPUExecutionProvider"])  # fmt: skip
+        elif form == _SD:  # every output: the service's stream path asks for the decision
             sess = ort.InferenceSession(graph.SerializeToString(), opts,
                                         providers=["CPUExecutionProvider"])  # fmt: skip
         else:
@@ -418,19 +424,22 @@ SMALL_SNN = (16, 10.0)
 _G, _C, _S = "gwt", "cgwt", "cgwt stream"
 #: the stream graph's two parts timed alone (where its time goes, in the same run)
 _SE, _SM = "cgwt stream encoder", "cgwt stream model"
-#: the floor: the stream graph's heavy operators alone (:func:`heavy_operators`)
-_SH = "cgwt stream heavy"
+#: the floor: the stream graph's heavy operators alone (:func:`heavy_operators`); the stream
+#: graph with its early decision as well (what the service's stream path runs)
+_SH, _SD = "cgwt stream heavy", "cgwt stream decision"
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
            (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
            (10, 1, True, (64, 5.0), _G), (10, None, True, SMALL_SNN, _G), (10, 1, True, SMALL_SNN, _G),
            (10, None, False, (64, 5.0), _C), (10, None, False, (64, 5.0), _S),
+           (10, None, False, (64, 5.0), _SD),
            (10, None, False, (64, 5.0), _SE), (10, None, False, (64, 5.0), _SM),
            (10, None, False, (64, 5.0), _SH),
            (10, None, False, SMALL_SNN, _S), (10, None, False, SMALL_SNN, _SM),
            (10, None, False, SMALL_SNN, _SH),
            # 20 frames per window: the sweep's "cgwt20 hop5+snn16 dt10" at 2 kHz
            (50, None, False, (64, 5.0), _S), (50, None, False, SMALL_SNN, _S),
+           (50, None, False, SMALL_SNN, _SD),
            (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C))  # fmt: skip
 
 
@@ -497,6 +506,8 @@ def format_rt(rt: dict) -> str:
             _S: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}",
             _SE: f"causal GWT stream graph (hop {rt['gwt_hop']}), its encoder part alone",
             _SM: f"{snn} alone (one window's spikes in)",
+            _SD: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}, with its early "
+                 "decision (the service's stream path)",
             _SH: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}: its Conv, MatMul "
                  f"and LSTM nodes of >= {HEAVY_MACS:,} multiply-adds alone"}[form]  # fmt: skip
     return (f"{name}, 12 taxels @ 2 kHz{scene}, "
