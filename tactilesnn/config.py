@@ -56,7 +56,7 @@ class TrainConfig:
     patience: int = 0  # epochs without validation improvement before stopping (0 = off)
     keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
     seed: int = 0  # split, generation and initialisation
-    device: str = "auto"  # where gradient training runs: auto (CUDA when present), cpu, cuda[:N]
+    device: str = "auto"  # where encoding and gradient training run: auto, cpu, cuda[:N]
 
     FLAGS: ClassVar[dict[str, str]] = {
         "epochs": "epochs",
@@ -72,8 +72,8 @@ class TrainConfig:
         "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
         "keep_best": "keep the weights with the best validation (else training) accuracy",
         "seed": "dataset split, generation and initialisation seed",
-        "device": "where the model's gradient training runs: auto (a CUDA GPU when torch sees "
-        "one, else the CPU), cpu, cuda or cuda:N; encoding, rule learning, the readout's exact "
+        "device": "where encoding and the model's gradient training run: auto (a CUDA GPU when "
+        "torch sees one, else the CPU), cpu, cuda or cuda:N; rule learning, the readout's exact "
         "solve and inference stay on the CPU",
     }
 
