@@ -76,6 +76,10 @@ FULL = (
         "cgwt20 hop5+snn16 dt10",
         {"encoder": "cgwt", "cgwt_hop": 5, "model": "snn", "snn_hidden": 16, "snn_dt_ms": 10.0},
     ),
+    Point(
+        "cgwt20 hop5+snn64 dt10",
+        {"encoder": "cgwt", "cgwt_hop": 5, "model": "snn", "snn_dt_ms": 10.0},
+    ),
 )
 QUICK = (Point("gwt10 hop5+tempotron", {"n_bands": 10, "gwt_hop": 5}), Point("stft10+readout",
          {"encoder": "stft", "n_bands": 10, "model": "readout"}))  # fmt: skip
@@ -439,7 +443,7 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, False, SMALL_SNN, _SH),
            # 20 frames per window: the sweep's "cgwt20 hop5+snn16 dt10" at 2 kHz
            (50, None, False, (64, 5.0), _S), (50, None, False, SMALL_SNN, _S),
-           (50, None, False, SMALL_SNN, _SD),
+           (50, None, False, SMALL_SNN, _SD), (50, None, False, (64, 10.0), _S),
            (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C))  # fmt: skip
 
 
