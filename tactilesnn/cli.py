@@ -193,6 +193,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     pipe, cfg = load_run(Path(args.run_dir))
     if args.format == "nir":
         pipe.model.to_nir()  # refuses models NIR cannot express, before any work
+    if args.stream_step is not None and not args.stream:
+        raise SystemExit("--stream-step sets the stream graph's step: add --stream")
+    if args.stream:
+        from .export.stream import StreamEncoderGraph
+
+        StreamEncoderGraph(pipe, args.stream_step)  # refuses a step that does not fit, first
     if cfg.get("data"):
         _, test = run_data(cfg, pipe.config.seed)
     else:
@@ -222,10 +228,13 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.stream:
         from .export.stream import export_stream
 
-        rep = export_stream(pipe, Path(args.out), test.X, metadata=meta, overwrite=args.overwrite)
+        rep = export_stream(pipe, Path(args.out), test.X, metadata=meta, overwrite=args.overwrite,
+                            step=args.stream_step)  # fmt: skip
+        step_ms = 1000.0 * rep["step_samples"] / pipe.fs_hz
         print(
-            f"exported the stream graph {args.out} ({rep['step_samples']} samples per call, every "
-            f"sample transformed once): {rep['nodes']} nodes; on {rep['windows_checked']} windows "
+            f"exported the stream graph {args.out} ({rep['step_samples']} samples = {step_ms:.4g} "
+            f"ms per call: a window's scores every call, every sample transformed once): "
+            f"{rep['nodes']} nodes; on {rep['windows_checked']} windows "
             f"of the test windows joined into one stream, onnxruntime vs torch: spike times within "
             f"{rep['encoder_max_time_diff_ms']:.2g} ms, scores within {rep['max_score_diff']:.2g}, "
             f"predictions agree {100 * rep['prediction_agreement']:.2f} %"
@@ -426,6 +435,16 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         action="store_true",
         help="write the stream graph instead (half a window per call, every sample transformed "
         "once; encoders with a stream form: cgwt); serve and classify it like model.onnx",
+    )
+    p.add_argument(
+        "--stream-step",
+        type=int,
+        default=None,
+        metavar="SAMPLES",
+        help="with --stream: samples per call, a window's scores each call (default half a "
+        "window; any whole number of the encoder's hops dividing the window, at most half of "
+        "it: one hop gives every frame's spikes and scores one call after its last sample, "
+        "at a whole window's coding and classifying per frame)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)

@@ -87,17 +87,19 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
     def onnx_module(self) -> nn.Module:
         return self._gated(_ScalogramCode(self.scalogram, self.code))
 
-    def stream_module(self) -> CausalStreamCode:
-        """The encoder's stream step (half a window per call), for the stream graph."""
-        return CausalStreamCode(self, self.window // 2)
+    def stream_module(self, step: int | None = None) -> CausalStreamCode:
+        """The encoder's stream step (``step`` samples per call, default half a window), for the
+        stream graph."""
+        return CausalStreamCode(self, self.window // 2 if step is None else step)
 
-    def stream_reference(self, x: Tensor, half: int) -> Tensor:
+    def stream_reference(self, x: Tensor, step: int) -> Tensor:
         """What the stream step must give on a whole stream ``x [1, channels, samples]`` (float64
         for a reference): the bank run once over it, each complete window's frames (a window
-        every ``half`` samples) coded -> spike times ``[windows, afferents, 1]``."""
+        ending every ``step`` samples) coded -> spike times ``[windows, afferents, 1]``."""
         mag = self.scalogram(x).float()  # [1, C, bands, frames]
-        fh, n = half // self.hop, x.shape[-1] // half
-        t = torch.cat([self.code(mag[..., (k - 1) * fh : (k + 1) * fh]) for k in range(1, n)])
+        fs, frames = step // self.hop, self.window // self.hop
+        n = x.shape[-1] // step - self.window // step + 1
+        t = torch.cat([self.code(mag[..., j * fs : j * fs + frames]) for j in range(n)])
         return (self.band_scatter(t) if self.restricted else t).unsqueeze(-1)
 
 
@@ -123,18 +125,22 @@ def _modulus(re: Tensor, im: Tensor) -> Tensor:
 
 
 class CausalStreamCode(nn.Module):
-    """One stream step of the ``cgwt`` encoder: the next half window ``chunk [B, C, half]`` and the
-    encoder's state -> the spike times of the window that ends with it ``[B, afferents, 1]`` and
-    the new state. Every sample is transformed once: the bank continues from its state, and the
-    window's frames are the previous half's (kept as state) then the chunk's.
+    """One stream step of the ``cgwt`` encoder: the next ``step`` samples ``chunk [B, C, step]``
+    and the encoder's state -> the spike times of the window that ends with them ``[B,
+    afferents, 1]`` and the new state. Every sample is transformed once: the bank continues
+    from its state, and the window's frames are the earlier ones (kept as state) then the
+    chunk's. ``step`` (a whole number of hops dividing the window, at most half of it) sets the
+    latency: a sample's frame, and the spikes of the window it ends, exist after the call that
+    takes it (one hop: one frame).
 
     State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1`` samples
     (a fresh stream: its first sample repeated, the bank's constant past), ``cgwt_rec`` the frame
-    recursion's values (zeros), ``cgwt_frames`` the previous half's magnitudes; ``stream_prev``,
-    the previous half's samples, only where the pipeline's level code reads the window.
+    recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's;
+    ``stream_prev``, the window's samples before the chunk, only where the pipeline's level code
+    reads the window.
     """
 
-    def __init__(self, encoder: CausalGWTLatencyEncoder, half: int) -> None:
+    def __init__(self, encoder: CausalGWTLatencyEncoder, step: int) -> None:
         super().__init__()
         if encoder.config.gate > 0:
             raise ValueError(
@@ -142,19 +148,16 @@ class CausalStreamCode(nn.Module):
                 "needs every sample: export the stream graph of a run trained without --gate"
             )
         bank: CausalGaborScalogram = encoder.scalogram
-        if half % bank.hop or encoder.window != 2 * half:
-            raise ValueError(
-                f"a stream step is half the window ({encoder.window} samples): it must be a whole "
-                f"number of hops ({bank.hop})"
-            )
+        check_stream_step(step, encoder.window, bank.hop)
         self.bank, self.code = bank, encoder.code
         self.scatter = encoder.band_scatter if encoder.restricted else None
-        self.half, self.channels = int(half), encoder.n_channels
-        self.f_half = self.half // bank.hop
+        self.step, self.channels = int(step), encoder.n_channels
+        self.f_step = self.step // bank.hop
+        self.f_kept = (encoder.window - self.step) // bank.hop  # the window's earlier frames
         nb, k = bank.n_bands, bank.order
         self.state_names = [("cgwt_tail", self.channels * (bank.n_taps - 1)),
                             ("cgwt_rec", self.channels * nb * 2 * k),
-                            ("cgwt_frames", self.channels * nb * self.f_half)]  # fmt: skip
+                            ("cgwt_frames", self.channels * nb * self.f_kept)]  # fmt: skip
         #: a fresh stream's tail is its first sample repeated (the runtime's rule); others zeros
         self.state_init = {"cgwt_tail": "repeat_first"}
 
@@ -172,8 +175,8 @@ class CausalStreamCode(nn.Module):
         nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
         re, im, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
-        mag = _modulus(re, im).reshape(b, c, nb, self.f_half)  # [B, C, bands, F]
-        window = torch.cat([frames.reshape(b, c, nb, self.f_half), mag], -1)
+        mag = _modulus(re, im).reshape(b, c, nb, self.f_step)  # [B, C, bands, F step]
+        window = torch.cat([frames.reshape(b, c, nb, self.f_kept), mag], -1)
         # the code is scale-free per window and channel; dividing by the window's largest frame
         # keeps its squares in float32 range whatever the sensor's units (the window graph
         # divides the samples by their peak instead: a stream's bank cannot)
@@ -182,4 +185,27 @@ class CausalStreamCode(nn.Module):
         if self.scatter is not None:
             t = self.scatter(t)
         new_rec = state.reshape(b, -1)
-        return t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), new_rec, mag.reshape(b, -1)
+        kept = window[..., self.f_step :] if self.f_step < self.f_kept else mag
+        return (t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), new_rec,
+                kept.reshape(b, -1))  # fmt: skip
+
+
+def check_stream_step(step: int, window: int, hop: int) -> int:
+    """``step``: samples per stream call, a whole number of hops (frames) that divides the
+    window and is at most half of it (windows overlap; the window's earlier frames are state)."""
+    step = int(step)
+    if step < 1 or step % hop or window % step or 2 * step > window:
+        fits = [s for s in range(hop, window // 2 + 1, hop) if window % s == 0]
+        raise ValueError(
+            f"a stream step of {step} samples does not fit: it must be a whole number of hops "
+            f"({hop}) that divides the window ({window} samples) and is at most half of it"
+            + (f" (these fit: {_some(fits)})" if fits else "")
+        )
+    return step
+
+
+def _some(values: list[int]) -> str:
+    """A list short enough for a message: its first four and last two beyond eight values."""
+    if len(values) <= 8:
+        return ", ".join(map(str, values))
+    return ", ".join(map(str, values[:4])) + ", ..., " + ", ".join(map(str, values[-2:]))

@@ -329,11 +329,15 @@ class Service:
                 None, lambda: session.feed_stream(stream.state, data, detail=live)
             )
             stream.last_used = time.monotonic()
+        # the page shows a window every half window of signal: a stream graph stepping a frame
+        # per call classifies ~100 windows in that time, which no one could watch
+        every = max(1, (session.window // 2) // session.window_step)
         for r in results if live else ():
             window, spikes = r.pop("window"), r.pop("spikes")
-            self.hub.publish(window_event(sid, r, window, spikes, session.fs_hz,
-                                          session.class_names, session.window // 2,
-                                          session.channels))  # fmt: skip
+            if r["window_index"] % every == 0:
+                self.hub.publish(window_event(sid, r, window, spikes, session.fs_hz,
+                                              session.class_names, session.window_step,
+                                              session.channels))  # fmt: skip
         return JSONResponse({"stream": sid, "results": results})
 
     async def page(self, request: Request) -> HTMLResponse:

@@ -38,9 +38,10 @@ class StreamState:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     buffer: np.ndarray | None = None
     windows_done: int = 0
-    #: stream graphs (half a window per call): halves fed so far and the last one's samples
-    halves: int = 0
-    last_half: np.ndarray | None = None
+    #: stream graphs (a step per call): steps fed so far, and the last window's samples but
+    #: its last step (``[channels, window - step]``, once a window is complete)
+    steps: int = 0
+    recent: np.ndarray | None = None
 
     @property
     def h(self) -> np.ndarray | None:
@@ -194,9 +195,10 @@ def _check_io(
 @dataclass(frozen=True)
 class StreamContract:
     """A stream graph's promise (metadata ``stream_step_samples``, ``stream_encoder_states``,
-    ``stream_state_init``): its ``window`` input is the next ``step`` samples (half a window);
-    the encoder's state inputs are listed, and how a fresh stream starts each (``repeat_first``:
-    every encoder channel's first sample repeated, channel-major; the others zeros)."""
+    ``stream_state_init``): its ``window`` input is the next ``step`` samples (dividing the
+    window, at most half of it: a window ends every step); the encoder's state inputs are
+    listed, and how a fresh stream starts each (``repeat_first``: every encoder channel's first
+    sample repeated, channel-major; the others zeros)."""
 
     step: int
     encoder_states: tuple[str, ...]
@@ -214,10 +216,9 @@ class StreamContract:
             init = json.loads(c.extra.get("stream_state_init", "{}"))
         except (ValueError, RecursionError) as e:
             raise ValueError(f"{path}: unreadable stream metadata ({e})") from e
-        if step < 1 or 2 * step != c.window_samples:
-            raise ValueError(
-                f"{path}: stream step {step} is not half the window {c.window_samples}"
-            )
+        if step < 1 or c.window_samples % step or 2 * step > c.window_samples:
+            raise ValueError(f"{path}: stream step {step} does not divide the window "
+                             f"{c.window_samples} at most twice over")  # fmt: skip
         if not (isinstance(enc, list) and isinstance(init, dict)
                 and all(isinstance(n, str) and n in c.state_inputs for n in [*enc, *init])
                 and set(init.values()) <= {"repeat_first"}):  # fmt: skip
@@ -232,7 +233,7 @@ class StreamContract:
                                  f"split over {channels} encoder channels")  # fmt: skip
 
     def initial(self, first: np.ndarray, channels: tuple[int, ...], units: dict[str, int]) -> dict:
-        """The ``repeat_first`` states of fresh streams whose first half windows are ``first``
+        """The ``repeat_first`` states of fresh streams whose first steps are ``first``
         ``[B, channels, step]``."""
         out = {}
         x = first[:, list(channels), :1]  # [B, C, 1]
@@ -387,7 +388,7 @@ class PipelineSession:
         if len(x) == 0:  # onnxruntime's LSTM (the SNN) aborts the whole process on zero rows
             raise InputError("empty batch: no windows to classify")
         if self.stream is not None:
-            return self._run_halves(x, state, detail)
+            return self._run_steps(x, state, detail)
         names = list(self.state_units)
         feeds: dict[str, np.ndarray] = {}
         if names:
@@ -399,14 +400,18 @@ class PipelineSession:
             state.values = new
         return out
 
-    def _feed_halves(self, state: StreamState, buf: np.ndarray, detail: bool) -> list[dict]:
-        """The stream path of a stream graph: one call per half window, every sample
-        transformed once; the first half of a stream starts the encoder's state."""
-        half, results = self.stream.step, []
-        while buf.shape[1] >= half:
-            x = buf[None, :, :half]
-            if state.halves == 0:
+    def _feed_steps(self, state: StreamState, buf: np.ndarray, detail: bool) -> list[dict]:
+        """The stream path of a stream graph: one call per step, every sample transformed once;
+        the first step of a stream starts the encoder's state, and the calls before the first
+        complete window carry the encoder's state only."""
+        step, results = self.stream.step, []
+        first_complete = self.window // step - 1
+        while buf.shape[1] >= step:
+            x = buf[None, :, :step]
+            if state.steps == 0:
                 state.values = self._started(x, dict(self._zero_state(1)))
+            elif state.steps < first_complete:
+                state.values = self._advanced(x, state.values)
             else:
                 self.stats.add(stream_windows=1)
                 out, state.values = self._call(x, state.values, detail)
@@ -416,38 +421,47 @@ class PipelineSession:
                 if out.decision_ms is not None:
                     res.update(self._early(k, int(out.early_class[0]), float(out.decision_ms[0])))
                 if detail:
-                    win = np.concatenate([state.last_half, x[0]], axis=1)
+                    win = np.concatenate([state.recent, x[0]], axis=1)
                     res.update(window=win, spikes=None if out.spikes is None else out.spikes[0])
                 results.append(res)
                 state.windows_done += 1
-            state.halves += 1
-            state.last_half = x[0]
-            buf = buf[:, half:]
+            state.steps += 1
+            kept = self.window - step  # the next window's samples before its last step
+            past = x[0] if state.recent is None else np.concatenate([state.recent, x[0]], axis=1)
+            state.recent = past[:, -kept:]
+            buf = buf[:, step:]
         state.buffer = buf
         return results
 
-    def _run_halves(self, x: np.ndarray, state: StreamState | None, detail: bool) -> Detail:
-        """A stream graph on whole windows ``x``: the first half from a fresh encoder state
-        (its scores discarded: no window is complete), then the second half; the model's state
-        is the stream's (or zeros) and is updated by the second call only."""
-        half = self.stream.step
+    def _run_steps(self, x: np.ndarray, state: StreamState | None, detail: bool) -> Detail:
+        """A stream graph on whole windows ``x``: the first step from a fresh encoder state,
+        then the window's other steps (the scores of all but the last discarded: no window is
+        complete before it); the model's state is the stream's (or zeros) and is updated by the
+        last call only."""
+        step = self.stream.step
         held = dict(state.values) if state is not None else {}
         zeros = self._zero_state(len(x))
-        feeds = self._started(x[:, :, :half], {n: held.get(n, zeros[n]) for n in self.state_units})
-        out, new = self._call(x[:, :, half:], feeds, detail)
+        feeds = self._started(x[:, :, :step], {n: held.get(n, zeros[n]) for n in self.state_units})
+        for start in range(step, self.window - step, step):
+            feeds = self._advanced(x[:, :, start : start + step], feeds)
+        out, new = self._call(x[:, :, self.window - step :], feeds, detail)
         if state is not None:
             state.values = new
         return out
 
+    def _advanced(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``feeds`` with the encoder's state after the step ``x`` (a call that completes no
+        window: the model's state in ``feeds`` is kept)."""
+        _, new = self._call(x, feeds, False)
+        return {**feeds, **{n: v for n, v in new.items() if n in self.stream.encoder_states}}
+
     def _started(self, first: np.ndarray, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """``feeds`` with the encoder's state after fresh streams' first half windows ``first``
-        (its ``repeat_first`` states set from them, then the half fed); the model's state in
+        """``feeds`` with the encoder's state after fresh streams' first steps ``first`` (its
+        ``repeat_first`` states set from them, then the step fed); the model's state in
         ``feeds`` is kept (that call completes no window)."""
         feeds = {**feeds, **self.stream.initial(first, self.contract.encoder_channels,
                                                 self.state_units)}  # fmt: skip
-        _, new = self._call(first, feeds, False)
-        feeds.update({n: v for n, v in new.items() if n in self.stream.encoder_states})
-        return feeds
+        return self._advanced(first, feeds)
 
     def _call(
         self, x: np.ndarray, feeds: dict[str, np.ndarray], detail: bool
@@ -517,15 +531,22 @@ class PipelineSession:
         self.stats.mean("stream_early_mean_decision_ms", "stream_early_decisions", t_ms)
         return {"early_class": self.class_names[early], "decision_ms": t_ms}
 
+    @property
+    def window_step(self) -> int:
+        """Samples between the starts of the windows a stream is classified in: a stream
+        graph's step, else half a window."""
+        return self.window // 2 if self.stream is None else self.stream.step
+
     def feed_stream(
         self, state: StreamState, chunk: object, hop: int | None = None, detail: bool = False
     ) -> list[dict]:
-        """Append ``[channels, n]`` samples; classify every complete window (hop = window / 2).
+        """Append ``[channels, n]`` samples; classify every complete window (hop: the stream
+        graph's step, else ``window / 2``).
 
         SNN state is carried from window to window; returns one result per completed window
         (with ``detail``, also its ``"window"`` array and ``"spikes"``, for the live view).
         """
-        hop = hop or self.window // 2
+        hop = hop or self.window_step
         try:
             arr = np.asarray(chunk)
         except (TypeError, ValueError) as e:
@@ -545,8 +566,8 @@ class PipelineSession:
         if self.stream is not None:
             if hop != self.stream.step:
                 raise InputError(f"this stream graph classifies a window every {self.stream.step} "
-                                 f"samples (half its window), not every {hop}")  # fmt: skip
-            return self._feed_halves(state, buf, detail)
+                                 f"samples (its step), not every {hop}")  # fmt: skip
+            return self._feed_steps(state, buf, detail)
         results = []
         while buf.shape[1] >= self.window:
             win = buf[None, :, : self.window]

@@ -1,5 +1,5 @@
-"""The stream graph (half a window per call, every sample transformed once) against torch, the
-window graph and the service runtime's stream path."""
+"""The stream graph (a step per call, default half a window; every sample transformed once)
+against torch, the window graph and the service runtime's stream path."""
 
 import json
 
@@ -95,8 +95,11 @@ def test_stream_graph_refusals(tmp_path):
         if p.key == "stream_step_samples":
             p.value = "60"
     onnx.save(m, tmp_path / "bad.onnx")
-    with pytest.raises(ValueError, match="not half the window"):
+    with pytest.raises(ValueError, match="does not divide the window"):
         PipelineSession(str(tmp_path / "bad.onnx"))
+    for step in (3, 30, 120, 200):  # not whole hops (4); not dividing 200; over half of it
+        with pytest.raises(ValueError, match=r"does not fit.*these fit: 4, 8, 20, 40, 100\)"):
+            build_stream_graph(pipe, step=step)
 
 
 def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsys):
@@ -110,6 +113,16 @@ def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsy
     assert "every sample transformed once" in out and "predictions agree 100.00 %" in out
     with pytest.raises(SystemExit, match="--quantize"):
         main(["export", "run", "--stream", "--quantize", "--out", "q.onnx", "--quiet"])
+    with pytest.raises(SystemExit, match="add --stream"):
+        main(["export", "run", "--stream-step", "10", "--out", "q.onnx", "--quiet"])
+    assert main(["export", "run", "--stream", "--stream-step", "7", "--out", "q.onnx"]) == 2
+    assert "does not fit" in capsys.readouterr().err and not (tmp_path / "q.onnx").exists()
+    from tactilesnn.app.run import load_run
+
+    hop = load_run(tmp_path / "run")[0].encoder.hop
+    assert main(["export", "run", "--stream", "--stream-step", str(hop), "--out", "f.onnx",
+                 "--quiet"]) == 0  # fmt: skip
+    assert f"{hop} samples = " in capsys.readouterr().out
 
 
 def test_stream_graph_is_built_by_the_supported_exporter_with_a_fallback(tmp_path, monkeypatch):
@@ -135,3 +148,51 @@ def test_stream_graph_is_built_by_the_supported_exporter_with_a_fallback(tmp_pat
     b = export_stream(pipe, tmp_path / "b.onnx", _windows(6))  # the TorchScript exporter instead
     assert a["prediction_agreement"] == b["prediction_agreement"] == 1.0
     assert a["nodes"] <= b["nodes"]
+
+
+@pytest.mark.parametrize("level", [0, 2])
+def test_any_step_matches_torch_and_the_runtime(tmp_path, level):
+    """A window ending every step (one hop = one frame, or 40 samples): the exported graph
+    against torch's bank over the whole stream, and the service runtime on it."""
+    pipe = _pipe("snn", level_neurons=level)
+    X = _windows(6, seed=3)
+    export_pipeline(pipe, tmp_path / "w.onnx", X)
+    joined = np.concatenate(list(X), axis=1)
+    for step in (4, 40):
+        rep = export_stream(pipe, tmp_path / f"s{step}.onnx", X, step=step)
+        n = joined.shape[1] // step - WINDOW // step + 1  # a window ends every step
+        assert rep["step_samples"] == step and rep["windows_checked"] == n
+        assert rep["prediction_agreement"] == 1.0 and rep["encoder_cutoff_flips"] == 0
+        assert rep["encoder_max_time_diff_ms"] < 1e-2
+        sess = PipelineSession(str(tmp_path / f"s{step}.onnx"))
+        win = PipelineSession(str(tmp_path / "w.onnx"))
+        assert np.abs(sess.run(X) - win.run(X)).max() < 1e-4  # whole windows, step by step
+        st, results = StreamState(), []
+        for i in range(0, joined.shape[1], 37):  # chunks unrelated to the step
+            results += sess.feed_stream(st, joined[:, i : i + 37], detail=True)
+        assert [r["window_index"] for r in results] == list(range(n))
+        model, _, _ = build_stream_graph(pipe, step=step)
+        got = np.array([r["scores"] for r in results])
+        assert np.abs(got - stream_windows(model, pipe, joined)).max() < 1e-5
+        for k in (0, n // 2, n - 1):  # the window each result classifies
+            assert np.array_equal(results[k]["window"], joined[:, k * step : k * step + WINDOW])
+
+
+def test_one_hop_steps_give_a_frame_s_spikes_after_its_last_sample(tmp_path):
+    """Latency: with one hop per call, a burst in a frame changes the spikes of the call that
+    takes that frame's samples (the window ending with it) and of no call before it."""
+    pipe = _pipe("snn")
+    hop = pipe.encoder.hop
+    model, _, _ = build_stream_graph(pipe, step=hop)
+    joined = np.concatenate(list(_windows(3, seed=5)), axis=1)
+    burst = joined.copy()
+    at = (
+        2 * WINDOW + 7 * hop + 1
+    )  # a sample inside frame 57 (frame k: samples [k hop, k hop + hop))
+    burst[:, at : at + 2] += 40.0
+    t0, _ = stream_windows(model, pipe, joined, spikes=True)
+    t1, _ = stream_windows(model, pipe, burst, spikes=True)
+    first = WINDOW // hop - 1  # the first call that completes a window
+    call = at // hop  # the call that takes the burst's first sample
+    changed = np.flatnonzero((t0 != t1).reshape(len(t0), -1).any(1)) + first
+    assert changed.min() == call  # nothing before the burst's frame; its own call at once

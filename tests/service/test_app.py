@@ -206,3 +206,27 @@ def test_the_service_serves_a_stream_graph(tmp_path):
     # ones continue the bank's state instead of restarting it at each window
     assert [r["window_index"] for r in got["s"][1]] == [r["window_index"] for r in got["w"][1]]
     assert np.allclose(got["s"][1][0]["scores"], got["w"][1][0]["scores"], atol=1e-4)
+
+    # a stream graph stepping one frame per call: a window's scores every frame; the live page
+    # still gets a window every half window, timed by the step
+    import json
+
+    step = pipe.encoder.hop
+    export_stream(pipe, tmp_path / "f.onnx", test.X[:32], step=step)
+    app = create_app(str(tmp_path / "f.onnx"))
+    with TestClient(app, base_url="http://127.0.0.1") as c:
+        q = app.state.hub.subscribe()
+        r = c.post(
+            "/v1/stream/f", content=npy(stream), headers={"content-type": "application/x-npy"}
+        )
+        results = r.json()["results"]
+        events = [json.loads(q.get_nowait()) for _ in range(q.qsize())]
+    w = pipe.window
+    assert len(results) == (stream.shape[1] - w) // step + 1
+    every = (w // 2) // step
+    assert [e["window_index"] for e in events] == list(range(0, len(results), every))
+    assert [e["t_s"] for e in events] == [
+        k * step / pipe.fs_hz for k in range(0, len(results), every)
+    ]
+    assert np.allclose(results[0]["scores"], got["w"][1][0]["scores"], atol=1e-4)
+    assert np.allclose(results[every]["scores"], got["s"][1][1]["scores"], atol=1e-4)

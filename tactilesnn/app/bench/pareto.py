@@ -256,8 +256,9 @@ def realtime_session(
     window and the state, every sample transformed once; scores and state asked for), the same
     graph asked for its early decision too (``cgwt stream decision``: the service's stream
     path), that graph's encoder or model part alone (``cgwt stream encoder`` / ``cgwt stream
-    model``: :func:`_stream_call`), or its heavy operators alone (``cgwt stream heavy``:
-    :func:`heavy_operators`, the floor). With
+    model``: :func:`_stream_call`), its heavy operators alone (``cgwt stream heavy``:
+    :func:`heavy_operators`, the floor), or the stream graph stepping one frame per call, every
+    output asked for (``cgwt stream frame``: a window ending every hop, latency one frame). With
     ``touched`` (window graphs, ``gwt`` or ``cgwt``), the activity gate is on (0.5 x the training RMS)
     and only that many taxels carry signal (the others 1 % of it): the graph encodes only the
     touched ones. ``int8``: the
@@ -276,11 +277,13 @@ def realtime_session(
     rng = np.random.default_rng(0)
     X = rng.standard_normal((8, 12, window)).astype(np.float32)
     pipe.calibrate(X)
+    step = hop if form == _SF else window // 2  # a window ends every step samples
     info = {"form": form, "window_samples": window, "gwt_hop": hop, "touched_taxels": touched,
             "precision": "int8" if int8 else "float32", "snn_hidden": snn[0],
-            "snn_dt_ms": snn[1], "windows_per_s": _windows_per_s(pipe)}  # fmt: skip
+            "snn_dt_ms": snn[1], "step_samples": step,
+            "windows_per_s": fs / step}  # fmt: skip
     if form.startswith(_S):
-        return _stream_call(pipe, X, form), info
+        return _stream_call(pipe, X, form, step), info
     path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
@@ -292,13 +295,16 @@ def realtime_session(
     return (lambda: sess.run(x)), info
 
 
-def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], object]:
-    """A stream-graph row's call: the whole graph (``cgwt stream``: the next half window and
-    the state in, scores and state out), its encoder part alone (``... encoder``: up to the
-    window's spikes and the encoder's next state), its model part alone (``... model``: one
-    window's spikes and the model's state in), the whole graph asked for every output (``...
-    decision``: the early decision too, as the service's stream path asks), or the floor
-    (``... heavy``: the whole graph's :func:`heavy_operators` alone)."""
+def _stream_call(
+    pipe: SpikePipeline, X: np.ndarray, form: str, step: int | None = None
+) -> Callable[[], object]:
+    """A stream-graph row's call: the whole graph (``cgwt stream``: the next ``step`` samples,
+    default half a window, and the state in, scores and state out), its encoder part alone
+    (``... encoder``: up to the window's spikes and the encoder's next state), its model part
+    alone (``... model``: one window's spikes and the model's state in), the whole graph asked
+    for every output (``... decision`` and ``... frame``: the early decision too, as the
+    service's stream path asks), or the floor (``... heavy``: the whole graph's
+    :func:`heavy_operators` alone)."""
     import onnx
     import onnxruntime as ort
 
@@ -314,7 +320,8 @@ def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], 
                                     providers=["CPUExecutionProvider"])  # fmt: skip
         feeds = {"spikes_in": pipe.encode(X[:1]).numpy().astype(np.float32)}
     else:
-        graph, names, _ = build_stream_graph(pipe)
+        step = pipe.window // 2 if step is None else step
+        graph, names, _ = build_stream_graph(pipe, step=step)
         if form == _SE:  # the spikes and the encoder's next state only
             graph = onnx.ModelProto.FromString(graph.SerializeToString())
             keep = ["spikes", *(f"{n}_out" for n, _ in names)]
@@ -322,13 +329,12 @@ def _stream_call(pipe: SpikePipeline, X: np.ndarray, form: str) -> Callable[[], 
             prune_to_outputs(graph.graph, keep)
             sess = ort.InferenceSession(graph.SerializeToString(), opts,
                                         providers=["CPUExecutionProvider"])  # fmt: skip
-        elif form == _SD:  # every output: the service's stream path asks for the decision
+        elif form in (_SD, _SF):  # every output: the service's stream path asks for them
             sess = ort.InferenceSession(graph.SerializeToString(), opts,
                                         providers=["CPUExecutionProvider"])  # fmt: skip
         else:
             sess = stream_session(graph)
-        half = pipe.window // 2
-        feeds = {"window": X[:1, :, :half].copy(), **initial_state(pipe, X[:1, :, :half])}
+        feeds = {"window": X[:1, :, :step].copy(), **initial_state(pipe, X[:1, :, :step], step)}
     feeds = {k: v for k, v in feeds.items() if k in {i.name for i in sess.get_inputs()}}
     for i in sess.get_inputs():
         feeds.setdefault(i.name, np.zeros((1, int(i.shape[1])), np.float32))
@@ -431,6 +437,9 @@ _SE, _SM = "cgwt stream encoder", "cgwt stream model"
 #: the floor: the stream graph's heavy operators alone (:func:`heavy_operators`); the stream
 #: graph with its early decision as well (what the service's stream path runs)
 _SH, _SD = "cgwt stream heavy", "cgwt stream decision"
+#: the stream graph stepping one frame (one hop) per call, asked for every output as the
+#: service's stream path: a window's spikes and early decision every frame (latency one frame)
+_SF = "cgwt stream frame"
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
            (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
@@ -444,7 +453,9 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            # 20 frames per window: the sweep's "cgwt20 hop5+snn16 dt10" at 2 kHz
            (50, None, False, (64, 5.0), _S), (50, None, False, SMALL_SNN, _S),
            (50, None, False, SMALL_SNN, _SD), (50, None, False, (64, 10.0), _S),
-           (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C))  # fmt: skip
+           (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C),
+           # one frame per call: latency one frame (5 ms at hop 10, 25 ms at hop 50)
+           (10, None, False, (64, 5.0), _SF), (50, None, False, SMALL_SNN, _SF))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -513,10 +524,15 @@ def format_rt(rt: dict) -> str:
             _SD: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}, with its early "
                  "decision (the service's stream path)",
             _SH: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}: its Conv, MatMul "
-                 f"and LSTM nodes of >= {HEAVY_MACS:,} multiply-adds alone"}[form]  # fmt: skip
+                 f"and LSTM nodes of >= {HEAVY_MACS:,} multiply-adds alone",
+            _SF: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}, one frame per call "
+                 "with its early decision (latency one frame)"}[form]  # fmt: skip
+    step = rt.get("step_samples", rt["window_samples"] // 2)
+    every = ("half window" if 2 * step == rt["window_samples"]
+             else f"{step} samples ({1000 * step / 2000:g} ms)")  # fmt: skip
     return (f"{name}, 12 taxels @ 2 kHz{scene}, "
-            f"{rt['window_samples']}-sample windows every half "
-            f"window, onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
+            f"{rt['window_samples']}-sample windows every {every}, "
+            f"onnxruntime 1 thread batch 1: {rt['ms_per_window']:.3f} ms per window, "
             f"{rt['ms_per_signal_s']:.2f} ms per second of signal = "
             f"{rt['realtime_factor']:.0f}x real time")  # fmt: skip
 
