@@ -136,7 +136,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     if "onnx" in m and hasattr(ENCODERS.get(encoder), "stream_module"):
         print(f"for streams (each sample transformed once): tactilesnn export {path} --stream "
-              f"--out {path / 'stream.onnx'}")  # fmt: skip
+              f"--out {path / 'stream.onnx'} (a window every half window; --stream-step SAMPLES "
+              "for another step, one hop for a window every frame)")  # fmt: skip
     return 0
 
 
