@@ -121,6 +121,12 @@ def cmd_train(args: argparse.Namespace) -> int:
     if "test_accuracy_per_recording" in m:
         print(f"per recording (scores summed over its windows): "
               f"{100 * m['test_accuracy_per_recording']:.2f} % on {m['n_test_recordings']}")  # fmt: skip
+    if "in_stream" in m:
+        st = m["in_stream"]
+        print(f"as a stream serves them (each window coded with its recording's past, "
+              f"{st['test_windows_with_past']} of {m['n_test_windows']} test windows have one; "
+              f"trained on both codes: {st['train_windows_added']} windows added): "
+              f"{100 * st['test_accuracy']:.2f} % (+-{100 * st['test_accuracy_ci95']:.2f} %)")  # fmt: skip
     path = result.path
     if "error" in m.get("onnx", {}):
         print(f"run folder {path} is complete, but the ONNX export failed: {m['onnx']['error']}")
@@ -156,7 +162,7 @@ def _parity(rep: dict) -> str:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from .app.run import evaluation_data, load_run
     from .pipeline import accuracy_ci95
-    from .training import recording_accuracy
+    from .training import recording_accuracy, stream_metrics
 
     pipe, cfg = load_run(Path(args.run_dir))
     test = evaluation_data(pipe, cfg, Path(args.data) if args.data else None, every=args.all,
@@ -165,13 +171,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pred = scores.argmax(1)
     per_rec = recording_accuracy(scores, test.y, test.scan)
     acc = float((pred == test.y).mean()) if test.y.size else 0.0
+    in_rec = pipe.encode_in_recordings(test.X, test.scan) if test.y.size else None
+    st = stream_metrics(pipe, scores, in_rec, test.y, None) if in_rec is not None else None
     recall = {
         name: float((pred[test.y == i] == i).mean()) if (test.y == i).any() else None
         for i, name in enumerate(pipe.class_names)
     }
     if args.json:
         out = {"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size),
-               "per_class_recall": recall, **(per_rec or {})}  # fmt: skip
+               "per_class_recall": recall, **(per_rec or {}),
+               **({"in_stream": st} if st else {})}  # fmt: skip
         print(json.dumps(out))
         return 0
     print(f"{args.run_dir}: accuracy {100 * acc:.2f} % (+-{100 * accuracy_ci95(acc, test.y.size):.2f} %"
@@ -180,6 +189,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         a, n = per_rec["test_accuracy_per_recording"], per_rec["n_test_recordings"]
         print(f"  per recording (scores summed over its windows): {100 * a:.2f} % "
               f"(+-{100 * per_rec['test_accuracy_per_recording_ci95']:.2f} %) on {n} recordings")  # fmt: skip
+    if st is not None:
+        print(f"  as a stream serves them (each window coded with its recording's past, "
+              f"{st['test_windows_with_past']} have one): {100 * st['test_accuracy']:.2f} %")  # fmt: skip
     width = max(len(n) for n in pipe.class_names)
     for name, r in recall.items():
         print(f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}")

@@ -18,6 +18,7 @@ import torch
 
 from .config import PipelineConfig
 from .core.checks import as_float_array, check_allocation, check_finite, check_float32_range
+from .core.data import join_run, recording_runs
 from .core.spikes import clock_times
 from .encoders import build_encoder
 from .encoders.level import LevelCode
@@ -128,13 +129,48 @@ class SpikePipeline:
         n = np.shape(X)[0] if np.ndim(X) == 3 else 0
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
         x = self.encoder_input(X)
-        spikes = self.encoder.encode(x, progress=progress, device=device)
+        return self._with_extra(self.encoder.encode(x, progress=progress, device=device), x)
+
+    def _with_extra(self, spikes: torch.Tensor, x: np.ndarray) -> torch.Tensor:
+        """The encoder's spike times of windows ``x`` with the level code's and the clock's."""
         if self.level is not None:
             spikes = torch.cat([spikes, self.level_spikes(x)], dim=1)
         if self.n_clock:
             clock = clock_times(self.n_clock, self.max_spikes, self.duration_ms)
             spikes = torch.cat([spikes, clock.expand(spikes.shape[0], -1, -1)], dim=1)
         return spikes
+
+    @property
+    def streams_recordings(self) -> bool:
+        """Whether the encoder codes a window with its recording's past (its stream form
+        carries state across windows: ``cgwt`` without the activity gate), so that a window
+        served in a stream differs from the same window alone."""
+        return callable(getattr(self.encoder, "encode_recording", None)) and not getattr(
+            self.encoder.config, "gate", 0
+        )
+
+    def encode_in_recordings(
+        self, X: np.ndarray, scan: np.ndarray
+    ) -> tuple[np.ndarray, torch.Tensor] | None:
+        """Spike times of the windows of ``X [N, C, W]`` that have a past, coded with it as the
+        stream graph codes them: ``(indices, spikes [len(indices), afferents, k])`` for every
+        window after the first of each group of ``scan`` whose windows tile one recording
+        (:func:`~tactilesnn.core.data.recording_runs`); None when the encoder has no such form
+        (:attr:`streams_recordings`) or no window has a past."""
+        if not self.streams_recordings:
+            return None
+        x = self.encoder_input(X)
+        runs = recording_runs(x, scan)
+        if not runs:
+            return None
+        idx, parts = [], []
+        for members, shift in runs:
+            rec = join_run(x, members, shift)
+            starts = shift * np.arange(1, len(members))
+            parts.append(self.encoder.encode_recording(rec, starts))  # type: ignore[attr-defined]
+            idx.append(members[1:])
+        at = np.concatenate(idx)
+        return at, self._with_extra(torch.cat(parts), x[at])
 
     @torch.no_grad()
     def level_spikes(self, x: np.ndarray, budget_bytes: int = 1 << 26) -> torch.Tensor:

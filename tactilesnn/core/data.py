@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -70,3 +71,41 @@ def evenly_spaced(n: int, n_max: int) -> np.ndarray:
     """Indices of at most ``n_max`` of ``n`` items, evenly spaced from the first to the last (a
     subsample of training windows that fitting statistics is bounded by)."""
     return np.linspace(0, n - 1, min(n, n_max)).round().astype(int)
+
+
+def recording_runs(X: np.ndarray, scan: np.ndarray) -> list[tuple[np.ndarray, int]]:
+    """Windows ``X [N, channels, window]`` that tile one recording: per group of ``scan`` (in
+    the order they come), its windows when each is the one before shifted by one constant
+    number of samples ``shift`` (``0 < shift < window``, found from the first two and checked
+    on every pair, sample for sample). Returns ``(indices, shift)`` per such group of at least
+    two windows; a group whose windows do not tile (independent trials, gaps, another order) is
+    left out. The recording is then ``X[indices[0]]`` followed by the last ``shift`` samples
+    of every later window."""
+    arr, groups = np.asarray(X), np.asarray(scan)
+    if arr.ndim != 3 or groups.shape != (len(arr),):
+        raise ValueError(f"need X [N, channels, window] and scan [N], got {arr.shape}, "
+                         f"{groups.shape}")  # fmt: skip
+    w = arr.shape[-1]
+    runs = []
+    for g in np.unique(groups):
+        idx = np.flatnonzero(groups == g)
+        if len(idx) < 2:
+            continue
+        a, b = arr[idx[0]], arr[idx[1]]
+        # candidates on the first channel, then the whole window (a constant channel matches
+        # every shift; the smallest shift that matches everywhere is the recording's)
+        shift = next((d for d in range(1, w) if np.array_equal(a[:1, d:], b[:1, : w - d])
+                      and np.array_equal(a[:, d:], b[:, : w - d])), None)  # fmt: skip
+        if shift is None:
+            continue
+        if all(np.array_equal(arr[i][:, shift:], arr[j][:, : w - shift])
+               for i, j in pairwise(idx[1:])):  # fmt: skip
+            runs.append((idx, shift))
+    return runs
+
+
+def join_run(X: np.ndarray, indices: np.ndarray, shift: int) -> np.ndarray:
+    """The recording ``[channels, samples]`` that the windows ``X[indices]`` tile (see
+    :func:`recording_runs`)."""
+    first = np.asarray(X[indices[0]])
+    return np.concatenate([first, *(np.asarray(X[i])[:, -shift:] for i in indices[1:])], axis=1)

@@ -12,6 +12,7 @@ band) and the frame recursion as block MatMuls, then the code.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int
+from ..core.checks import check_allocation, check_int
 from .base import register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
@@ -69,6 +70,12 @@ class CausalGWTConfig(ScalogramLatencySettings):
 class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
     """Causal (streamable) Gabor bank -> latency code."""
 
+    @staticmethod
+    def scaled(x: Tensor) -> Tensor:
+        """:func:`unit_range`: the bank's output is that of the raw window in units of its
+        range, computed without the window's level (see there)."""
+        return unit_range(x)
+
     def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         hop = self.config.hop or auto_hop(self.fs_hz, float(np.max(self.freqs_hz)), self.window)
         if hop > self.window:
@@ -92,14 +99,53 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         stream graph."""
         return CausalStreamCode(self, self.window // 2 if step is None else step)
 
+    @torch.no_grad()
+    def encode_recording(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
+        """Spike times ``[len(starts), afferents, 1]`` of the windows of one recording ``x
+        [channels, samples]`` that start at ``starts`` (samples), each with the recording's
+        past, as the stream graph codes them: the bank run once over the recording (its first
+        sample the constant past; once per phase of the starts modulo the hop, so that every
+        window's frames fall on its grid), each window's frames divided by their largest and
+        coded in units of the window's range (as :meth:`encode_batch`'s). A window starting at
+        0 is :meth:`encode_batch`'s (up to float rounding); a later one differs where the bank
+        still rings with what came before it."""
+        self.check_fitted()
+        if self.config.gate > 0:
+            raise ValueError("a recording's windows with their past need every sample: the "
+                             "activity gate skips quiet ones (train without --gate)")  # fmt: skip
+        hop, frames = self.hop, self.window // self.hop
+        rec = torch.from_numpy(np.ascontiguousarray(x, np.float32))[None]
+        check_allocation(4 * rec.shape[1] * self.scalogram.n_bands * (rec.shape[-1] // hop + 1),
+                         "the causal bank's frames of one recording")  # fmt: skip
+        rec = unit_range(rec)  # the recording's level off, in units of its range
+        out = torch.full((len(starts), self.n_afferents, 1), math.inf)
+        phases: dict[int, list[int]] = {}
+        for i, s in enumerate(starts):
+            phases.setdefault(int(s) % hop, []).append(i)
+        for ph, idx in phases.items():
+            mag = self.scalogram(rec[..., ph:])[0]  # [C, bands, frames]
+            first = [(int(starts[i]) - ph) // hop for i in idx]
+            if max(first) + frames > mag.shape[-1] or min(first) < 0:
+                raise ValueError(f"the windows starting at {list(starts)} do not all lie in the "
+                                 f"recording's {x.shape[-1]} samples")  # fmt: skip
+            win = torch.stack([mag[..., f : f + frames] for f in first])  # [n, C, bands, F]
+            x_win = torch.stack([rec[0, :, int(starts[i]) : int(starts[i]) + self.window]
+                                 for i in idx])  # fmt: skip
+            t = self.code(in_range_units(win, _window_range(x_win)))
+            out[idx, :, 0] = (self.band_scatter(t) if self.restricted else t).float()
+        return out
+
     def stream_reference(self, x: Tensor, step: int) -> Tensor:
         """What the stream step must give on a whole stream ``x [1, channels, samples]`` (float64
         for a reference): the bank run once over it, each complete window's frames (a window
         ending every ``step`` samples) coded -> spike times ``[windows, afferents, 1]``."""
-        mag = self.scalogram(x).float()  # [1, C, bands, frames]
+        mag = self.scalogram(x - x[..., :1])  # [1, C, bands, frames]: the stream's level off
         fs, frames = step // self.hop, self.window // self.hop
         n = x.shape[-1] // step - self.window // step + 1
-        t = torch.cat([self.code(mag[..., j * fs : j * fs + frames]) for j in range(n)])
+        t = torch.cat([self.code(in_range_units(
+            mag[..., j * fs : j * fs + frames],
+            _window_range(x[..., j * step : j * step + self.window])).float())
+            for j in range(n)])  # fmt: skip
         return (self.band_scatter(t) if self.restricted else t).unsqueeze(-1)
 
 
@@ -112,7 +158,39 @@ class _ScalogramCode(nn.Module):
         self.scalogram, self.code = scalogram, code
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.code(self.scalogram(x))
+        return self.code(self.scalogram(unit_range(x)))  # as encode_batch
+
+
+def unit_range(x: Tensor) -> Tensor:
+    """Each (window, channel) of ``x [..., samples]`` less its first sample, in units of its
+    range ``max - min`` (a constant row: zeros).
+
+    The bank's DC gain is exactly zero and a window's past is its first sample, so the bank's
+    output is unchanged by the subtraction and scaled by the division, and the latency code is
+    scale-free: no spike time changes. Without the window's level, float32 rounding is relative
+    to what varies instead of to the level: a status column stuck at 65,535 gives exact zeros
+    (silent) instead of rounding noise coded as spikes (which torch, onnxruntime and float64
+    code differently), and 1 count of ripple on it is coded to float32 precision."""
+    level = x[..., :1]
+    return in_range_units(x - level, x.amax(-1, keepdim=True) - x.amin(-1, keepdim=True))
+
+
+#: magnitudes in units of the window's range are clipped here: a window far quieter than the
+#: past its bank still rings with (a stream) would otherwise overflow the code's float32 squares
+RANGE_UNITS_MAX = 1e15
+
+
+def in_range_units(v: Tensor, rng: Tensor) -> Tensor:
+    """``v / rng`` (``rng``: the window's range, broadcast over ``v``), at most
+    :data:`RANGE_UNITS_MAX`; a window whose samples are all equal gives zeros (silent),
+    whatever a stream's bank still rings with from its past (it has no signal of its own)."""
+    scale = torch.where(rng > 0, 1.0 / rng.clamp_min(torch.finfo(rng.dtype).tiny), 0.0)
+    return (v * scale).clamp_max(RANGE_UNITS_MAX)
+
+
+def _window_range(x: Tensor) -> Tensor:
+    """``x [B, C, samples]`` -> its range ``[B, C, 1, 1]``."""
+    return (x.amax(-1) - x.amin(-1))[..., None, None]
 
 
 def _modulus(re: Tensor, im: Tensor) -> Tensor:
@@ -133,11 +211,15 @@ class CausalStreamCode(nn.Module):
     latency: a sample's frame, and the spikes of the window it ends, exist after the call that
     takes it (one hop: one frame).
 
-    State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1`` samples
-    (a fresh stream: its first sample repeated, the bank's constant past), ``cgwt_rec`` the frame
-    recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's;
-    ``stream_prev``, the window's samples before the chunk, only where the pipeline's level code
-    reads the window.
+    State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1``
+    samples less the stream's level (a fresh stream: zeros, the bank's constant past; the bank
+    runs on the samples less the level, see :func:`unit_range`), ``cgwt_rec`` the frame
+    recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's, and
+    ``cgwt_extent`` per channel the stream's level (its first sample) then the largest and the
+    smallest sample of each of those frames (the code reads the magnitudes in units of the
+    window's range, as the window graph; a fresh stream: its first sample repeated);
+    ``stream_prev``, the window's samples before the chunk, only where the pipeline's level
+    code reads the window.
     """
 
     def __init__(self, encoder: CausalGWTLatencyEncoder, step: int) -> None:
@@ -154,40 +236,46 @@ class CausalStreamCode(nn.Module):
         self.step, self.channels = int(step), encoder.n_channels
         self.f_step = self.step // bank.hop
         self.f_kept = (encoder.window - self.step) // bank.hop  # the window's earlier frames
-        nb, k = bank.n_bands, bank.order
-        self.state_names = [("cgwt_tail", self.channels * (bank.n_taps - 1)),
-                            ("cgwt_rec", self.channels * nb * 2 * k),
-                            ("cgwt_frames", self.channels * nb * self.f_kept)]  # fmt: skip
-        #: a fresh stream's tail is its first sample repeated (the runtime's rule); others zeros
-        self.state_init = {"cgwt_tail": "repeat_first"}
+        nb, k, c = bank.n_bands, bank.order, self.channels
+        self.state_names = [("cgwt_tail", c * (bank.n_taps - 1)), ("cgwt_rec", c * nb * 2 * k),
+                            ("cgwt_frames", c * nb * self.f_kept),
+                            ("cgwt_extent", c * (1 + 2 * self.f_kept))]  # fmt: skip
+        #: a fresh stream's extent is its first sample repeated (the runtime's rule: its level,
+        #: and the extent of the constant past); the others zeros
+        self.state_init = {"cgwt_extent": "repeat_first"}
 
     def initial_state(self, first: np.ndarray) -> dict[str, np.ndarray]:
         """The state of a fresh stream whose first samples are ``first [B, C]`` (float32)."""
         b = first.shape[0]
-        tail = np.repeat(first.astype(np.float32)[:, :, None], self.bank.n_taps - 1, axis=2)
-        return {"cgwt_tail": tail.reshape(b, -1),
-                **{n: np.zeros((b, u), np.float32) for n, u in self.state_names[1:]}}  # fmt: skip
+        ext = np.repeat(first.astype(np.float32)[:, :, None], 1 + 2 * self.f_kept, axis=2)
+        return {**{n: np.zeros((b, u), np.float32) for n, u in self.state_names[:-1]},
+                "cgwt_extent": ext.reshape(b, -1)}  # fmt: skip
 
     def forward(
-        self, chunk: Tensor, tail: Tensor, rec: Tensor, frames: Tensor
+        self, chunk: Tensor, tail: Tensor, rec: Tensor, frames: Tensor, extent: Tensor
     ) -> tuple[Tensor, ...]:
         b, c, n = chunk.shape
-        nb, k, nt = self.bank.n_bands, self.bank.order, self.bank.n_taps
-        buf = torch.cat([tail.reshape(b * c, 1, nt - 1), chunk.reshape(b * c, 1, n)], -1)
+        nb, k, nt, fk = self.bank.n_bands, self.bank.order, self.bank.n_taps, self.f_kept
+        level, extent = extent.reshape(b, c, -1).split([1, 2 * fk], -1)
+        xs = chunk - level  # the stream's level off (exact: the bank has no DC gain)
+        buf = torch.cat([tail.reshape(b * c, 1, nt - 1), xs.reshape(b * c, 1, n)], -1)
         re, im, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
         mag = _modulus(re, im).reshape(b, c, nb, self.f_step)  # [B, C, bands, F step]
-        window = torch.cat([frames.reshape(b, c, nb, self.f_kept), mag], -1)
-        # the code is scale-free per window and channel; dividing by the window's largest frame
-        # keeps its squares in float32 range whatever the sensor's units (the window graph
-        # divides the samples by their peak instead: a stream's bank cannot)
-        peak = window.amax((-2, -1), keepdim=True).clamp_min(torch.finfo(window.dtype).tiny)
-        t = self.code(window / peak)
+        window = torch.cat([frames.reshape(b, c, nb, fk), mag], -1)
+        # each frame's largest and smallest sample: the window's range is theirs. The code
+        # reads the window in units of it, as the window graph (the same spikes; a constant
+        # channel silent; float32 in range whatever the sensor's units)
+        hops = chunk.reshape(b, c, self.f_step, -1)
+        ext = torch.cat([extent.reshape(b, c, 2, fk),
+                         torch.stack([hops.amax(-1), hops.amin(-1)], 2)], -1)  # fmt: skip
+        rng = ext[:, :, 0].amax(-1) - ext[:, :, 1].amin(-1)  # [B, C]
+        t = self.code(in_range_units(window, rng[..., None, None]))
         if self.scatter is not None:
             t = self.scatter(t)
-        new_rec = state.reshape(b, -1)
-        kept = window[..., self.f_step :] if self.f_step < self.f_kept else mag
-        return (t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), new_rec,
-                kept.reshape(b, -1))  # fmt: skip
+        fs = self.f_step
+        new_extent = torch.cat([level, ext[..., fs:].reshape(b, c, -1)], -1).reshape(b, -1)
+        return (t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), state.reshape(b, -1),
+                window[..., fs:].reshape(b, -1), new_extent)  # fmt: skip
 
 
 def check_stream_step(step: int, window: int, hop: int) -> int:

@@ -254,12 +254,18 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         """``[n, c, samples]`` -> spike times ``[n, c * stats * bands]``: only the bands inside
         the passband are transformed and coded (the others silent), unless skipping is off."""
         if not self.restricted:
-            return self.code(self.scalogram(unit_peak(x)))
+            return self.code(self.scalogram(self.scaled(x)))
         if not self.skip_enabled:
             if not self._all_bands:
                 self._all_bands.append(self.make_scalogram(self.freqs_hz))
-            return self.code(self._all_bands[0](unit_peak(x)))
-        return self.band_scatter(self.code(self.scalogram(unit_peak(x))))
+            return self.code(self._all_bands[0](self.scaled(x)))
+        return self.band_scatter(self.code(self.scalogram(self.scaled(x))))
+
+    @staticmethod
+    def scaled(x: Tensor) -> Tensor:
+        """The windows as the scalogram takes them: :func:`unit_peak` (the code is scale-free;
+        this keeps float32 in range)."""
+        return unit_peak(x)
 
     def encode_batch(self, x: Tensor) -> Tensor:
         if self.config.gate <= 0 or not self.skip_enabled:
@@ -295,7 +301,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         """Scalogram magnitude of the window's channels, summed ``[bands, frames]``."""
         t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
         freqs = np.asarray(self.freqs_hz)[self.kept_bands]  # the bands transformed
-        return self.scalogram(unit_peak(t))[0].sum(0).numpy(), freqs
+        return self.scalogram(self.scaled(t))[0].sum(0).numpy(), freqs
 
 
 @register_encoder("gwt", GWTConfig)

@@ -44,7 +44,7 @@ def test_stream_graph_matches_torch_on_a_stream(tmp_path, model, level):
     assert rep["encoder_max_time_diff_ms"] < 1e-2 and rep["encoder_cutoff_flips"] == 0
     meta = {p.key: p.value for p in onnx.load(tmp_path / "s.onnx").metadata_props}
     assert meta["stream_step_samples"] == str(WINDOW // 2)
-    assert json.loads(meta["stream_state_init"]) == {"cgwt_tail": "repeat_first"}
+    assert json.loads(meta["stream_state_init"]) == {"cgwt_extent": "repeat_first"}
     assert ("stream_prev" in json.loads(meta["stream_encoder_states"])) == (level > 0)
     with pytest.raises(FileExistsError, match="--overwrite"):  # nothing replaced silently
         export_stream(pipe, tmp_path / "s.onnx", _windows(20))
