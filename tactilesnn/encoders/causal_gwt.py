@@ -24,7 +24,7 @@ from ..core.checks import check_allocation, check_int
 from .base import register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
-from .scalogram_latency import ScalogramLatencyEncoder, ScalogramLatencySettings
+from .scalogram_latency import ScalogramLatencyEncoder, ScalogramLatencySettings, unit_peak
 
 
 def auto_hop(fs_hz: float, f_hi_hz: float, window: int) -> int:
@@ -72,9 +72,9 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
 
     @staticmethod
     def scaled(x: Tensor) -> Tensor:
-        """:func:`unit_range`: the bank's output is that of the raw window in units of its
-        range, computed without the window's level (see there)."""
-        return unit_range(x)
+        """:func:`level_off`: the bank's output is that of the window (scaled), computed
+        without the window's level (see there)."""
+        return level_off(x)
 
     def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         hop = self.config.hop or auto_hop(self.fs_hz, float(np.max(self.freqs_hz)), self.window)
@@ -117,7 +117,7 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         rec = torch.from_numpy(np.ascontiguousarray(x, np.float32))[None]
         check_allocation(4 * rec.shape[1] * self.scalogram.n_bands * (rec.shape[-1] // hop + 1),
                          "the causal bank's frames of one recording")  # fmt: skip
-        rec = unit_range(rec)  # the recording's level off, in units of its range
+        rec = level_off(rec)  # scaled by the recording's peak, its level off
         out = torch.full((len(starts), self.n_afferents, 1), math.inf)
         phases: dict[int, list[int]] = {}
         for i, s in enumerate(starts):
@@ -158,34 +158,33 @@ class _ScalogramCode(nn.Module):
         self.scalogram, self.code = scalogram, code
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.code(self.scalogram(unit_range(x)))  # as encode_batch
+        return self.code(self.scalogram(x))  # (the window comes level_off: _WithSlot)
 
 
-def unit_range(x: Tensor) -> Tensor:
-    """Each (window, channel) of ``x [..., samples]`` less its first sample, in units of its
-    range ``max - min`` (a constant row: zeros).
+def level_off(x: Tensor) -> Tensor:
+    """Each (window, channel) of ``x [..., samples]`` less its first sample, divided by the
+    peak of that (:func:`unit_peak`; a constant row: exact zeros). Halved first (exact), so that
+    no difference of float32 values overflows.
 
     The bank's DC gain is exactly zero and a window's past is its first sample, so the bank's
     output is unchanged by the subtraction and scaled by the division, and the latency code is
-    scale-free: no spike time changes. Without the window's level, float32 rounding is relative
-    to what varies instead of to the level: a status column stuck at 65,535 gives exact zeros
-    (silent) instead of rounding noise coded as spikes (which torch, onnxruntime and float64
-    code differently), and 1 count of ripple on it is coded to float32 precision."""
-    level = x[..., :1]
-    return in_range_units(x - level, x.amax(-1, keepdim=True) - x.amin(-1, keepdim=True))
+    scale-free: no spike time changes. Without the level, float32 rounding is relative to what
+    varies instead of to the level: a status column stuck at 65,535 gives exact zeros (silent)
+    instead of rounding noise coded as spikes (which torch, onnxruntime and float64 coded
+    differently), and a ripple on a large level is coded to the precision float32 holds it
+    with."""
+    h = 0.5 * x
+    return unit_peak(h - h[..., :1])
 
 
-#: magnitudes in units of the window's range are clipped here: a window far quieter than the
-#: past its bank still rings with (a stream) would otherwise overflow the code's float32 squares
-RANGE_UNITS_MAX = 1e15
-
-
-def in_range_units(v: Tensor, rng: Tensor) -> Tensor:
-    """``v / rng`` (``rng``: the window's range, broadcast over ``v``), at most
-    :data:`RANGE_UNITS_MAX`; a window whose samples are all equal gives zeros (silent),
-    whatever a stream's bank still rings with from its past (it has no signal of its own)."""
-    scale = torch.where(rng > 0, 1.0 / rng.clamp_min(torch.finfo(rng.dtype).tiny), 0.0)
-    return (v * scale).clamp_max(RANGE_UNITS_MAX)
+def in_range_units(mag: Tensor, rng: Tensor) -> Tensor:
+    """A stream window's magnitudes ``mag [B, C, bands, F]`` as the code takes them: in units
+    of their largest (the code is scale-free; this keeps its float32 squares in range whatever
+    the sensor's units), and zeros where the window's range ``rng [B, C, 1, 1]`` is zero: a
+    window whose samples are all equal is silent, whatever its bank still rings with from the
+    past (it has no signal of its own), as the window graph codes a constant window."""
+    top = mag.amax((-2, -1), keepdim=True).clamp_min(torch.finfo(mag.dtype).tiny)
+    return mag * ((rng > 0).to(mag.dtype) / top)
 
 
 def _window_range(x: Tensor) -> Tensor:
@@ -213,10 +212,10 @@ class CausalStreamCode(nn.Module):
 
     State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1``
     samples less the stream's level (a fresh stream: zeros, the bank's constant past; the bank
-    runs on the samples less the level, see :func:`unit_range`), ``cgwt_rec`` the frame
+    runs on the samples less the level, see :func:`level_off`), ``cgwt_rec`` the frame
     recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's, and
     ``cgwt_extent`` per channel the stream's level (its first sample) then the largest and the
-    smallest sample of each of those frames (the code reads the magnitudes in units of the
+    negated smallest sample of each of those frames (the code reads the magnitudes in units of the
     window's range, as the window graph; a fresh stream: its first sample repeated);
     ``stream_prev``, the window's samples before the chunk, only where the pipeline's level
     code reads the window.
@@ -262,18 +261,19 @@ class CausalStreamCode(nn.Module):
         re, im, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
         mag = _modulus(re, im).reshape(b, c, nb, self.f_step)  # [B, C, bands, F step]
         window = torch.cat([frames.reshape(b, c, nb, fk), mag], -1)
-        # each frame's largest and smallest sample: the window's range is theirs. The code
-        # reads the window in units of it, as the window graph (the same spikes; a constant
-        # channel silent; float32 in range whatever the sensor's units)
-        hops = chunk.reshape(b, c, self.f_step, -1)
-        ext = torch.cat([extent.reshape(b, c, 2, fk),
-                         torch.stack([hops.amax(-1), hops.amin(-1)], 2)], -1)  # fmt: skip
-        rng = ext[:, :, 0].amax(-1) - ext[:, :, 1].amin(-1)  # [B, C]
-        t = self.code(in_range_units(window, rng[..., None, None]))
+        # each frame's largest sample and negated smallest: the window's range is the sum of
+        # their maxima. The code reads the window in units of it (the same spikes as the
+        # window graph; a constant channel silent; float32 in range whatever the units)
+        hops = chunk.reshape(b, c, self.f_step, 1, -1)
+        ext = torch.cat(
+            [extent.reshape(b, c, fk, 2), torch.cat([hops, -hops], -2).amax(-1)], 2
+        )  # [B, C, F, 2]
+        rng = ext.amax(2, keepdim=True).sum(-1, keepdim=True)  # [B, C, 1, 1]
+        t = self.code(in_range_units(window, rng))
         if self.scatter is not None:
             t = self.scatter(t)
         fs = self.f_step
-        new_extent = torch.cat([level, ext[..., fs:].reshape(b, c, -1)], -1).reshape(b, -1)
+        new_extent = torch.cat([level, ext[:, :, fs:].reshape(b, c, -1)], -1).reshape(b, -1)
         return (t.unsqueeze(-1), buf[..., -(nt - 1) :].reshape(b, -1), state.reshape(b, -1),
                 window[..., fs:].reshape(b, -1), new_extent)  # fmt: skip
 

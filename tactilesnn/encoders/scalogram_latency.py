@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -291,7 +292,8 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         encodes only the active (window, channel) rows, as :meth:`encode_batch` does (the
         service also answers wholly silent windows of a stateless model from a cache, see
         :mod:`tactilesnn.service.runtime`)."""
-        graph = _WithSlot(nn.Sequential(graph, self.band_scatter) if self.restricted else graph)
+        inner = nn.Sequential(graph, self.band_scatter) if self.restricted else graph
+        graph = _WithSlot(inner, self.scaled)
         if self.config.gate <= 0:
             return graph
         return _GateMask(graph, self.gate_rms, len(self.config.stats) * self.config.n_bands)
@@ -403,11 +405,13 @@ class _BandScatter(nn.Module):
 
 
 class _WithSlot(nn.Module):
-    """``[B, A]`` one-spike times -> ``[B, A, 1]`` (the package's spike format)."""
+    """Windows as the scalogram takes them (``scaled``: the encoder's, as in
+    :meth:`ScalogramLatencyEncoder.encode_batch`) -> ``inner`` -> ``[B, A]`` one-spike times ->
+    ``[B, A, 1]`` (the package's spike format)."""
 
-    def __init__(self, inner: nn.Module) -> None:
+    def __init__(self, inner: nn.Module, scaled: Callable[[Tensor], Tensor] = unit_peak) -> None:
         super().__init__()
-        self.inner = inner
+        self.inner, self.scaled = inner, scaled
 
     def forward(self, x: Tensor) -> Tensor:
-        return self.inner(unit_peak(x)).unsqueeze(-1)
+        return self.inner(self.scaled(x)).unsqueeze(-1)
