@@ -145,9 +145,9 @@ class SpikePipeline:
         """Whether the encoder codes a window with its recording's past (its stream form
         carries state across windows: ``cgwt`` without the activity gate), so that a window
         served in a stream differs from the same window alone."""
-        return callable(getattr(self.encoder, "encode_recording", None)) and not getattr(
-            self.encoder.config, "gate", 0
-        )
+        cfg = self.encoder.config
+        return (callable(getattr(self.encoder, "encode_recording", None))
+                and not getattr(cfg, "gate", 0) and getattr(cfg, "level_off", True))  # fmt: skip
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray

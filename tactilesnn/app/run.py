@@ -358,10 +358,14 @@ def saved_pipeline_config(d: dict) -> PipelineConfig:
     """A saved run's settings: a component field added after the run was written takes the
     value it had then (the component's ``SAVED_BEFORE``), not today's default."""
     cfg = PipelineConfig.from_dict(d)
-    before = getattr(type(cfg.model), "SAVED_BEFORE", {})
-    saved = d.get("model", {}) if is_nested(d) else d
-    missing = {k: v for k, v in before.items() if k not in saved}
-    return cfg.replace(model=replace(cfg.model, **missing)) if missing else cfg
+    for part in ("model", "encoder"):
+        settings = getattr(cfg, part)
+        before = getattr(type(settings), "SAVED_BEFORE", {})
+        saved = d.get(part, {}) if is_nested(d) else d
+        missing = {k: v for k, v in before.items() if k not in saved}
+        if missing:
+            cfg = cfg.replace(**{part: replace(settings, **missing)})
+    return cfg
 
 
 def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -74,34 +73,45 @@ def evenly_spaced(n: int, n_max: int) -> np.ndarray:
 
 
 def recording_runs(X: np.ndarray, scan: np.ndarray) -> list[tuple[np.ndarray, int]]:
-    """Windows ``X [N, channels, window]`` that tile one recording: per group of ``scan`` (in
-    the order they come), its windows when each is the one before shifted by one constant
-    number of samples ``shift`` (``0 < shift < window``, found from the first two and checked
-    on every pair, sample for sample). Returns ``(indices, shift)`` per such group of at least
-    two windows; a group whose windows do not tile (independent trials, gaps, another order) is
-    left out. The recording is then ``X[indices[0]]`` followed by the last ``shift`` samples
-    of every later window."""
+    """Windows ``X [N, channels, window]`` that tile a recording: within each group of ``scan``
+    (in the order they come), every maximal run of consecutive windows each of which is the one
+    before it shifted by one constant number of samples ``shift`` (``0 < shift < window``,
+    checked sample for sample). Returns ``(indices, shift)`` per run of at least two windows;
+    windows that tile nothing (independent trials, gaps) are in no run. A run's recording is
+    :func:`join_run`."""
     arr, groups = np.asarray(X), np.asarray(scan)
     if arr.ndim != 3 or groups.shape != (len(arr),):
         raise ValueError(f"need X [N, channels, window] and scan [N], got {arr.shape}, "
                          f"{groups.shape}")  # fmt: skip
     w = arr.shape[-1]
-    runs = []
+    runs: list[tuple[np.ndarray, int]] = []
     for g in np.unique(groups):
         idx = np.flatnonzero(groups == g)
-        if len(idx) < 2:
-            continue
-        a, b = arr[idx[0]], arr[idx[1]]
-        # candidates on the first channel, then the whole window (a constant channel matches
-        # every shift; the smallest shift that matches everywhere is the recording's)
-        shift = next((d for d in range(1, w) if np.array_equal(a[:1, d:], b[:1, : w - d])
-                      and np.array_equal(a[:, d:], b[:, : w - d])), None)  # fmt: skip
-        if shift is None:
-            continue
-        if all(np.array_equal(arr[i][:, shift:], arr[j][:, : w - shift])
-               for i, j in pairwise(idx[1:])):  # fmt: skip
-            runs.append((idx, shift))
+        seg, shift = [int(idx[0])], 0
+        for j in (int(i) for i in idx[1:]):
+            a, b = arr[seg[-1]], arr[j]
+            if shift and np.array_equal(a[:, shift:], b[:, : w - shift]):
+                seg.append(j)
+                continue
+            if len(seg) >= 2:
+                runs.append((np.asarray(seg), shift))
+            d = _tiling_shift(a, b) if len(seg) == 1 else 0
+            seg, shift = ([seg[-1], j], d) if d else ([j], 0)
+        if len(seg) >= 2:
+            runs.append((np.asarray(seg), shift))
     return runs
+
+
+def _tiling_shift(a: np.ndarray, b: np.ndarray) -> int:
+    """The smallest ``d`` with ``b[:, :w - d] == a[:, d:]`` (windows ``[channels, w]``), or 0.
+    Candidates are where ``a``'s most varied channel equals ``b``'s first sample there (one
+    pass), so independent windows cost ``O(w)``."""
+    w = a.shape[-1]
+    row = int(np.argmax(a.std(-1))) if a.shape[0] > 1 else 0
+    for d in np.flatnonzero(a[row, 1:] == b[row, 0]) + 1:
+        if np.array_equal(a[:, d:], b[:, : w - d]):
+            return int(d)
+    return 0
 
 
 def join_run(X: np.ndarray, indices: np.ndarray, shift: int) -> np.ndarray:

@@ -49,6 +49,10 @@ class CausalGWTConfig(ScalogramLatencySettings):
 
     hop: int = 0
     order: int = 4
+    level_off: bool = True
+
+    #: runs saved before the level was taken off load with it on (their spikes as they were)
+    SAVED_BEFORE: ClassVar[dict[str, object]] = {"level_off": False}
 
     FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "cgwt_hop": "hop",
                                        "cgwt_order": "order"}  # fmt: skip
@@ -56,6 +60,7 @@ class CausalGWTConfig(ScalogramLatencySettings):
         **ScalogramLatencySettings.HELP,
         "hop": "frame every hop samples (0 = from the highest band's envelope bandwidth)",
         "order": "poles per band of the causal Gabor bank (4: gammatone-like)",
+        "level_off": "each window less its first sample before the bank (see level_off)",
     }
 
     def __post_init__(self) -> None:
@@ -70,11 +75,16 @@ class CausalGWTConfig(ScalogramLatencySettings):
 class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
     """Causal (streamable) Gabor bank -> latency code."""
 
-    @staticmethod
-    def scaled(x: Tensor) -> Tensor:
+    def scaled(self, x: Tensor) -> Tensor:
         """:func:`level_off`: the bank's output is that of the window (scaled), computed
-        without the window's level (see there)."""
-        return level_off(x)
+        without the window's level (see there); a run saved before that: :func:`unit_peak`."""
+        return level_off(x) if self.config.level_off else unit_peak(x)
+
+    def _check_level_off(self, what: str) -> None:
+        if not self.config.level_off:
+            raise ValueError(f"this run was trained before the cgwt encoder took each window's "
+                             f"level off, which {what} needs: train it again (its window graph "
+                             "still exports)")  # fmt: skip
 
     def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         hop = self.config.hop or auto_hop(self.fs_hz, float(np.max(self.freqs_hz)), self.window)
@@ -97,6 +107,7 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
     def stream_module(self, step: int | None = None) -> CausalStreamCode:
         """The encoder's stream step (``step`` samples per call, default half a window), for the
         stream graph."""
+        self._check_level_off("the stream graph")
         return CausalStreamCode(self, self.window // 2 if step is None else step)
 
     @torch.no_grad()
@@ -110,6 +121,7 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         0 is :meth:`encode_batch`'s (up to float rounding); a later one differs where the bank
         still rings with what came before it."""
         self.check_fitted()
+        self._check_level_off("coding a window with its past")
         if self.config.gate > 0:
             raise ValueError("a recording's windows with their past need every sample: the "
                              "activity gate skips quiet ones (train without --gate)")  # fmt: skip

@@ -39,14 +39,17 @@ def test_recording_runs_find_windows_that_tile_a_recording():
     a, b = _recording(1000, seed=1), _recording(700, seed=2)
     wa, wb = _cut(a, 100), _cut(b, 40)
     trials = np.stack([_recording(WINDOW, seed=s) for s in range(3)])  # independent windows
-    broken = _cut(_recording(600, seed=3), 100)
-    broken[2, 0, -1] += 1.0  # one sample off: the group does not tile
+    broken = _cut(_recording(600, seed=3), 100)  # 5 windows
+    broken[2, 0, -1] += 1.0  # one sample off: windows 0-2 tile, 3-4 tile, 2-3 do not
     X = np.concatenate([wa, trials, wb, broken])
     scan = np.repeat([0, 1, 2, 3], [len(wa), len(trials), len(wb), len(broken)])
     runs = recording_runs(X, scan)
+    n0 = len(wa) + 3 + len(wb)
     assert [(list(i), s) for i, s in runs] == [
         (list(range(len(wa))), 100),
-        (list(range(len(wa) + 3, len(wa) + 3 + len(wb))), 40),
+        (list(range(len(wa) + 3, n0)), 40),
+        ([n0, n0 + 1, n0 + 2], 100),
+        ([n0 + 3, n0 + 4], 100),
     ]
     assert np.array_equal(join_run(X, *runs[0]), a[:, : WINDOW + 100 * (len(wa) - 1)])
     assert np.array_equal(join_run(X, *runs[1]), b[:, : WINDOW + 40 * (len(wb) - 1)])
@@ -134,5 +137,18 @@ def test_training_on_recordings_learns_both_codes(tmp_path, capsys):
     ev = json.loads(capsys.readouterr().out)
     assert ev["in_stream"]["test_accuracy"] == st["test_accuracy"]
     assert ev["test_accuracy"] == m["test_accuracy"]
+    # a run saved before the level was taken off loads with it on (its spikes as they were),
+    # codes no window with its past and refuses the stream graph rather than change them
+    cfg_path = tmp_path / "c" / "config.json"
+    cfg = json.loads(cfg_path.read_text())
+    assert cfg["pipeline"]["encoder"].pop("level_off") is True
+    cfg_path.write_text(json.dumps(cfg))
+    from tactilesnn.app.run import load_run
+
+    old, _ = load_run(tmp_path / "c")
+    assert old.encoder.config.level_off is False and not old.streams_recordings
+    assert main(["export", str(tmp_path / "c"), "--stream", "--out", str(tmp_path / "s.onnx"),
+                 "--quiet"]) == 2  # fmt: skip
+    assert "trained before the cgwt encoder took" in capsys.readouterr().err
     assert main(["train", *common, "--encoder", "gwt", "--out", str(tmp_path / "g")]) == 0
     assert "in_stream" not in json.loads((tmp_path / "g" / "metrics.json").read_text())
