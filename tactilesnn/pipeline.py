@@ -143,11 +143,9 @@ class SpikePipeline:
     @property
     def streams_recordings(self) -> bool:
         """Whether the encoder codes a window with its recording's past (its stream form
-        carries state across windows: ``cgwt`` without the activity gate), so that a window
+        carries state across windows: the encoder's ``codes_with_past``), so that a window
         served in a stream differs from the same window alone."""
-        cfg = self.encoder.config
-        return (callable(getattr(self.encoder, "encode_recording", None))
-                and not getattr(cfg, "gate", 0) and getattr(cfg, "level_off", True))  # fmt: skip
+        return bool(getattr(self.encoder, "codes_with_past", False))
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray
@@ -163,6 +161,8 @@ class SpikePipeline:
         runs = recording_runs(x, scan)
         if not runs:
             return None
+        n = sum(len(m) - 1 for m, _ in runs)
+        check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
         idx, parts = [], []
         for members, shift in runs:
             rec = join_run(x, members, shift)

@@ -80,6 +80,13 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         without the window's level (see there); a run saved before that: :func:`unit_peak`."""
         return level_off(x) if self.config.level_off else unit_peak(x)
 
+    @property
+    def codes_with_past(self) -> bool:
+        """Whether :meth:`encode_recording` codes windows as the stream graph serves them (not
+        with the activity gate, which skips samples, nor for a run saved before the level
+        was taken off)."""
+        return self.config.gate <= 0 and self.config.level_off
+
     def _check_level_off(self, what: str) -> None:
         if not self.config.level_off:
             raise ValueError(f"this run was trained before the cgwt encoder took each window's "
@@ -115,11 +122,11 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         """Spike times ``[len(starts), afferents, 1]`` of the windows of one recording ``x
         [channels, samples]`` that start at ``starts`` (samples), each with the recording's
         past, as the stream graph codes them: the bank run once over the recording (its first
-        sample the constant past; once per phase of the starts modulo the hop, so that every
-        window's frames fall on its grid), each window's frames divided by their largest and
-        coded in units of the window's range (as :meth:`encode_batch`'s). A window starting at
-        0 is :meth:`encode_batch`'s (up to float rounding); a later one differs where the bank
-        still rings with what came before it."""
+        sample the constant past, its level off; once per phase of the starts modulo the hop,
+        so that every window's frames fall on its grid), each window's frames coded as
+        :func:`in_range_units` gives them. A window starting at 0 is :meth:`encode_batch`'s (up
+        to float rounding); a later one differs where the bank still rings with what came
+        before it."""
         self.check_fitted()
         self._check_level_off("coding a window with its past")
         if self.config.gate > 0:
@@ -227,8 +234,8 @@ class CausalStreamCode(nn.Module):
     runs on the samples less the level, see :func:`level_off`), ``cgwt_rec`` the frame
     recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's, and
     ``cgwt_extent`` per channel the stream's level (its first sample) then the largest and the
-    negated smallest sample of each of those frames (the code reads the magnitudes in units of the
-    window's range, as the window graph; a fresh stream: its first sample repeated);
+    negated smallest sample of each of those frames (a window whose range is zero is silent, as
+    the window graph codes a constant window; a fresh stream: its first sample repeated);
     ``stream_prev``, the window's samples before the chunk, only where the pipeline's level
     code reads the window.
     """
@@ -274,8 +281,7 @@ class CausalStreamCode(nn.Module):
         mag = _modulus(re, im).reshape(b, c, nb, self.f_step)  # [B, C, bands, F step]
         window = torch.cat([frames.reshape(b, c, nb, fk), mag], -1)
         # each frame's largest sample and negated smallest: the window's range is the sum of
-        # their maxima. The code reads the window in units of it (the same spikes as the
-        # window graph; a constant channel silent; float32 in range whatever the units)
+        # their maxima (zero: a constant window, silent as in the window graph)
         hops = chunk.reshape(b, c, self.f_step, 1, -1)
         ext = torch.cat(
             [extent.reshape(b, c, fk, 2), torch.cat([hops, -hops], -2).amax(-1)], 2
