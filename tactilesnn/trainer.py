@@ -57,7 +57,7 @@ class Trainer:
             solved = model.solve(spikes, yt, groups)
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if solved is not None and not solved.get("train_epochs"):  # the optimum: no epochs
-            _record(st, model, spikes, yt, val)
+            _record(st, model, spikes, yt, val, solved.get("train_error"))
             st["epoch"] = cfg.epochs
             if on_epoch is not None:
                 on_epoch(0, self.state(st, gen, opt, best_w))
@@ -129,10 +129,13 @@ class Trainer:
 
 
 def _record(st: dict, model: SpikeModel, spikes: torch.Tensor, yt: torch.Tensor,
-            val: tuple[torch.Tensor, np.ndarray] | None) -> tuple[float, float]:  # fmt: skip
-    """Append the training error (and validation accuracy) to ``st``; returns ``(error, score)``
-    with score the validation accuracy, or ``1 - error`` without validation."""
-    err = float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
+            val: tuple[torch.Tensor, np.ndarray] | None,
+            train_error: float | None = None) -> tuple[float, float]:  # fmt: skip
+    """Append the training error (``train_error`` where the model's solve measured it; else
+    computed) and the validation accuracy to ``st``; returns ``(error, score)`` with score the
+    validation accuracy, or ``1 - error`` without validation."""
+    err = (float((model.batched_scores(spikes).argmax(1) != yt).float().mean())
+           if train_error is None else float(train_error))  # fmt: skip
     st["history"].append(err)
     if val is None:
         return err, 1.0 - err

@@ -48,22 +48,15 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
 from .base import SpikeModel, register_model, seeded
-from .softmax_fit import (
-    CV_WINDOWS,
-    PENALTY_FACTORS,
-    choose_penalty,
-    fit_softmax,
-    orthogonal_basis,
-    whole_groups,
-)
+from .softmax_fit import CV_WINDOWS, PENALTY_FACTORS, choose_penalty, fit_features, whole_groups
 
 log = logging.getLogger("tactilesnn")
 
 #: training windows at which the penalty is ``weight_decay`` (see the module docstring)
 PRIOR_WINDOWS = 256
 SOLVERS = ("exact", "adam")
-#: the exact solver's float64 feature matrix may take this much (its working set is about four
-#: times that: basis, Gram matrix); above it the readout trains by the trainer's Adam epochs
+#: the exact solver's float32 feature matrix may take this much (its working set is about twice
+#: that: a column cut, the Gram matrix); above it the readout trains by the trainer's Adam epochs
 #: (with the configured penalty, every instant)
 EXACT_BUDGET_BYTES = 384 << 20
 
@@ -161,6 +154,7 @@ class LIReadout(SpikeModel):
         self.penalty = float(config.weight_decay)  # set from the training set's size by prepare()
         # which features train (solve() may leave instants out); not saved: zero weights are
         self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
+        self._prepared: tuple[Tensor, Tensor] | None = None  # prepare()'s traces, for solve()
 
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
@@ -172,79 +166,109 @@ class LIReadout(SpikeModel):
     @torch.no_grad()
     def prepare(self, spikes: Tensor) -> None:
         """Mean and standard deviation of every trace feature over the training spikes
-        (float64 sums over batches bounded by the byte budget); constant features keep scale 1."""
+        (float64 sums over batches bounded by the byte budget); constant features keep scale 1.
+        Where the float32 traces fit :data:`EXACT_BUDGET_BYTES` they are kept for
+        :meth:`solve` on the same spikes (computed once, not once per use)."""
         n = spikes.shape[0]
+        self._prepared = None
         if n == 0:
             return
         self.penalty = self.config.weight_decay * PRIOR_WINDOWS / n
         total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
         total_sq = torch.zeros_like(total)
+        keep = (
+            self.config.solver == "exact" and 4 * n * self.linear.in_features <= EXACT_BUDGET_BYTES
+        )
+        kept = []
         batch = self.batch_size(spikes)
         for i in range(0, n, batch):
-            f = self.traces(spikes[i : i + batch]).double()
+            t = self.traces(spikes[i : i + batch])
+            if keep:
+                kept.append(t)
+            f = t.double()
             total += f.sum(0)
             total_sq += (f * f).sum(0)
         mean = total / n
         sd = (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
         self.feat_mean.copy_(mean.float())
         self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
+        if keep:
+            self._prepared = (spikes, torch.cat(kept))
 
     def scores(self, spikes: Tensor) -> Tensor:
         return self.linear(self.features(spikes))
 
+    def _training_features(self, spikes: Tensor, idx: np.ndarray | None) -> Tensor:
+        """Standardised float32 features ``[len(idx), d]`` of ``spikes[idx]`` (all: ``None``),
+        from :meth:`prepare`'s traces when it kept those of these spikes."""
+        kept = self._prepared
+        self._prepared = None
+        if kept is not None and kept[0] is spikes:
+            f = kept[1] if idx is None else kept[1][torch.from_numpy(idx)]
+            return f.sub_(self.feat_mean).div_(self.feat_scale)
+        sub = spikes if idx is None else spikes[torch.from_numpy(idx)]
+        step = self.batch_size(sub)
+        return torch.cat([self.features(sub[i : i + step]) for i in range(0, len(sub), step)])
+
     @torch.no_grad()
     def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None) -> dict | None:
         """The exact solver (``solver = "exact"``; None otherwise): after :meth:`prepare`, the
-        penalised cross-entropy minimised to its optimum, with ``choose`` the penalty and the
-        read-out instants used (the others get zero weight) chosen by cross-validation over
-        ``groups`` (recording ids ``[N]``; each window its own without). Returns what was
-        chosen, with the cross-validated accuracy of every candidate.
+        penalised cross-entropy minimised to its optimum (:func:`~.softmax_fit.fit_features`),
+        with ``choose`` the penalty and the read-out instants used (the others get zero weight)
+        chosen by cross-validation over ``groups`` (recording ids ``[N]``; each window its own
+        without) on at most ``CV_WINDOWS`` windows. Returns what was chosen, with the
+        cross-validated accuracy of every candidate and the training error of the fit.
 
-        Bounded: where the float64 features exceed :data:`EXACT_BUDGET_BYTES`, the choice is
-        made on whole recordings that fit it (at most ``CV_WINDOWS``) and the weights are then
-        trained by the trainer's epochs with that penalty and those instants
-        (``"train_epochs": True`` in the report)."""
+        Bounded: where the float32 features exceed :data:`EXACT_BUDGET_BYTES`, the choice is
+        made on whole recordings that fit it and the weights are then trained by the trainer's
+        epochs with that penalty and those instants (``"train_epochs": True`` in the report)."""
         cfg = self.config
         n, d = spikes.shape[0], self.linear.in_features
-        exact = 8 * n * d <= EXACT_BUDGET_BYTES
+        exact = 4 * n * d <= EXACT_BUDGET_BYTES
         if cfg.solver != "exact" or n == 0 or (not exact and not cfg.choose):
+            self._prepared = None
             return None
         t0 = time.perf_counter()
         groups = np.arange(n) if groups is None else np.asarray(groups)
         # over the budget, only the windows the cross-validation uses are featurised
-        cap = min(CV_WINDOWS, EXACT_BUDGET_BYTES // (8 * d))
-        idx = np.arange(n) if exact else whole_groups(groups, cap)
-        sub = spikes[torch.from_numpy(idx)] if not exact else spikes
-        step = self.batch_size(sub)
-        feats = torch.cat([self.features(sub[i : i + step]).double()
-                           for i in range(0, len(idx), step)])  # fmt: skip
-        ys, gs = y[torch.from_numpy(idx)], groups[idx]
+        cap = min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d))
+        idx = None if exact else whole_groups(groups, cap)
+        feats = self._training_features(spikes, idx)
+        ys, gs = (y, groups) if idx is None else (y[torch.from_numpy(idx)], groups[idx])
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
         subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
         factors = PENALTY_FACTORS if cfg.choose else (1.0,)
         best: tuple = ()
         table = []
+        cv = whole_groups(gs, CV_WINDOWS)  # the cross-validation's windows, before any column cut
+        cv_feats = feats if len(cv) == len(gs) else feats[torch.from_numpy(cv)]
         for subset in subsets:
-            part = feats if len(subset) == cfg.n_times else feats[:, cols[:, subset].reshape(-1)]
-            g, v = orthogonal_basis(part)
-            del part
-            lam, rows = choose_penalty(g, ys, gs, self.n_classes,
+            part = (
+                cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]
+            )
+            lam, rows = choose_penalty(part, ys[torch.from_numpy(cv)], gs[cv], self.n_classes,
                                        [self.penalty * f for f in factors])  # fmt: skip
+            del part
             acc = max((r["cv_accuracy"] for r in rows), default=0.0)
             table += [{"instants": len(subset), **r} for r in rows]
             if not best or acc > best[0]:  # ties: the candidate tried first (more instants)
-                best = (acc, subset, lam, g, v)
-        _, subset, lam, g, v = best
+                best = (acc, subset, lam)
+        del cv_feats
+        _, subset, lam = best
         used = cols[:, subset].reshape(-1)
         weight = torch.zeros(self.n_classes, d, dtype=torch.float64)
         report = {"penalty": lam, "instants": len(subset),
                   "instants_ms": [float(self.times_ms[j]) for j in subset],
-                  "cross_validation": table, "cv_windows": len(idx)}  # fmt: skip
+                  "cross_validation": table, "cv_windows": len(cv)}  # fmt: skip
         if exact:
-            z, b, evals = fit_softmax(g, ys, self.n_classes, lam)
-            weight[:, used] = (v @ z).T
+            part = feats if len(subset) == cfg.n_times else feats[:, used]
+            del feats
+            w, b, evals = fit_features(part, ys, self.n_classes, lam)
+            weight[:, used] = w.T
             self.linear.bias.copy_(b.float())
-            report.update(solver="exact (L-BFGS)", function_evaluations=evals)
+            logits = part @ w.float() + b.float()
+            report.update(solver="exact (L-BFGS, float32 data)", function_evaluations=evals,
+                          train_error=float((logits.argmax(1) != ys).float().mean()))  # fmt: skip
         else:  # the trainer's epochs, on the chosen instants only (see loss())
             weight[:, used] = self.linear.weight.double()[:, used]
             self.instant_mask.zero_()

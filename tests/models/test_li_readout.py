@@ -160,7 +160,7 @@ def test_over_the_budget_the_choice_is_kept_and_the_epochs_train(monkeypatch):
     from tactilesnn.models import li_readout
 
     spikes, y = _timing_problem(5)
-    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 8 * 32 * 60)  # 60 of 90 windows
+    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 4 * 32 * 60)  # 60 of 90 windows (float32)
     monkeypatch.setattr(li_readout, "instant_subsets", lambda n: [[n - 1]])  # the last only
     model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
     trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
