@@ -108,10 +108,11 @@ def cmd_train(args: argparse.Namespace) -> int:
     if "encoder_selection" in m:
         sel = m["encoder_selection"]
         held = ", ".join(f"{k} {100 * v['per_window']:.1f} %"
-                         + (" (first round, stopped)" if v.get("stopped_early") else "")
+                         + (f" (round {v['stopped_after']})" if v.get("stopped_after") else "")
                          for k, v in sel["scores"].items())  # fmt: skip
         print(f"encoder chosen on held-out training recordings: {encoder} (per window: {held}; "
-              f"{sel['fit_windows']} + {sel['val_windows']} windows, {sel['seconds']:.0f} s)")  # fmt: skip
+              f"last round {sel['fit_windows']} + {sel['val_windows']} windows, "
+              f"{sel['seconds']:.0f} s)")  # fmt: skip
     print(
         f"{spec.source.label} {encoder}+{result.config.model_type}: test accuracy "
         f"{100 * m['test_accuracy']:.2f} % (+-{100 * m['test_accuracy_ci95']:.2f} % 95% CI, "

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -13,6 +13,7 @@ import numpy as np
 from .config import PipelineConfig
 from .core.data import WindowDataset, evenly_spaced
 from .encoders import ENCODERS
+from .pipeline import SpikePipeline
 from .training import fit_and_evaluate, split_validation
 
 log = logging.getLogger("tactilesnn")
@@ -56,12 +57,21 @@ def selection_subset(data: WindowDataset, cap: int, seed: int) -> WindowDataset:
     return data.subset(np.isin(data.scan, keep))
 
 
-#: the first round fits every candidate on this share of the selection windows (when that is at
-#: least FIRST_ROUND_MIN_WINDOWS); a candidate further below the round's best than
-#: HOPELESS_POINTS, or three standard errors of the difference if that is more, stops there
-FIRST_ROUND_SHARE = 0.25
-FIRST_ROUND_MIN_WINDOWS = 300
+#: a candidate further below the round's best than HOPELESS_POINTS, or three standard errors of
+#: the difference if that is more, stops after the first round whatever the halving keeps
 HOPELESS_POINTS = 0.05
+#: rounds fit at least this many windows (smaller data: all of them, in one round)
+FIRST_ROUND_MIN_WINDOWS = 300
+#: each round keeps the better 1 / RUNG_FACTOR of the candidates and fits them on RUNG_FACTOR
+#: times the windows (successive halving, as scikit-learn's HalvingGridSearchCV with factor 2)
+RUNG_FACTOR = 2
+#: the selection's share of the whole run (selection, final fit, export), at most
+SELECTION_SHARE = 0.25
+#: windows each candidate encodes (twice: the second is timed) to measure its speed
+PROBE_WINDOWS = 24
+#: a fit's seconds per window over its encoding's, before a round has measured it (the level
+#: code, the readout's solve, scoring; measured on the visible sets: 1.5-3)
+FIT_OVERHEAD = 2.0
 
 
 def hopeless(acc: float, best: float, n: int) -> bool:
@@ -72,24 +82,152 @@ def hopeless(acc: float, best: float, n: int) -> bool:
     return best - acc > max(HOPELESS_POINTS, 3 * se)
 
 
+def candidate_configs(
+    config: PipelineConfig, train: WindowDataset, candidates: tuple[str, ...]
+) -> dict[str, PipelineConfig]:
+    """``config`` with each candidate encoder at its defaults for the data's rate, window and
+    spectrum (``data_defaults`` of its config)."""
+    median = median_power_frequency(train.X, train.fs_hz)
+    configs = {}
+    for name in candidates:
+        cls = ENCODERS.config_class(name)
+        defaults = getattr(cls, "data_defaults", None)
+        fitted = defaults(train.fs_hz, train.X.shape[-1], median) if defaults else {}
+        configs[name] = config.replace(encoder=cls(**fitted))
+    return configs
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A pipeline's measured encoding speed (seconds per window), whether its encoder also codes
+    windows with their past (the final fit encodes those too) and whether its model solves in
+    one go (a fit is then a few passes: estimable; else epochs: not estimated)."""
+
+    seconds_per_window: float
+    codes_with_past: bool
+    solves: bool
+
+    def fit_seconds(
+        self, n_train: int, n_test: int, overhead: float = FIT_OVERHEAD
+    ) -> float | None:
+        """Estimated seconds to fit on ``n_train`` windows and score ``n_test``."""
+        if not self.solves:
+            return None
+        n = n_train * (2 if self.codes_with_past else 1) + n_test
+        return overhead * self.seconds_per_window * n
+
+
+def probe(config: PipelineConfig, data: WindowDataset, n: int = PROBE_WINDOWS) -> Probe:
+    """:class:`Probe` of ``config`` on ``n`` of ``data``'s windows (the second of two encoding
+    passes is timed: the first pays for caches)."""
+    sub = data.subset(evenly_spaced(data.y.size, n))
+    pipe = SpikePipeline(config, data.fs_hz, data.X.shape[-1], data.channel_names,
+                         data.class_names)  # fmt: skip
+    pipe.calibrate(sub.X)
+    pipe.encode(sub.X)
+    t0 = time.perf_counter()
+    pipe.encode(sub.X)
+    rate = (time.perf_counter() - t0) / max(1, sub.y.size)
+    return Probe(rate, pipe.streams_recordings, type(pipe.model).solves_in_one_go(config.model))
+
+
+@dataclass
+class SelectionBudget:
+    """What the selection may spend, from the candidates' measured encoding speed: ``rate``
+    (seconds per window, per candidate), ``overhead`` (a fit's seconds over its encoding's) and
+    the seconds the rest of the run is expected to take (``rest_s``: final fit and export);
+    the selection's windows are cut so that it stays within :data:`SELECTION_SHARE` of it all."""
+
+    rate: dict[str, float]
+    rest_s: float
+    overhead: float = FIT_OVERHEAD
+
+    @property
+    def seconds(self) -> float:
+        """The selection's allowance: ``SHARE / (1 - SHARE)`` of the rest of the run."""
+        return SELECTION_SHARE / (1.0 - SELECTION_SHARE) * self.rest_s
+
+    def measured_overhead(self, report: dict[str, Any]) -> float:
+        """The fit's seconds over its encoding's, as the selection's rounds measured it (the
+        estimate :data:`FIT_OVERHEAD` where nothing was measured)."""
+        encoding = sum(self.rate[c] * (r["fit_windows"] + r["val_windows"])
+                       for r in report.get("rounds", ()) for c in r["candidates"])  # fmt: skip
+        taken = sum(r["seconds"] for r in report.get("rounds", ()))
+        # (never below the prior: the final fit's readout also cross-validates its penalty)
+        return max(self.overhead, taken / encoding) if encoding > 0 else self.overhead
+
+    def cost(self, rounds: list[tuple[int, int]], val_share: float) -> float:
+        """Estimated seconds of ``rounds`` ``(candidates, fit windows)``, each fit also scoring
+        ``val_share`` times its windows held out."""
+        mean = float(np.mean(list(self.rate.values())))
+        return sum(k * n * (1.0 + val_share) * mean * self.overhead for k, n in rounds)
+
+
+def rounds_for(n_candidates: int, last: int) -> list[tuple[int, int]]:
+    """Successive halving: ``(candidates, fit windows)`` per round, the candidates halved
+    (rounded up) and the windows multiplied by :data:`RUNG_FACTOR` from one round to the next,
+    the last round two candidates on ``last`` windows (one round when there are two or fewer).
+    Three candidates: ``[(3, last / 2), (2, last)]``."""
+    counts = [n_candidates]
+    while counts[-1] > 2:
+        counts.append(-(-counts[-1] // RUNG_FACTOR))
+    return [(k, last // RUNG_FACTOR ** (len(counts) - 1 - i)) for i, k in enumerate(counts)]
+
+
+def planned_rounds(
+    n_candidates: int, n_fit: int, val_share: float, budget: SelectionBudget | None
+) -> list[tuple[int, int]]:
+    """The selection's rounds ``(candidates, fit windows)`` (:func:`rounds_for`) on ``n_fit``
+    windows, the last round cut where ``budget`` says they would take more than their share of
+    the run, but never below ``SELECT_MIN_WINDOWS`` (fewer windows ranked the encoders
+    differently from the full data on the visible sets: FabricSlide on 356 windows of ~15
+    recordings put LIF last where 2,182 put it first by 2.6 points); one round where the first
+    would fit fewer than :data:`FIRST_ROUND_MIN_WINDOWS`."""
+    last, floor = n_fit, min(n_fit, SELECT_MIN_WINDOWS)
+    if budget is not None:
+        while (
+            last > floor and budget.cost(rounds_for(n_candidates, last), val_share) > budget.seconds
+        ):
+            last = max(floor, int(last * 0.8))
+    rounds = rounds_for(n_candidates, last)
+    if rounds[0][1] < FIRST_ROUND_MIN_WINDOWS:
+        rounds = [(n_candidates, last)]
+    return rounds
+
+
+def selection_seconds(
+    n_train: int, n_candidates: int, budget: SelectionBudget, fraction: float = 0.25
+) -> float:
+    """Estimated seconds of :func:`select_encoder` on ``n_train`` training windows (its split
+    and caps as it makes them, from window counts)."""
+    cap = max(SELECT_MIN_WINDOWS, n_train // max(1, n_candidates))
+    n_fit = min(round((1 - fraction) * n_train), cap)
+    val_share = min(round(fraction * n_train), cap) / max(1, n_fit)
+    return budget.cost(planned_rounds(n_candidates, n_fit, val_share, budget), val_share)
+
+
 def select_encoder(
     config: PipelineConfig,
     train: WindowDataset,
     candidates: tuple[str, ...],
     fraction: float = 0.25,
+    budget: SelectionBudget | None = None,
+    configs: dict[str, PipelineConfig] | None = None,
 ) -> tuple[PipelineConfig, dict[str, Any]]:
     """The candidate encoder (each with its default settings for the data's rate and window:
-    see ``data_defaults`` of its config; the rest of ``config`` unchanged) that scores best on
+    :func:`candidate_configs`; the rest of ``config`` unchanged) that scores best on
     ``fraction`` of the training recordings held out (whole recordings).
 
     Ranked by held-out accuracy per window, ties by per recording, then the earlier candidate
     (per window: many more samples than the quarter of the recordings held out, where one
-    recording is several points). Bounded in time: the candidates are fitted on at most
-    ``max(SELECT_MIN_WINDOWS, training windows / candidates)`` windows of whole recordings, so the
-    selection costs about one final training; where that is large, a first round on a quarter of
-    them stops the hopeless candidates early (:func:`hopeless`). Returns the chosen config and a
-    report (``scores`` per candidate, with ``stopped_early`` and ``first_round`` where that
-    applies, ``ranked_by``, windows used, ``seconds``)."""
+    recording is several points). Successive halving over recordings: every candidate is fitted
+    on a share of the windows, the better half (and none :func:`hopeless`) on twice as many, up
+    to ``max(SELECT_MIN_WINDOWS, training windows / candidates)`` windows of whole recordings in
+    the last round, or fewer where ``budget`` says the rounds would take more than
+    :data:`SELECTION_SHARE` of the run. Windows are coded alone here (an encoder that also codes
+    windows with their recording's past gets those in the final fit only). Returns the chosen
+    config and a report (``scores`` per candidate, with ``rounds`` (accuracy per round) and
+    ``stopped_after`` where it stopped early, ``ranked_by``, windows per round, ``seconds``)."""
     if not candidates:
         raise ValueError("encoder selection needs at least one candidate encoder")
     t0 = time.perf_counter()
@@ -98,60 +236,64 @@ def select_encoder(
     cap = max(SELECT_MIN_WINDOWS, train.y.size // max(1, len(candidates)))
     fit_set = selection_subset(fit_set, cap, config.seed)
     val_set = selection_subset(val_set, cap, config.seed + 1)
-    median = median_power_frequency(fit_set.X, train.fs_hz)
+    val_share = val_set.y.size / max(1, fit_set.y.size)
+    rounds = planned_rounds(len(candidates), fit_set.y.size, val_share, budget)
+    configs = configs or candidate_configs(config, train, candidates)
     # the model as a component asks to be fitted while encoders are compared (e.g. without its
     # own cross-validation); the chosen config keeps the model as configured
     quick = replace(config.model, **getattr(type(config.model), "WHILE_SELECTING", {}))
-    configs = {}
-    for name in candidates:
-        cls = ENCODERS.config_class(name)
-        defaults = getattr(cls, "data_defaults", None)
-        fitted = defaults(train.fs_hz, train.X.shape[-1], median) if defaults else {}
-        configs[name] = config.replace(encoder=cls(**fitted))
 
     def scored(name: str, fit: WindowDataset, val: WindowDataset) -> tuple[float, float | None]:
-        m = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False).metrics
+        res = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False,
+                               with_past=False)  # fmt: skip
+        m = res.metrics
         per_rec = m.get("test_accuracy_per_recording")
         log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows "
-                 "(fitted on %d)", name, 100 * m["test_accuracy"],
+                 "(fitted on %d, %.1f s)", name, 100 * m["test_accuracy"],
                  f", {100 * per_rec:.2f} % per recording" if per_rec is not None else "",
-                 val.y.size, fit.y.size)  # fmt: skip
+                 val.y.size, fit.y.size, m["encode_seconds"] + m["fit_seconds"])  # fmt: skip
         return float(m["test_accuracy"]), None if per_rec is None else float(per_rec)
 
-    scores: dict[str, dict[str, Any]] = {name: {} for name in candidates}
+    scores: dict[str, dict[str, Any]] = {name: {"rounds": []} for name in candidates}
+    keys: dict[str, tuple[float, float]] = {}
+    report_rounds = []
     alive = list(candidates)
-    first = int(FIRST_ROUND_SHARE * fit_set.y.size)
-    ran_first = len(alive) > 1 and first >= FIRST_ROUND_MIN_WINDOWS
-    if ran_first:
-        small_fit = selection_subset(fit_set, first, config.seed + 2)
-        small_val = selection_subset(val_set, int(FIRST_ROUND_SHARE * val_set.y.size),
-                                     config.seed + 3)  # fmt: skip
+    for r, (keep, n_fit) in enumerate(rounds):
+        for name in alive[keep:]:  # ranked by the round before: the better ones go on
+            scores[name]["stopped_after"] = r
+        alive = alive[:keep]
+        fit = selection_subset(fit_set, n_fit, config.seed + 2 * r)
+        share = fit.y.size / max(1, fit_set.y.size)
+        val = selection_subset(
+            val_set, max(1, int(share * val_set.y.size)), config.seed + 2 * r + 1
+        )
+        t_round = time.perf_counter()
         for name in alive:
-            scores[name]["first_round"] = scored(name, small_fit, small_val)[0]
-        top = max(scores[name]["first_round"] for name in alive)
-        for name in alive:
-            acc = scores[name]["first_round"]
-            if hopeless(acc, top, np.unique(small_val.scan).size):
-                scores[name].update(per_window=acc, stopped_early=True)
-                log.info("encoder selection: %s stops after the first round (%.2f %% against "
-                         "%.2f %%)", name, 100 * acc, 100 * top)  # fmt: skip
-        alive = [n for n in alive if not scores[n].get("stopped_early")]
-    best, best_key = alive[0], (-1.0, -1.0)
-    for name in alive:
-        if ran_first and len(alive) == 1:  # the only one left: its final training follows
-            acc, per_rec = scores[name]["first_round"], None
-        else:
-            acc, per_rec = scored(name, fit_set, val_set)
-        scores[name]["per_window"] = acc
-        if per_rec is not None:
-            scores[name]["per_recording"] = per_rec
-        key = (acc, acc if per_rec is None else per_rec)
-        if key > best_key:
-            best, best_key = name, key
+            acc, per_rec = scored(name, fit, val)
+            scores[name]["rounds"].append(acc)
+            scores[name]["per_window"] = acc
+            if per_rec is not None:
+                scores[name]["per_recording"] = per_rec
+            keys[name] = (acc, acc if per_rec is None else per_rec)
+        report_rounds.append({"candidates": list(alive), "fit_windows": int(fit.y.size),
+                              "val_windows": int(val.y.size),
+                              "seconds": time.perf_counter() - t_round})  # fmt: skip
+        alive.sort(key=lambda n: (-keys[n][0], -keys[n][1], candidates.index(n)))
+        if r + 1 < len(rounds):
+            top, n_rec = keys[alive[0]][0], np.unique(val.scan).size
+            for name in alive[1:]:
+                if hopeless(keys[name][0], top, n_rec):
+                    scores[name]["stopped_after"] = r + 1
+                    log.info("encoder selection: %s stops after round %d (%.2f %% against "
+                             "%.2f %%)", name, r + 1, 100 * keys[name][0], 100 * top)  # fmt: skip
+            alive = [n for n in alive if not hopeless(keys[n][0], top, n_rec)]
+        if len(alive) == 1:
+            break
+    best = alive[0]
     seconds = time.perf_counter() - t0
     log.info("encoder selection: %s (%.0f s)", best, seconds)
     report = {"chosen": best, "ranked_by": "per window, then per recording",
-              "scores": scores, "fit_windows": int(fit_set.y.size),
-              "val_windows": int(val_set.y.size), "seconds": seconds,
-              "first_round_windows": first if ran_first else 0}  # fmt: skip
+              "scores": scores, "rounds": report_rounds,
+              "fit_windows": report_rounds[-1]["fit_windows"],
+              "val_windows": report_rounds[-1]["val_windows"], "seconds": seconds}  # fmt: skip
     return configs[best], report

@@ -15,6 +15,7 @@ from tqdm.auto import tqdm
 from .config import TrainConfig
 from .core.device import resolve_device
 from .core.perf import refit_threads
+from .core.stages import bar_disabled
 from .models.base import SpikeModel, to_tensor_labels
 
 
@@ -76,7 +77,7 @@ class Trainer:
             f" on {device}" if device.type != "cpu" else ""
         )
         bar = tqdm(range(st["epoch"], cfg.epochs), desc=desc,
-                   disable=not self.progress or st["epoch"] >= cfg.epochs)  # fmt: skip
+                   disable=bar_disabled(self.progress and st["epoch"] < cfg.epochs))  # fmt: skip
         for epoch in bar:
             perm = torch.randperm(spikes.shape[0], generator=gen)
             model.train()

@@ -65,8 +65,13 @@ def fit_and_evaluate(
     checkpoint: Callable[[int, dict], None] | None = None,
     resume: dict | None = None,
     require_export: bool = False,
+    with_past: bool = True,
 ) -> TrainResult:
     """Fit ``config`` on ``train`` (optionally holding out validation scans) and test it.
+
+    ``with_past``: an encoder that codes a window with its recording's past in a stream also
+    trains on (and is tested on) that code (:meth:`SpikePipeline.encode_in_recordings`); off
+    while encoders are compared (the final fit only pays for it).
 
     Building the pipeline checks the configuration against the data (channels, rates, window)
     and, with ``require_export``, that the model can be exported, before any training. Random
@@ -75,11 +80,11 @@ def fit_and_evaluate(
     """
     with seeded(config.seed):
         return _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, resume,
-                                 require_export)  # fmt: skip
+                                 require_export, with_past)  # fmt: skip
 
 
 def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, resume,
-                      require_export) -> TrainResult:  # fmt: skip
+                      require_export, with_past) -> TrainResult:  # fmt: skip
     fit_set, val_set = split_validation(train, val_fraction, config.seed)
     pipe = SpikePipeline(
         config, train.fs_hz, train.X.shape[-1], train.channel_names, train.class_names
@@ -97,13 +102,13 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
     # past: trained on both codes of every window that has one, so that the window graph (a
     # window alone) and the stream graph (a live stream) both get windows like those it learnt
     fit_y, fit_groups = fit_set.y, fit_set.scan
-    in_rec = pipe.encode_in_recordings(fit_set.X, fit_set.scan)
+    in_rec = pipe.encode_in_recordings(fit_set.X, fit_set.scan) if with_past else None
     if in_rec is not None:
         at, s_past = in_rec
         s_train = torch.cat([s_train, s_past])
         fit_y = np.concatenate([fit_set.y, fit_set.y[at]])
         fit_groups = np.concatenate([fit_set.scan, fit_set.scan[at]])
-    test_rec = pipe.encode_in_recordings(test.X, test.scan)
+    test_rec = pipe.encode_in_recordings(test.X, test.scan) if with_past else None
     t_enc = time.perf_counter() - t0
     trainer = Trainer(pipe.model, config.train, progress=progress)
     history = trainer.fit(

@@ -169,7 +169,8 @@ def test_hopeless_needs_both_points_and_standard_errors() -> None:
 
 def test_hopeless_candidates_stop_after_the_first_round(monkeypatch) -> None:
     """Classes that differ only in level: the window-normalised codes stop after a first round on
-    a quarter of the windows; the one left is not fitted again (its final training follows)."""
+    half the last round's windows; the one left is not fitted again (its final training
+    follows), and the windows are coded alone (their past joins the final fit only)."""
     from tactilesnn import selection
     from tactilesnn.config import PipelineConfig
     from tactilesnn.datasets_synth import WindowDataset
@@ -178,7 +179,7 @@ def test_hopeless_candidates_stop_after_the_first_round(monkeypatch) -> None:
     real = selection.fit_and_evaluate
 
     def spy(cfg, fit, val, **k):
-        calls.append((cfg.encoder_type, fit.y.size, val.y.size))
+        calls.append((cfg.encoder_type, fit.y.size, val.y.size, k.get("with_past")))
         return real(cfg, fit, val, **k)
 
     monkeypatch.setattr(selection, "fit_and_evaluate", spy)
@@ -191,11 +192,31 @@ def test_hopeless_candidates_stop_after_the_first_round(monkeypatch) -> None:
     train = WindowDataset(X, y, np.arange(400), 200.0, ("lo", "hi"), ("ch0",))
     cfg = PipelineConfig.from_flat(channels=("all",), model="readout")
     best, report = selection.select_encoder(cfg, train, ("gwt", "stft", "lif"))
-    assert best.encoder_type == "lif" and report["first_round_windows"] == 75
-    assert [c[0] for c in calls] == ["gwt", "stft", "lif"] and {c[1] for c in calls} == {75}
+    assert best.encoder_type == "lif" and report["rounds"][0]["fit_windows"] == 150
+    assert [c[0] for c in calls] == ["gwt", "stft", "lif"] and {c[1] for c in calls} == {150}
+    assert {c[3] for c in calls} == {False}
     sc = report["scores"]
-    assert sc["gwt"]["stopped_early"] and sc["stft"]["stopped_early"]
-    assert "stopped_early" not in sc["lif"] and sc["lif"]["per_window"] > 0.9
+    assert sc["gwt"]["stopped_after"] == 1 and sc["stft"]["stopped_after"] == 1
+    assert "stopped_after" not in sc["lif"] and sc["lif"]["per_window"] > 0.9
+
+
+def test_successive_halving_keeps_the_better_half_on_twice_the_windows(monkeypatch) -> None:
+    """Three candidates none of them hopeless: all on half the windows, the better two on all of
+    them; a budget cuts the last round, never below SELECT_MIN_WINDOWS."""
+    from tactilesnn import selection
+
+    assert selection.rounds_for(3, 1000) == [(3, 500), (2, 1000)]
+    assert selection.rounds_for(2, 1000) == [(2, 1000)]
+    assert selection.rounds_for(5, 1000) == [(5, 250), (3, 500), (2, 1000)]
+    budget = selection.SelectionBudget({"a": 1e-3, "b": 1e-3, "c": 1e-3}, rest_s=3.0)
+    # 3 x 500 + 2 x 1000 windows x (1 + 0.5) x 2 ms = 10.5 s > 1 s: cut to the floor
+    monkeypatch.setattr(selection, "SELECT_MIN_WINDOWS", 600)
+    assert selection.planned_rounds(3, 1000, 0.5, budget) == [(3, 300), (2, 600)]
+    assert budget.seconds == pytest.approx(1.0)  # a quarter of the run: a third of the rest
+    generous = selection.SelectionBudget({"a": 1e-3}, rest_s=1e4)
+    assert selection.planned_rounds(3, 1000, 0.5, generous) == [(3, 500), (2, 1000)]
+    # too few windows for two rounds: one
+    assert selection.planned_rounds(3, 400, 0.5, None) == [(3, 400)]
 
 
 def test_selection_subset_takes_whole_recordings_of_every_class_up_to_the_cap() -> None:

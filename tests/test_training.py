@@ -122,7 +122,7 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     )
     # ranked by what is printed: per window, then per recording
     key = {k: (v["per_window"], v.get("per_recording", 0.0)) for k, v in sel["scores"].items()
-           if not v.get("stopped_early")}  # fmt: skip
+           if not v.get("stopped_after")}  # fmt: skip
     assert sel["chosen"] == max(key, key=key.get) and sel["seconds"] > 0
     assert m["test_accuracy_per_recording"] == 1.0 and m["test_accuracy"] > 0.85
     # whole rows and an explicit encoder: no cut, no selection

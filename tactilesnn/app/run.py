@@ -28,11 +28,18 @@ from ..baselines import linear_amplitude_baseline
 from ..config import PipelineConfig, is_nested
 from ..core.data import WindowDataset
 from ..core.files import file_sha256, load_arrays, read_json, write_json_atomic
+from ..core.stages import StagePlan
 from ..core.version import __version__
 from ..datasets_synth import get_task
 from ..pipeline import SpikePipeline, select_channels
 from ..recordings import load_data_file
-from ..selection import select_encoder
+from ..selection import (
+    SelectionBudget,
+    candidate_configs,
+    probe,
+    select_encoder,
+    selection_seconds,
+)
 from ..training import TrainResult, fit_and_evaluate, load_checkpoint, save_checkpoint
 from .plots import plot_confusion, plot_training, plot_windows
 from .runs import (
@@ -183,20 +190,33 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
     try:
         state = _open_partial(partial, record, spec)
         train, test = _load(spec)
+        plan, budget, configs, probes = _plan(spec, train, test)
+        log.info("%s", plan.plan_line())
         config, selection = spec.config, None
         if spec.select_encoders:
-            config, selection = select_encoder(config, train, spec.select_encoders)
+            with plan.stage("encoder selection"):
+                config, selection = select_encoder(config, train, spec.select_encoders,
+                                                   budget=budget, configs=configs)  # fmt: skip
+            assert budget is not None
+            plan.estimate(
+                "fit",
+                probes[selection["chosen"]].fit_seconds(
+                    train.y.size, test.y.size, budget.measured_overhead(selection)
+                ),
+            )
             if spec.out is None:  # the folder is named after what was trained
                 writer.path = _default_out(spec, config)
-        res = fit_and_evaluate(
-            config, train, test, progress=spec.progress, val_fraction=spec.val_fraction,
-            checkpoint=lambda epoch, st: save_checkpoint(partial, st), resume=state,
-            require_export=spec.export,
-        )  # fmt: skip
-        res.metrics["trivial_amplitude_baseline_accuracy"] = linear_amplitude_baseline(
-            train.X, train.y, test.X, test.y
-        )
+        with plan.stage("fit"):
+            res = fit_and_evaluate(
+                config, train, test, progress=spec.progress, val_fraction=spec.val_fraction,
+                checkpoint=lambda epoch, st: save_checkpoint(partial, st), resume=state,
+                require_export=spec.export,
+            )  # fmt: skip
+            res.metrics["trivial_amplitude_baseline_accuracy"] = linear_amplitude_baseline(
+                train.X, train.y, test.X, test.y
+            )
         res.metrics["train_error_history"] = res.history
+        res.metrics["stage_seconds"] = plan.taken
         if selection is not None:
             res.metrics["encoder_selection"] = selection
         _write_run(writer, spec, {**record, "pipeline": config.to_dict()}, res, train, test)
@@ -208,9 +228,43 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
             remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")  # nothing to resume
         raise
     if spec.export:  # after the run is safely written: an export failure never loses the run
-        res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)
+        with plan.stage("export"):
+            res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)
+        res.metrics["stage_seconds"] = plan.taken
         write_json_atomic(path / "metrics.json", res.metrics)
     return RunResult(path, res.metrics, config)
+
+
+#: seconds the ONNX export takes besides encoding the verification windows (torch's exporter,
+#: onnxruntime's session; measured 5-15 s on 2 cores)
+EXPORT_FIXED_S = 10.0
+
+
+def _plan(spec: RunSpec, train: WindowDataset, test: WindowDataset):
+    """The run's stages with estimates from the candidates' measured encoding speed
+    (:func:`~tactilesnn.selection.probe`), the selection's budget (None without selection), the
+    candidates' configs and probes."""
+    n_tr, n_te = train.y.size, test.y.size
+    if spec.select_encoders:
+        configs = candidate_configs(spec.config, train, spec.select_encoders)
+    else:
+        configs = {spec.config.encoder_type: spec.config}
+    probes = {name: probe(cfg, train) for name, cfg in configs.items()}
+    fits = [p.fit_seconds(n_tr, n_te) for p in probes.values()]
+    fit = None if any(f is None for f in fits) else float(np.mean(fits))  # type: ignore[arg-type]
+    rate = float(np.mean([p.seconds_per_window for p in probes.values()]))
+    export = EXPORT_FIXED_S + 3 * rate * n_te if spec.export else None
+    stages: dict[str, float | None] = {}
+    budget = None
+    if spec.select_encoders:
+        budget = SelectionBudget({n: p.seconds_per_window for n, p in probes.items()},
+                                 (fit or 0.0) + (export or 0.0))  # fmt: skip
+        stages["encoder selection"] = (selection_seconds(n_tr, len(configs), budget)
+                                       if fit is not None else None)  # fmt: skip
+    stages["fit"] = fit
+    if spec.export:
+        stages["export"] = export
+    return StagePlan(stages), budget, (configs if spec.select_encoders else None), probes
 
 
 def _default_out(spec: RunSpec, config: PipelineConfig) -> Path:

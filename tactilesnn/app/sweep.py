@@ -41,6 +41,7 @@ import numpy as np
 import tomllib
 
 from ..core.files import write_json_atomic
+from ..core.stages import bar_disabled
 from .defaults import run_spec
 from .options import check_settings, train_options
 from .run import RunSpec, train_run
@@ -209,7 +210,7 @@ def run_sweep(
     done = sum((Path(o) / "metrics.json").is_file() for _, _, o in jobs)
     log.info("sweep: %d trials (%d already finished) on %s", len(jobs), done,
              scheduler or f"{workers} local worker(s)")  # fmt: skip
-    bar = tqdm(total=len(jobs), desc="sweep", unit="trial", disable=not progress)
+    bar = tqdm(total=len(jobs), desc="sweep", unit="trial", disable=bar_disabled(progress))
     results = _dask(jobs, scheduler) if scheduler else _local(jobs, workers)
     for tid, res in results:
         rows[tid].update(res)

@@ -17,6 +17,6 @@ def run_batched(
     if desc is not None and len(starts) > 1:
         from tqdm.auto import tqdm  # not needed by the service itself
 
-        starts = tqdm(starts, desc=desc, unit="batch")
+        starts = tqdm(starts, desc=desc, unit="batch", disable=None)
     parts = [sess.run(outputs, {k: v[i : i + batch] for k, v in feeds.items()}) for i in starts]
     return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]

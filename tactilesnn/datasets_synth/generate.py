@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.stages import bar_disabled
 from ..core.version import __version__
 from .base import get_task
 
@@ -151,7 +152,7 @@ def generate(
         os.replace(tmp, partial_path)
 
     checkpoint()
-    bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=not progress)
+    bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=bar_disabled(progress))
     if scheduler:  # a shard whose worker died is rendered again: it depends only on its inputs
         from ..core.dask_run import on_dask
 

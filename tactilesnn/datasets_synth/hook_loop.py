@@ -22,6 +22,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..core.stages import bar_disabled
 from .base import WindowDataset, register_task
 from .capacitive_piezo import CapacitivePiezoStack
 from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
@@ -141,7 +142,9 @@ class HookLoopTask:
         from tqdm.auto import tqdm
 
         per_scan = {}
-        for i in tqdm(range(self.n_scans), desc=f"{self.name} scans", disable=not progress):
+        for i in tqdm(
+            range(self.n_scans), desc=f"{self.name} scans", disable=bar_disabled(progress)
+        ):
             stream, labels, _ = self.scan(i)
             per_scan[i] = self.windows(stream, labels)
         train_idx, test_idx = self.split()

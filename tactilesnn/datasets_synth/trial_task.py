@@ -19,6 +19,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..core.stages import bar_disabled
 from .base import WindowDataset
 from .faults import Faults, parse_faults
 
@@ -127,7 +128,9 @@ class TrialTask(ABC):
         Xs = [np.zeros((idx.size, *shape), np.float32) for idx in parts]
         ys = [np.zeros(idx.size, np.int64) for idx in parts]
         where = {int(i): (s, j) for s, idx in enumerate(parts) for j, i in enumerate(idx)}
-        for i in tqdm(range(self.n_samples), desc=f"{self.name} samples", disable=not progress):
+        for i in tqdm(
+            range(self.n_samples), desc=f"{self.name} samples", disable=bar_disabled(progress)
+        ):
             if i in where:
                 s, j = where[i]
                 Xs[s][j], ys[s][j], _ = self.sample(i)

@@ -32,6 +32,7 @@ from torch import Tensor, nn
 from tqdm.auto import tqdm
 
 from ..core.registry import Registry
+from ..core.stages import bar_disabled
 
 ENCODERS: Registry = Registry("encoder")
 
@@ -112,7 +113,7 @@ class SpikeEncoder(nn.Module):
         out = torch.full((arr.shape[0], self.n_afferents, self.max_spikes), math.inf)
         starts = range(0, arr.shape[0], batch)
         bar = tqdm(starts, desc=f"encode ({self.registry_name})", unit="batch",
-                   disable=not progress or len(starts) < 2)  # fmt: skip
+                   disable=bar_disabled(progress and len(starts) >= 2))  # fmt: skip
         dev = torch.device("cpu") if device is None else torch.device(device)
         moved = dev.type != "cpu"
         if moved:

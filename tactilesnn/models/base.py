@@ -115,6 +115,12 @@ class SpikeModel(nn.Module):
         """Fit input statistics on the training spikes ``[N, A, k]`` before the first epoch
         (e.g. feature scaling, kept as buffers so they are saved and exported); default: none."""
 
+    @classmethod
+    def solves_in_one_go(cls, config: object) -> bool:
+        """Whether a model of ``config`` fits by :meth:`solve` (its cost is then a few passes
+        over the training spikes, which a run's plan can estimate) rather than by epochs."""
+        return False
+
     def solve(self, spikes: Tensor, y: Tensor, groups=None) -> dict | None:
         """Fit in one go instead of the trainer's epochs (a convex model solved to its optimum),
         after :meth:`prepare`: labels ``y [N]`` int64, ``groups`` recording ids ``[N]`` (for

@@ -156,6 +156,10 @@ class LIReadout(SpikeModel):
         self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
         self._prepared: tuple[Tensor, Tensor] | None = None  # prepare()'s traces, for solve()
 
+    @classmethod
+    def solves_in_one_go(cls, config: object) -> bool:
+        return isinstance(config, ReadoutConfig) and config.solver == "exact"
+
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
         return torch.log1p(trace_features(spikes, self.times_ms, self.tau_ms)).flatten(1)
@@ -198,17 +202,24 @@ class LIReadout(SpikeModel):
     def scores(self, spikes: Tensor) -> Tensor:
         return self.linear(self.features(spikes))
 
-    def _training_features(self, spikes: Tensor, idx: np.ndarray | None) -> Tensor:
-        """Standardised float32 features ``[len(idx), d]`` of ``spikes[idx]`` (all: ``None``),
-        from :meth:`prepare`'s traces when it kept those of these spikes."""
-        kept = self._prepared
-        self._prepared = None
+    def _training_features(
+        self, spikes: Tensor, idx: np.ndarray | None, cols: Tensor | None = None
+    ) -> Tensor:
+        """Standardised float32 features ``[len(idx), len(cols)]`` of ``spikes[idx]`` (all rows:
+        ``idx`` None; all columns: ``cols`` None), from :meth:`prepare`'s traces when it kept
+        those of these spikes (then released: they are used once)."""
+        kept, self._prepared = self._prepared, None
         if kept is not None and kept[0] is spikes:
             f = kept[1] if idx is None else kept[1][torch.from_numpy(idx)]
-            return f.sub_(self.feat_mean).div_(self.feat_scale)
+            f = f.sub_(self.feat_mean).div_(self.feat_scale)
+            return f if cols is None else f[:, cols]
         sub = spikes if idx is None else spikes[torch.from_numpy(idx)]
         step = self.batch_size(sub)
-        return torch.cat([self.features(sub[i : i + step]) for i in range(0, len(sub), step)])
+        parts = []
+        for i in range(0, len(sub), step):
+            f = self.features(sub[i : i + step])
+            parts.append(f if cols is None else f[:, cols])
+        return torch.cat(parts)
 
     @torch.no_grad()
     def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None) -> dict | None:
@@ -219,34 +230,32 @@ class LIReadout(SpikeModel):
         without) on at most ``CV_WINDOWS`` windows. Returns what was chosen, with the
         cross-validated accuracy of every candidate and the training error of the fit.
 
-        Bounded: where the float32 features exceed :data:`EXACT_BUDGET_BYTES`, the choice is
-        made on whole recordings that fit it and the weights are then trained by the trainer's
-        epochs with that penalty and those instants (``"train_epochs": True`` in the report)."""
+        Bounded: the cross-validation featurises at most :data:`EXACT_BUDGET_BYTES` of float32
+        (whole recordings), the final fit every window's features of the chosen instants where
+        they fit it; where even those do not, the weights are trained by the trainer's epochs
+        with the chosen penalty and instants (``"train_epochs": True`` in the report)."""
         cfg = self.config
         n, d = spikes.shape[0], self.linear.in_features
-        exact = 4 * n * d <= EXACT_BUDGET_BYTES
-        if cfg.solver != "exact" or n == 0 or (not exact and not cfg.choose):
+        if cfg.solver != "exact" or n == 0 or (4 * n * d > EXACT_BUDGET_BYTES and not cfg.choose):
             self._prepared = None
             return None
         t0 = time.perf_counter()
         groups = np.arange(n) if groups is None else np.asarray(groups)
-        # over the budget, only the windows the cross-validation uses are featurised
-        cap = min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d))
-        idx = None if exact else whole_groups(groups, cap)
-        feats = self._training_features(spikes, idx)
-        ys, gs = (y, groups) if idx is None else (y[torch.from_numpy(idx)], groups[idx])
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
         subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
         factors = PENALTY_FACTORS if cfg.choose else (1.0,)
+        whole = 4 * n * d <= EXACT_BUDGET_BYTES
+        feats = self._training_features(spikes, None) if whole else None
         best: tuple = ()
         table = []
-        cv = whole_groups(gs, CV_WINDOWS)  # the cross-validation's windows, before any column cut
-        cv_feats = feats if len(cv) == len(gs) else feats[torch.from_numpy(cv)]
+        cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)))
+        cv_feats = (feats if len(cv) == n else feats[torch.from_numpy(cv)]) if feats is not None \
+            else self._training_features(spikes, cv)  # fmt: skip
         for subset in subsets:
             part = (
                 cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]
             )
-            lam, rows = choose_penalty(part, ys[torch.from_numpy(cv)], gs[cv], self.n_classes,
+            lam, rows = choose_penalty(part, y[torch.from_numpy(cv)], groups[cv], self.n_classes,
                                        [self.penalty * f for f in factors])  # fmt: skip
             del part
             acc = max((r["cv_accuracy"] for r in rows), default=0.0)
@@ -260,15 +269,19 @@ class LIReadout(SpikeModel):
         report = {"penalty": lam, "instants": len(subset),
                   "instants_ms": [float(self.times_ms[j]) for j in subset],
                   "cross_validation": table, "cv_windows": len(cv)}  # fmt: skip
-        if exact:
-            part = feats if len(subset) == cfg.n_times else feats[:, used]
+        if 4 * n * len(used) <= EXACT_BUDGET_BYTES:
+            every = len(subset) == cfg.n_times
+            if feats is not None:
+                part = feats if every else feats[:, used]
+            else:
+                part = self._training_features(spikes, None, None if every else used)
             del feats
-            w, b, evals = fit_features(part, ys, self.n_classes, lam)
+            w, b, evals = fit_features(part, y, self.n_classes, lam)
             weight[:, used] = w.T
             self.linear.bias.copy_(b.float())
             logits = part @ w.float() + b.float()
             report.update(solver="exact (L-BFGS, float32 data)", function_evaluations=evals,
-                          train_error=float((logits.argmax(1) != ys).float().mean()))  # fmt: skip
+                          train_error=float((logits.argmax(1) != y).float().mean()))  # fmt: skip
         else:  # the trainer's epochs, on the chosen instants only (see loss())
             weight[:, used] = self.linear.weight.double()[:, used]
             self.instant_mask.zero_()

@@ -160,17 +160,40 @@ def test_over_the_budget_the_choice_is_kept_and_the_epochs_train(monkeypatch):
     from tactilesnn.models import li_readout
 
     spikes, y = _timing_problem(5)
-    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 4 * 32 * 60)  # 60 of 90 windows (float32)
+    # float32 features: 60 windows of the last instant's 8 (15 of every instant's 32) of 90
+    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 4 * 8 * 60)
     monkeypatch.setattr(li_readout, "instant_subsets", lambda n: [[n - 1]])  # the last only
     model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
     trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
     history = trainer.fit(spikes, y, groups=np.arange(90) // 3)
     info = trainer.history["solved"]
-    assert info["train_epochs"] and info["cv_windows"] <= 60 and len(history) == 5
+    assert info["train_epochs"] and info["cv_windows"] <= 15 and len(history) == 5
     assert info["instants"] == 1
     w = model.linear.weight.detach().numpy().reshape(3, 8, 4)
     assert np.all(w[..., :3] == 0) and np.all(w[..., 3] != 0)  # Adam kept the others at zero
     assert "instant_mask" not in model.state_dict()  # not saved: the zero weights are
+
+
+def test_chosen_instants_within_the_budget_get_the_exact_fit(monkeypatch):
+    """Every instant's features exceed the budget, the chosen instant's fit it: the choice is
+    made on the windows the budget allows, the exact fit on every window of that instant."""
+    from tactilesnn.config import TrainConfig
+    from tactilesnn.models import li_readout
+
+    spikes, y = _timing_problem(5)
+    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 4 * 32 * 60)  # 60 of 90 windows
+    monkeypatch.setattr(li_readout, "instant_subsets", lambda n: [[n - 1]])
+    model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
+    trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
+    history = trainer.fit(spikes, y, groups=np.arange(90) // 3)
+    info = trainer.history["solved"]
+    assert not info.get("train_epochs") and info["cv_windows"] <= 60 and len(history) == 1
+    assert info["solver"].startswith("exact") and info["instants"] == 1
+    w = model.linear.weight.detach().numpy().reshape(3, 8, 4)
+    assert np.all(w[..., :3] == 0) and np.any(w[..., 3] != 0)
+    # the training error it reports is the fitted model's
+    err = float((model.batched_scores(spikes).argmax(1).numpy() != y).mean())
+    assert info["train_error"] == pytest.approx(err, abs=1.5 / 90)
 
 
 @pytest.mark.parametrize("n_times", [4, 16])  # fewer features than windows, and more

@@ -1,0 +1,82 @@
+"""A run's stages as plain log lines: the plan with an estimate before work starts, then one line
+when each stage starts and one when it ends, with the elapsed time and an estimate of what is
+left. Lines, not a redrawn bar, so a piped log reads like the terminal (no carriage returns).
+
+Estimates are in seconds and may be revised as stages finish (:meth:`StagePlan.estimate`); a
+stage without one is shown without a figure.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+log = logging.getLogger("tactilesnn")
+
+
+def seconds(s: float | None) -> str:
+    """``s`` for a person: ``"42 s"``, ``"3 min 5 s"`` (``"?"`` when unknown)."""
+    if s is None:
+        return "?"
+    s = max(0.0, float(s))
+    if s < 60:
+        return f"{s:.0f} s" if s >= 1 else f"{s:.1f} s"
+    m, r = divmod(round(s), 60)
+    return f"{m} min {r} s"
+
+
+class StagePlan:
+    """Named stages with estimated seconds (``None``: not known yet), in order.
+
+    ``time_fn`` is the clock (tests pass their own)."""
+
+    def __init__(self, stages: dict[str, float | None], time_fn=time.perf_counter) -> None:
+        self.order = list(stages)
+        self.estimates: dict[str, float | None] = dict(stages)
+        self.taken: dict[str, float] = {}
+        self._now = time_fn
+        self.t0 = time_fn()
+
+    def estimate(self, name: str, s: float | None) -> None:
+        """Revise the estimate of a stage not yet done."""
+        if name not in self.taken:
+            self.estimates[name] = s
+
+    def left(self) -> float | None:
+        """Estimated seconds of the stages not done (None if any is unknown)."""
+        rest = [self.estimates[n] for n in self.order if n not in self.taken]
+        return None if any(v is None for v in rest) else float(sum(rest))  # type: ignore[arg-type]
+
+    def total(self) -> float | None:
+        left = self.left()
+        return None if left is None else sum(self.taken.values()) + left
+
+    def plan_line(self) -> str:
+        parts = [f"{n} ~{seconds(self.estimates[n])}" for n in self.order]
+        return f"plan: {'; '.join(parts)}; total ~{seconds(self.total())}"
+
+    def elapsed(self) -> float:
+        return self._now() - self.t0
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        """Log the stage's start and end (with the elapsed time and what is left)."""
+        k = self.order.index(name) + 1
+        n = len(self.order)
+        log.info("[%d/%d] %s (~%s) ...", k, n, name, seconds(self.estimates[name]))
+        t = self._now()
+        yield
+        self.taken[name] = self._now() - t
+        left = self.left()
+        log.info("[%d/%d] %s done in %s (elapsed %s%s)", k, n, name, seconds(self.taken[name]),
+                 seconds(self.elapsed()),
+                 "" if k == n else f", ~{seconds(left)} left")  # fmt: skip
+
+
+def bar_disabled(progress: bool) -> bool | None:
+    """tqdm's ``disable`` for a bar shown only when ``progress`` is asked for and the output is
+    a terminal (``None``: tqdm's own test), so a piped log gets the stage lines, not hundreds of
+    carriage-return redraws."""
+    return None if progress else True
