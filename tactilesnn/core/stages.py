@@ -9,11 +9,19 @@ stage without one is shown without a figure.
 from __future__ import annotations
 
 import logging
+import resource
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 log = logging.getLogger("tactilesnn")
+
+
+def peak_rss_bytes() -> int:
+    """The process's peak resident memory so far (bytes)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak) * (1 if sys.platform == "darwin" else 1024)
 
 
 def seconds(s: float | None) -> str:
@@ -70,9 +78,9 @@ class StagePlan:
         yield
         self.taken[name] = self._now() - t
         left = self.left()
-        log.info("[%d/%d] %s done in %s (elapsed %s%s)", k, n, name, seconds(self.taken[name]),
-                 seconds(self.elapsed()),
-                 "" if k == n else f", ~{seconds(left)} left")  # fmt: skip
+        log.info("[%d/%d] %s done in %s (elapsed %s%s; peak memory %.2f GB)", k, n, name,
+                 seconds(self.taken[name]), seconds(self.elapsed()),
+                 "" if k == n else f", ~{seconds(left)} left", peak_rss_bytes() / 1e9)  # fmt: skip
 
 
 def bar_disabled(progress: bool) -> bool | None:

@@ -55,14 +55,25 @@ CV_TOL = 1e-4
 def row_space(features: Tensor) -> tuple[Tensor, Tensor | None]:
     """``F [N, d]`` -> ``(G, L_K)``: ``(F, None)`` when ``d <= N`` (fitted as it is), else
     ``G = L_K`` ``[N, N]`` (float64), the Cholesky factor of ``F F^T`` (+ :data:`RIDGE`), with
-    which :func:`from_row_space` maps a solution back to ``d`` features."""
+    which :func:`from_row_space` maps a solution back to ``d`` features. ``F F^T`` is summed in
+    float64 over blocks of columns (no float64 copy of ``F``)."""
     n, d = features.shape
     if d <= n:
         return features, None
-    f = features.double()
-    k = f @ f.T
+    k = torch.zeros(n, n, dtype=torch.float64)
+    step = max(1, (64 << 20) // (8 * n))  # 64 MiB of float64 columns at a time
+    for j in range(0, d, step):
+        block = features[:, j : j + step].double()
+        k.addmm_(block, block.T)
+    del block
     k.diagonal().add_(RIDGE * float(k.diagonal().mean()) + 1e-300)
-    lk = torch.linalg.cholesky(k)
+    lk, info = torch.linalg.cholesky_ex(k)
+    ridge = RIDGE
+    while int(info) != 0 and ridge < 1e-2:  # rounding made it indefinite: a larger ridge
+        k.diagonal().add_(9 * ridge * float(k.diagonal().mean()))
+        ridge *= 10
+        lk, info = torch.linalg.cholesky_ex(k)
+    del k
     return lk, lk
 
 
@@ -72,7 +83,7 @@ def from_row_space(features: Tensor, lk: Tensor | None, z: Tensor) -> Tensor:
     if lk is None:
         return z
     a = torch.linalg.solve_triangular(lk.T, z, upper=True)
-    return features.double().T @ a
+    return (features.T @ a.to(features.dtype)).double()
 
 
 def gram(g: Tensor) -> Tensor:
@@ -85,7 +96,7 @@ def gram(g: Tensor) -> Tensor:
 def curvature_factor(gg: Tensor, n: int, penalty: float) -> Tensor:
     """The Cholesky factor ``L`` of ``G^T G / 4N + 2 penalty I`` (+ a floor for a zero column
     with no penalty)."""
-    m = gg / (4.0 * n)
+    m = gg.div(4.0 * n)
     m.diagonal().add_(
         2.0 * penalty + 1e-12 * (1.0 + (float(m.diagonal().max()) if m.numel() else 0.0))
     )
@@ -113,6 +124,7 @@ def fit_softmax(
     n, r = g.shape
     dt = g.dtype
     lf = curvature_factor(gram(g) if gg is None else gg, n, penalty)
+    # (the Gram matrix is not needed after its factor: a caller's is kept for its next fit)
     onehot = torch.zeros(n, n_classes, dtype=torch.float64)
     onehot[torch.arange(n), y] = 1.0
     u = torch.zeros(r, n_classes, dtype=torch.float64)
@@ -226,7 +238,9 @@ def fit_features(
     """The exact fit on features ``[N, d]`` (float32 or float64): ``(W [d, classes] float64,
     b [classes], function evaluations)`` through :func:`row_space` and :func:`fit_softmax`."""
     g, lk = row_space(features)
-    z, b, evals = fit_softmax(g.to(features.dtype), y, n_classes, penalty, tol=tol)
+    g = g.to(features.dtype)  # (a float32 copy of L_K where the features are float32)
+    z, b, evals = fit_softmax(g, y, n_classes, penalty, tol=tol)
+    del g
     return from_row_space(features, lk, z), b, evals
 
 

@@ -24,6 +24,7 @@ BENCHMARKS: dict[str, str] = {
     "busy": "busy",
     "sim2real": "sim2real",
     "localise": "localise",
+    "fit": "fit",
 }
 
 
