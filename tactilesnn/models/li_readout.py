@@ -183,12 +183,12 @@ class LIReadout(SpikeModel):
         keep = (
             self.config.solver == "exact" and 4 * n * self.linear.in_features <= EXACT_BUDGET_BYTES
         )
-        kept = []
+        kept = torch.empty(n, self.linear.in_features) if keep else None  # filled, not joined
         batch = self.batch_size(spikes)
         for i in range(0, n, batch):
             t = self.traces(spikes[i : i + batch])
-            if keep:
-                kept.append(t)
+            if kept is not None:
+                kept[i : i + batch] = t
             f = t.double()
             total += f.sum(0)
             total_sq += (f * f).sum(0)
@@ -196,8 +196,8 @@ class LIReadout(SpikeModel):
         sd = (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
         self.feat_mean.copy_(mean.float())
         self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
-        if keep:
-            self._prepared = (spikes, torch.cat(kept))
+        if kept is not None:
+            self._prepared = (spikes, kept)
 
     def scores(self, spikes: Tensor) -> Tensor:
         return self.linear(self.features(spikes))
