@@ -24,7 +24,12 @@ from ..core.checks import check_allocation, check_int
 from .base import register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
-from .scalogram_latency import ScalogramLatencyEncoder, ScalogramLatencySettings, unit_peak
+from .scalogram_latency import (
+    ScalogramLatencyEncoder,
+    ScalogramLatencySettings,
+    level_off,
+    unit_peak,
+)
 
 
 def auto_hop(fs_hz: float, f_hi_hz: float, window: int) -> int:
@@ -178,22 +183,6 @@ class _ScalogramCode(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         return self.code(self.scalogram(x))  # (the window comes level_off: _WithSlot)
-
-
-def level_off(x: Tensor) -> Tensor:
-    """Each (window, channel) of ``x [..., samples]`` less its first sample, divided by the
-    peak of that (:func:`unit_peak`; a constant row: exact zeros). Halved first (exact), so that
-    no difference of float32 values overflows.
-
-    The bank's DC gain is exactly zero and a window's past is its first sample, so the bank's
-    output is unchanged by the subtraction and scaled by the division, and the latency code is
-    scale-free: no spike time changes. Without the level, float32 rounding is relative to what
-    varies instead of to the level: a status column stuck at 65,535 gives exact zeros (silent)
-    instead of rounding noise coded as spikes (which torch, onnxruntime and float64 coded
-    differently), and a ripple on a large level is coded to the precision float32 holds it
-    with."""
-    h = 0.5 * x
-    return unit_peak(h - h[..., :1])
 
 
 def in_range_units(mag: Tensor, rng: Tensor) -> Tensor:

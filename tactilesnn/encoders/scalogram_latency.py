@@ -148,6 +148,10 @@ class STFTConfig(ScalogramLatencySettings):
     """Hann STFT (frames of ``frame_samples``, 0 = the whole window) -> latency code."""
 
     frame_samples: int = 0
+    level_off: bool = True
+
+    #: runs saved before the level was taken off load with it on (their spikes as they were)
+    SAVED_BEFORE: ClassVar[dict[str, object]] = {"level_off": False}
 
     FLAGS: ClassVar[dict[str, str]] = {
         **ScalogramLatencySettings.FLAGS,
@@ -156,6 +160,7 @@ class STFTConfig(ScalogramLatencySettings):
     HELP: ClassVar[dict[str, str]] = {
         **ScalogramLatencySettings.HELP,
         "frame_samples": "STFT frame length in samples (0 = the whole window, seed 001)",
+        "level_off": "each window less its first sample before the STFT (see level_off)",
     }
 
     def __post_init__(self) -> None:
@@ -349,9 +354,32 @@ def unit_peak(x: Tensor) -> Tensor:
     return x / peak.clamp_min(torch.finfo(x.dtype).tiny)
 
 
+def level_off(x: Tensor) -> Tensor:
+    """Each (window, channel) of ``x [..., samples]`` less its first sample, divided by the
+    peak of that (:func:`unit_peak`; a constant row: exact zeros). Halved first (exact), so that
+    no difference of float32 values overflows.
+
+    A transform blind to a constant (the causal bank's DC gain is exactly zero, and a window's
+    past is its first sample; the STFT removes each frame's mean) gives the same output but
+    scaled, and the latency code is scale-free: no spike time changes. Without the level,
+    float32 rounding is relative to what varies instead of to the level: a status column stuck
+    at 65,535 gives exact zeros (silent) instead of rounding noise coded as spikes (which torch,
+    onnxruntime and float64 coded differently), and a ripple on a large level is coded to the
+    precision float32 holds it with."""
+    h = 0.5 * x
+    return unit_peak(h - h[..., :1])
+
+
 @register_encoder("stft", STFTConfig)
 class STFTLatencyEncoder(ScalogramLatencyEncoder):
     """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison)."""
+
+    def scaled(self, x: Tensor) -> Tensor:
+        """:func:`level_off` (the STFT removes each frame's mean: the spikes are the same, and
+        float32 rounds relative to what varies, not to the level: a channel stuck at 65,535
+        is exact zeros and silent instead of rounding noise that torch and onnxruntime code
+        differently); a run saved before that: :func:`unit_peak`."""
+        return level_off(x) if self.config.level_off else unit_peak(x)
 
     def make_scalogram(self, freqs_hz: np.ndarray) -> nn.Module:
         frame = self.config.frame_samples or self.window

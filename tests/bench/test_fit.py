@@ -43,3 +43,13 @@ def test_a_run_is_timed_in_its_own_process_against_references(tmp_path) -> None:
     line = fit.table([r]).splitlines()[-1]
     assert line.startswith("| events |") and f"{100 * m['test_accuracy']:.2f} %" in line
     json.dumps(r)  # the row is what fit.json holds
+
+
+def test_the_docs_page_is_the_table_its_json_gives() -> None:
+    from pathlib import Path
+
+    docs = Path(__file__).resolve().parents[2] / "docs"
+    result = json.loads((docs / "fit.json").read_text())
+    text = (docs / "fit.md").read_text()
+    assert text == fit.page(result["rows"], result["command"], result["machine"])
+    assert {r["set"] for r in result["rows"]} >= {"fabric_slide", "braille_icub_abc"}
