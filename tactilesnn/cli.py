@@ -12,6 +12,7 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from .app.options import Option, pipeline_options, run_options, train_options
 from .datasets_synth import TASKS
@@ -548,11 +549,44 @@ COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse
             "serve": _parse_serve, "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
 
 
+class SuggestingParser(argparse.ArgumentParser):
+    """An argument parser whose errors suggest the closest flag or choice ("did you mean")."""
+
+    def error(self, message: str) -> NoReturn:
+        import difflib
+        import re
+
+        hint = ""
+        unknown = re.match(r"unrecognized arguments: (.*)", message)
+        invalid = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if unknown:
+            flags = sorted(_all_flags(self))
+            guesses = {tok: difflib.get_close_matches(tok.split("=")[0], flags, n=1)
+                       for tok in unknown.group(1).split() if tok.startswith("--")}  # fmt: skip
+            hint = "; ".join(f"{tok}: did you mean {g[0]}?" for tok, g in guesses.items() if g)
+        elif invalid:
+            choices = re.findall(r"'?([^',\s]+)'?", invalid.group(2))
+            g = difflib.get_close_matches(invalid.group(1), choices, n=1)
+            hint = f"did you mean {g[0]}?" if g else ""
+        super().error(f"{message} ({hint})" if hint else message)
+
+
+def _all_flags(parser: argparse.ArgumentParser) -> set[str]:
+    """Every ``--flag`` of ``parser`` and of its sub-commands."""
+    out: set[str] = set()
+    for action in parser._actions:
+        out.update(o for o in action.option_strings if o.startswith("--"))
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                out |= _all_flags(sub)
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     from .core.version import __version__
 
-    parser = argparse.ArgumentParser(prog="tactilesnn", description=DESCRIPTION,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = SuggestingParser(prog="tactilesnn", description=DESCRIPTION,
+                              formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     parser.add_argument("--version", action="version", version=f"tactilesnn {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)

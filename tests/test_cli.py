@@ -172,3 +172,16 @@ def test_tasks_lists_every_registered_task(capsys):
     for name in TASKS:
         assert f"\n{name}: " in f"\n{out}"
     assert "3 classes (a, b, c); 12 channels at 93.3 Hz" in out
+
+
+def test_a_mistyped_flag_or_choice_gets_a_suggestion(capsys):
+    import pytest
+
+    from tactilesnn.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["train", "--epcohs", "5"])
+    assert "--epcohs: did you mean --epochs?" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "--encoder", "cgtw"])
+    assert "did you mean cgwt?" in capsys.readouterr().err
