@@ -12,6 +12,7 @@ import numpy as np
 
 from .config import PipelineConfig
 from .core.data import WindowDataset, evenly_spaced
+from .core.memory import release_memory
 from .encoders import ENCODERS
 from .pipeline import SpikePipeline
 from .training import fit_and_evaluate, split_validation
@@ -253,9 +254,9 @@ def select_encoder(
     quick = replace(config.model, **getattr(type(config.model), "WHILE_SELECTING", {}))
 
     def scored(name: str, fit: WindowDataset, val: WindowDataset) -> tuple[float, float | None]:
-        res = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False,
-                               with_past=False)  # fmt: skip
-        m = res.metrics
+        m = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False,
+                             with_past=False).metrics  # fmt: skip
+        release_memory()  # a candidate's arrays are not the next one's resident memory
         per_rec = m.get("test_accuracy_per_recording")
         log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows "
                  "(fitted on %d, %.1f s)", name, 100 * m["test_accuracy"],

@@ -227,6 +227,7 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
         if read_marker(partial) is not None and not (partial / "checkpoint.json").is_file():
             remove_owned(partial, PARTIAL_FILES, "the checkpoint folder")  # nothing to resume
         raise
+    del train  # the export needs the test windows only
     if spec.export:  # after the run is safely written: an export failure never loses the run
         with plan.stage("export"):
             res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)

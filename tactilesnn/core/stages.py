@@ -15,6 +15,8 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from .memory import release_memory
+
 log = logging.getLogger("tactilesnn")
 
 
@@ -77,6 +79,7 @@ class StagePlan:
         t = self._now()
         yield
         self.taken[name] = self._now() - t
+        release_memory()  # what this stage freed is not the next one's resident memory
         left = self.left()
         log.info("[%d/%d] %s done in %s (elapsed %s%s; peak memory %.2f GB)", k, n, name,
                  seconds(self.taken[name]), seconds(self.elapsed()),

@@ -295,13 +295,13 @@ def verify(
     tol = score_tolerance(ref)
     if parts is not None and len(x):
         enc = _session(parts[0])
-        got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"))[0]
+        got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"), trim=True)[0]
         tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, tol)
         mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
-        got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"))
+        got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"), trim=True)
         per_m = np.abs(got_m - ref).max(1)
         dm, off_m = float(per_m.max()), int((per_m > tol).sum())
         del enc, mod  # one session at a time: each holds its own copy of the weights
@@ -319,7 +319,7 @@ def verify(
         )
     sess = _session(model)
     feeds = {"window": x, **_zero_states(states, len(x))}
-    got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"))[0]
+    got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"), trim=True)[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
     off = int((per_window > tol).sum())
     if off > _boundary_allowance(len(x)):
