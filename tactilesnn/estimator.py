@@ -17,6 +17,7 @@ The defaults are those of ``tactilesnn train --data`` (a user's file): every cha
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
 import numpy as np
@@ -165,12 +166,13 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             raise ValueError("the sampling rate is unknown: pass fit(X, y, fs_hz=...) or "
                              "SpikeClassifier(fs_hz=...)")  # fmt: skip
         if (
-            isinstance(fs, bool)
-            or not isinstance(fs, int | float)
+            isinstance(fs, bool | np.bool_)
+            or not isinstance(fs, numbers.Real)  # (numpy's scalars too: np.float32(200))
             or not math.isfinite(fs)
             or fs <= 0
         ):
             raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
+        fs = float(fs)
         arr = _windows(X)
         labels, y_idx = np.unique(column_or_1d(y, warn=True), return_inverse=True)
         if len(y_idx) != len(arr):
@@ -217,6 +219,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
 
     def _scores(self, X: Any) -> np.ndarray:
         check_is_fitted(self, "pipeline_")
+        if isinstance(X, WindowDataset):  # it says its rate and channels: checked, as the CLI does
+            X = self._matched(X)
         arr = _windows(X, min_samples=1)  # (a wrong window length is reported below)
         want = (len(self.channel_names_), self.pipeline_.window)
         if arr.shape[1:3] != want:
@@ -227,6 +231,23 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             )
         with torch.no_grad():
             return self.pipeline_.scores(self.pipeline_.encode(arr)).numpy().astype(np.float64)
+
+    def _matched(self, data: WindowDataset) -> WindowDataset:
+        """``data`` with its channels in the fitted order (by name); ValueError for another rate
+        or other channels (a window at 100 Hz read as 200 Hz is a wrong answer, not an error
+        the model could see)."""
+        from dataclasses import replace
+
+        if abs(float(data.fs_hz) - self.fs_hz_) > 1e-6 * self.fs_hz_:
+            raise ValueError(f"the windows are sampled at {float(data.fs_hz):g} Hz, the model at "
+                             f"{self.fs_hz_:g} Hz: resample them first")  # fmt: skip
+        have, want = tuple(data.channel_names), tuple(self.channel_names_)
+        if have == want:
+            return data
+        if sorted(have) != sorted(want):
+            raise ValueError(f"the windows' channels {list(have)} are not the model's {list(want)}")
+        return replace(data, X=np.asarray(data.X)[:, [have.index(c) for c in want]],
+                       channel_names=want)  # fmt: skip
 
     def predict(self, X: Any) -> np.ndarray:
         scores = self._scores(X)  # (first: it checks the estimator is fitted)
@@ -243,6 +264,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if isinstance(X, WindowDataset) and y is None:
             check_is_fitted(self, "pipeline_")
             names = self.classes_.dtype.kind in "US"
+            X = self._matched(X)
             X, y = X.X, (np.asarray(X.class_names)[X.y] if names else X.y)
         return super().score(X, y, sample_weight=sample_weight)
 

@@ -90,7 +90,14 @@ def read_recordings(path: Path, arrays: dict[str, np.ndarray] | None = None
 # ---------------------------------------------------------------- timestamped arrays
 def _timestamped(arrays: dict[str, np.ndarray], path: Path) -> tuple[dict, Conversion]:
     X = np.asarray(arrays["X"])
-    t = np.asarray(arrays["t"] if "t" in arrays else arrays["timestamps"], dtype=np.float64)
+    key = "t" if "t" in arrays else "timestamps"
+    try:
+        t = np.asarray(arrays[key], dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: {key} must be numbers (seconds), got {e}") from None
+    if t.ndim not in (1, 2) or t.shape[-1] < 2:
+        raise ValueError(f"{path}: {key} must be the samples' times in seconds, [samples] or "
+                         f"[trials, samples] with at least 2 samples, got shape {t.shape}")  # fmt: skip
     if X.ndim != 3:
         raise ValueError(f"{path}: X must be [trials, samples, channels] or [trials, channels, "
                          f"samples], got shape {X.shape}")  # fmt: skip

@@ -168,3 +168,32 @@ def test_sklearn_check_estimator():
     assert not failed, failed
     passed = {r["check_name"] for r in results if r["status"] == "passed"}
     assert len(passed) >= 45 and "check_classifiers_train" in passed
+
+
+def test_windows_that_say_their_rate_and_channels_are_checked_at_predict():
+    """A WindowDataset at another rate is refused; its channels in another order are put back
+    in the fitted order by name; numpy scalars are rates like any number."""
+    from dataclasses import replace
+
+    import pytest
+
+    from tactilesnn import SpikeClassifier
+    from tactilesnn.core.data import WindowDataset
+
+    rng = np.random.default_rng(0)
+    y = np.arange(24) % 2
+    t = np.arange(100) / 100.0
+    X = np.stack([np.stack([np.sin(2 * np.pi * (3 + 4 * c) * t + rng.uniform(0, 6)),
+                            (1 + c) * np.ones(100)]) for c in y]).astype(np.float32)  # fmt: skip
+    data = WindowDataset(X, y, np.arange(24), 100.0, ("a", "b"), ("ch0", "ch1"))
+    clf = SpikeClassifier(encoder="lif", model="readout", epochs=2)
+    clf.fit(X, y, fs_hz=np.float32(100), channel_names=("ch0", "ch1"))
+    assert clf.fs_hz_ == 100.0 and isinstance(clf.fs_hz_, float)
+    want = clf.predict(data)
+    swapped = replace(data, X=X[:, ::-1].copy(), channel_names=("ch1", "ch0"))
+    assert np.array_equal(clf.predict(swapped), want)
+    assert clf.score(swapped) == clf.score(data)
+    with pytest.raises(ValueError, match="200 Hz, the model at 100 Hz"):
+        clf.predict(replace(data, fs_hz=200.0))
+    with pytest.raises(ValueError, match="not the model's"):
+        clf.predict(replace(data, channel_names=("ch0", "other")))

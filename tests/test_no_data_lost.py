@@ -3,6 +3,8 @@
 import json
 import os
 
+import pytest
+
 import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
 
@@ -173,6 +175,20 @@ def test_two_trainings_into_one_out_are_refused_up_front(tmp_path, capsys):
     assert not (tmp_path / "r.lock").exists()
 
 
+@pytest.mark.parametrize("content", ["my notes\n", "", '{"pid": 1}', '{"other": "json"}'])
+def test_a_file_at_the_lock_name_that_is_not_ours_is_refused_and_kept(tmp_path, content):
+    """A user's file at ``<out>.lock`` (or an empty one: a lock of ours always holds its pid and
+    token, written in one step) is never taken for a stale lock and deleted."""
+    from tactilesnn.app.runs import OutLock, RunExistsError
+
+    lock = tmp_path / "r.lock"
+    lock.write_text(content)
+    with pytest.raises(RunExistsError, match="is not a tactilesnn lock"), OutLock(tmp_path / "r"):
+        pass
+    assert lock.read_text() == content
+    assert not list(tmp_path.glob("*.tmp"))  # the lock's temporary file is gone too
+
+
 def test_temporary_folders_of_a_killed_run_are_cleaned_and_foreign_ones_kept(tmp_path):
     from tactilesnn.app.runs import MARKER, RunWriter
 
@@ -314,3 +330,16 @@ def test_a_model_too_large_for_memory_is_refused_before_it_is_built(tmp_path, mo
     err = capsys.readouterr().err
     assert rc == 2 and "select fewer with 'channels'" in err and "GiB" in err
     assert not (tmp_path / "r").exists() and not (tmp_path / "r.partial").exists()
+
+
+@pytest.mark.parametrize("pipeline", ["[]", '"gwt"', "null"])
+def test_a_damaged_run_config_is_an_error_naming_it(tmp_path, pipeline):
+    from tactilesnn.app.run import load_run
+
+    run = tmp_path / "run"
+    run.mkdir()
+    cfg = {"fs_hz": 100, "window": 50, "channel_names": ["a"], "class_names": ["x", "y"]}
+    (run / "config.json").write_text(json.dumps(cfg)[:-1] + f', "pipeline": {pipeline}}}')
+    (run / "weights.npz").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"config.json is damaged \(pipeline"):
+        load_run(run)

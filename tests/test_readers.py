@@ -141,3 +141,15 @@ def test_convert_writes_the_documented_format_and_refuses_to_overwrite(tmp_path,
         assert f["X"].shape == (10, 2, 120) and float(f["fs"]) == pytest.approx(100.0)
     assert main(["convert", str(src), "--out", str(out)]) == 2
     assert "--overwrite" in capsys.readouterr().err
+
+
+def test_timestamps_stored_as_one_value_get_an_error_not_a_traceback(tmp_path):
+    import numpy as np
+    import pytest
+
+    from tactilesnn.recordings import load_data_file
+
+    path = tmp_path / "t0.npz"
+    np.savez(path, X=np.zeros((4, 50, 2), np.float32), t=np.array(0.01), y=np.arange(4) % 2)
+    with pytest.raises(ValueError, match="t must be the samples' times in seconds"):
+        load_data_file(path, 0)

@@ -430,6 +430,14 @@ def load_run(run_dir: Path) -> tuple[SpikePipeline, dict]:
         if not (run_dir / name).is_file():
             raise FileNotFoundError(f"{run_dir} is not a run folder: {name} is missing")
     cfg = read_json(run_dir / "config.json")
+    needed = {"pipeline": dict, "fs_hz": (int, float), "window": int, "channel_names": list,
+              "class_names": list}  # fmt: skip
+    bad = [
+        k for k, t in needed.items() if not isinstance(cfg, dict) or not isinstance(cfg.get(k), t)
+    ]
+    if bad:
+        raise ValueError(f"{run_dir / 'config.json'} is damaged ({', '.join(bad)} missing or of "
+                         "the wrong type): not a run folder tactilesnn can load")  # fmt: skip
     legacy = not is_nested(cfg["pipeline"])  # written before the component layer
     pipe = SpikePipeline(
         saved_pipeline_config(cfg["pipeline"]),

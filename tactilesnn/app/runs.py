@@ -113,8 +113,11 @@ def _pid_alive(pid: int) -> bool:
 
 
 class OutLock:
-    """``<out>.lock``: one training writes into an ``--out`` at a time (refused up front). A lock
-    left by a process that no longer runs is taken over."""
+    """``<out>.lock``: one training writes into an ``--out`` at a time (refused up front). The
+    lock is created with its content in one step (a hard link of a written temporary file), so a
+    lock of ours always holds its process id and token; a lock whose process no longer runs is
+    taken over, and anything else at that name (a user's file, an empty or unreadable one) is
+    refused, named, and left as it is."""
 
     def __init__(self, out: Path) -> None:
         import secrets
@@ -124,31 +127,58 @@ class OutLock:
 
     def __enter__(self) -> OutLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        for _ in range(2):
-            try:
-                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-            except FileExistsError:
-                held = self._holder()
-                if held is not None and _pid_alive(held):
-                    raise RunExistsError(
-                        f"another tactilesnn process (pid {held}) is writing {self.path.with_suffix('')}"
-                        "; wait for it or choose another --out"
-                    ) from None
-                if held is None and not self.path.is_file():
-                    raise RunExistsError(
-                        f"{self.path} exists and is not a tactilesnn lock"
-                    ) from None
-                self.path.unlink(missing_ok=True)  # its process is gone
-                continue
-            with os.fdopen(fd, "w") as f:
-                json.dump({"pid": os.getpid(), "token": self.token}, f)
-            return self
+        tmp = self.path.with_name(f"{self.path.name}.{self.token}.tmp")
+        try:  # (a full disk fails here, before any lock exists; the temporary file goes)
+            tmp.write_text(json.dumps({"pid": os.getpid(), "token": self.token}))
+            for _ in range(2):
+                try:
+                    self._create(tmp)
+                    return self
+                except FileExistsError:
+                    held = self._holder()
+                    if held is None:
+                        raise RunExistsError(
+                            f"{self.path} exists and is not a tactilesnn lock (it does not hold "
+                            "a process id and token that tactilesnn wrote); it is left as it "
+                            "is: move it away or choose another --out"
+                        ) from None
+                    if _pid_alive(held):
+                        raise RunExistsError(
+                            f"another tactilesnn process (pid {held}) is writing "
+                            f"{self.path.with_suffix('')}; wait for it or choose another --out"
+                        ) from None
+                    self.path.unlink(missing_ok=True)  # its process is gone
+        finally:
+            tmp.unlink(missing_ok=True)
         raise RunExistsError(f"could not take the lock {self.path}")
 
-    def _holder(self) -> int | None:
+    def _create(self, written: Path) -> None:
+        """The lock at :attr:`path` with ``written``'s content, failing if it exists."""
         try:
+            os.link(written, self.path)
+        except FileExistsError:
+            raise
+        except OSError:  # a file system without hard links: create exclusively, then write
+            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            try:
+                with os.fdopen(fd, "w") as f:
+                    f.write(written.read_text())
+            except OSError:
+                self.path.unlink(missing_ok=True)
+                raise
+
+    def _holder(self) -> int | None:
+        """The process id a lock of ours holds; None for anything else at that name."""
+        try:
+            if self.path.is_symlink() or not self.path.is_file():
+                return None
             d = json.loads(self.path.read_text())
-            return int(d["pid"]) if isinstance(d, dict) and "token" in d else None
+            ok = isinstance(d, dict) and set(d) == {"pid", "token"}
+            return (
+                int(d["pid"])
+                if ok and isinstance(d["token"], str) and len(d["token"]) == 32
+                else None
+            )
         except (OSError, ValueError, KeyError, TypeError):
             return None
 
