@@ -249,8 +249,10 @@ class LIReadout(SpikeModel):
         best: tuple = ()
         table = []
         cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)))
-        cv_feats = (feats if len(cv) == n else feats[torch.from_numpy(cv)]) if feats is not None \
-            else self._training_features(spikes, cv)  # fmt: skip
+        if feats is None:  # over the budget: only the cross-validation's windows featurised
+            cv_feats = self._training_features(spikes, cv)
+        else:
+            cv_feats = feats if len(cv) == n else feats[torch.from_numpy(cv)]
         for subset in subsets:
             part = (
                 cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]

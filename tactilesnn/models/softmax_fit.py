@@ -124,7 +124,6 @@ def fit_softmax(
     n, r = g.shape
     dt = g.dtype
     lf = curvature_factor(gram(g) if gg is None else gg, n, penalty)
-    # (the Gram matrix is not needed after its factor: a caller's is kept for its next fit)
     onehot = torch.zeros(n, n_classes, dtype=torch.float64)
     onehot[torch.arange(n), y] = 1.0
     u = torch.zeros(r, n_classes, dtype=torch.float64)
