@@ -168,7 +168,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     pipe, cfg = load_run(Path(args.run_dir))
     test = evaluation_data(pipe, cfg, Path(args.data) if args.data else None, every=args.all,
-                           progress=not args.quiet)  # fmt: skip
+                           progress=not args.quiet, fs_hz=args.fs)  # fmt: skip
     scores = pipe.scores(pipe.encode(test.X, progress=not args.quiet)).numpy()
     pred = scores.argmax(1)
     per_rec = recording_accuracy(scores, test.y, test.scan)
@@ -280,26 +280,24 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_convert(args: argparse.Namespace) -> int:
-    from .app.runs import RunExistsError
-    from .core.files import write_npz_atomic
-    from .recordings import datasets_from_arrays, read_data_arrays
+    from .app.convert import convert
 
-    out = Path(args.out)
-    if out.exists() and not args.overwrite:
-        raise RunExistsError(f"{out} exists; pass --overwrite to replace it")
-    arrays = read_data_arrays(Path(args.source))
-    train, test = datasets_from_arrays(arrays, args.source, seed=0)  # checks the result
-    write_npz_atomic(out, arrays)
-    print(f"wrote {out}: X {list(arrays['X'].shape)} at {float(arrays['fs']):.4g} Hz, classes "
-          f"{', '.join(map(str, arrays['class_names']))} ({len(train) + len(test)} windows)")  # fmt: skip
+    out = Path(args.out) if args.out else None
+    report = convert(Path(args.source), out, args.fs, args.overwrite, args.dry_run)
+    print("\n".join(report.lines()))
     return 0
 
 
 def _parse_convert(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "convert", "recordings as they come (timestamped arrays, a folder of CSV / "
-                 ".npy files) -> one .npz in the documented format")  # fmt: skip
+                 "TSV / .npy files) -> one .npz in the documented format")  # fmt: skip
     p.add_argument("source", help="an .npz, a folder of recordings or a generated dataset")
-    p.add_argument("--out", required=True, help=".npz file to write")
+    p.add_argument("--out", help=".npz file to write (required unless --dry-run)")
+    p.add_argument("--fs", type=float, help="sampling rate (Hz) of recordings without a time "
+                   "column")  # fmt: skip
+    p.add_argument("--dry-run", action="store_true", help="print what would be read (files, "
+                   "classes, channels, rate and where it came from, lengths, what is dropped) "
+                   "and write nothing")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=cmd_convert)
     return p
@@ -425,6 +423,8 @@ def _parse_evaluate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--data", help="recordings .npz or generated folder to evaluate on (its test "
                    "split, cut as the run's data was)")  # fmt: skip
     p.add_argument("--all", action="store_true", help="with --data: evaluate on every recording")
+    p.add_argument("--fs", type=float, help="with --data: the sampling rate (Hz) of recordings "
+                   "without a time column (default: the rate the run's data was given)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)

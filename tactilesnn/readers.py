@@ -8,14 +8,18 @@
   samples axis is the one whose length matches ``t``; ``fs`` is inferred from the median step,
   the jitter reported, and trials whose steps vary by more than :data:`MAX_JITTER` are
   resampled onto a uniform grid (linear interpolation);
-- a folder of ``.csv`` (a header line of column names, a timestamp column such as ``timestamp``
-  or ``time``, one column per channel) or ``.npy`` (``[samples, channels]``) files, one recording
-  each, labelled by their sub-folder (``folder/<class>/*.csv``) or else by the file name up to the
-  first ``_`` / ``-`` / space (``BeigeCotton_F120_V-100mmps_0.csv`` -> ``BeigeCotton``).
-  Recordings of different lengths are cut into windows of the shortest one's length (at least
-  :data:`MIN_WINDOW` samples; shorter ones are left out, said in the log), every half window;
-  windows keep their recording's id, so they never straddle a split and scores are also summed
-  per recording.
+- a folder of ``.csv`` / ``.tsv`` (read by :func:`~tactilesnn.core.tables.read_table`: header
+  line or not, delimiter and decimal mark, byte-order marks, title lines and empty columns as a
+  spreadsheet saves them; a time column found by its name, e.g. ``timestamp`` or ``time_ms``, or
+  as a first column of steadily increasing values; else the rate must be given, ``--fs HZ``)
+  or ``.npy`` (``[samples, channels]``) files, one recording each, labelled by their sub-folder
+  (``folder/<class>/*.csv``) or else by the file name up to the first ``_`` / ``-`` / space
+  (``BeigeCotton_F120_V-100mmps_0.csv`` -> ``BeigeCotton``); symbolic links are followed.
+  Recordings at other rates than most are resampled to theirs (said in the printout).
+  Recordings of different lengths are cut into windows of the shortest one's length among those
+  at least half the median length (at least :data:`MIN_WINDOW` samples; shorter ones are left
+  out, said in the log), every half window; windows keep their recording's id, so they never
+  straddle a split and scores are also summed per recording.
 
 Every conversion is logged in one line (layout found, rate, jitter, what was resampled or cut);
 a file that is almost right gets an error naming the fix.
@@ -23,8 +27,8 @@ a file that is almost right gets an error naming the fix.
 
 from __future__ import annotations
 
-import csv
 import logging
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation
+from .core.tables import Table, read_table
 
 log = logging.getLogger("tactilesnn")
 
@@ -39,8 +44,28 @@ log = logging.getLogger("tactilesnn")
 MAX_JITTER = 0.01
 #: shortest window a folder of recordings is cut into (samples)
 MIN_WINDOW = 16
-#: column names taken as the timestamp (case-insensitive)
-TIME_COLUMNS = ("timestamp", "timestamps", "time", "t", "time_s", "times", "ts")
+#: a time column's name (case-insensitive), with an optional unit: ``time``, ``Time (s)``,
+#: ``timestamp_ms``, ``t[us]``, ``ts_ns``
+TIME_NAME = re.compile(
+    r"^(timestamps?|times?|t|ts|zeit|temps|tiempo)\s*[\[(_\- ]?\s*"
+    r"(?P<unit>s|sec|secs|seconds|ms|msec|millis|milliseconds|us|µs|usec|microseconds|ns|nsec|"
+    r"nanoseconds)?\s*[\])]?$",
+    re.IGNORECASE,
+)
+#: seconds per unit named in a time column's name
+UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "msec": 1e-3,
+         "millis": 1e-3, "milliseconds": 1e-3, "us": 1e-6, "usec": 1e-6, "microseconds": 1e-6,
+         "ns": 1e-9, "nsec": 1e-9, "nanoseconds": 1e-9}  # fmt: skip
+#: first-column names of a sample counter (dropped; it gives no rate)
+INDEX_NAMES = ("index", "idx", "sample", "samples", "sample_index", "frame", "n", "row", "#")
+#: a stated rate (``--fs``) within this fraction of the data's own is the same rate
+RATE_TOLERANCE = 0.01
+#: recordings whose rates differ by more than this fraction are at different rates (less is
+#: timing jitter, taken up by the uniform grid)
+MIXED_RATES = 0.05
+#: share of recordings that may be left out as stray short files (see :func:`_window_length`)
+STRAY_SHARE = 0.02
+RECORDING_SUFFIXES = (".csv", ".tsv", ".npy")
 MAX_FILES = 100_000
 
 
@@ -75,16 +100,21 @@ def needs_reading(path: Path, members: set[str] | None = None) -> bool:
     )
 
 
-def read_recordings(path: Path, arrays: dict[str, np.ndarray] | None = None
-                    ) -> tuple[dict[str, np.ndarray], Conversion]:  # fmt: skip
+def read_recordings(path: Path, arrays: dict[str, np.ndarray] | None = None,
+                    fs_hz: float | None = None) -> tuple[dict[str, np.ndarray], Conversion]:  # fmt: skip
     """``path`` (a folder of recordings, or an ``.npz`` whose ``arrays`` are given) -> the
-    documented arrays and what was done (see the module docstring)."""
+    documented arrays and what was done (see the module docstring). ``fs_hz``: the sampling
+    rate (Hz) the user states (``--fs``), required where no timestamps tell it."""
     path = Path(path)
     if path.is_dir():
-        return _read_folder(path)
+        return _read_folder(path, fs_hz)
     if arrays is None:
         raise ValueError(f"{path}: give the arrays of the .npz")
-    return _timestamped(arrays, path)
+    out, conv = _timestamped(arrays, path)
+    if fs_hz is not None and abs(conv.fs_hz - fs_hz) > RATE_TOLERANCE * fs_hz:
+        raise ValueError(f"{path}: its timestamps say {conv.fs_hz:.6g} Hz, --fs says {fs_hz:g} "
+                         "Hz; drop --fs or correct it")  # fmt: skip
+    return out, conv
 
 
 # ---------------------------------------------------------------- timestamped arrays
@@ -117,12 +147,39 @@ def _timestamped(arrays: dict[str, np.ndarray], path: Path) -> tuple[dict, Conve
     if t.shape != (Xc.shape[0], n_t):
         raise ValueError(f"{path}: t must be [samples] or [trials={Xc.shape[0]}, samples], got "
                          f"{t.shape}")  # fmt: skip
+    t, unit_note = _in_seconds(t, path)
     Xc, fs, jitter, resampled = _uniform(Xc, t, path)
     out = {k: v for k, v in arrays.items() if k not in ("X", "t", "timestamps")}
     out.update(X=Xc, fs=np.array(fs))
     if "class_names" not in out:
         out["y"], out["class_names"] = _labels(arrays.get("y"), path)
-    return out, Conversion(f"{path.name}: X {layout} with timestamps", fs, jitter, resampled)
+    conv = Conversion(f"{path.name}: X {layout} with timestamps", fs, jitter, resampled)
+    if unit_note:
+        conv.notes.append(unit_note)
+    return out, conv
+
+
+def _in_seconds(t: np.ndarray, path: Path) -> tuple[np.ndarray, str]:
+    """Timestamps ``[trials, samples]`` in seconds; steps of 1 or more are taken in the unit
+    :func:`_tick_unit` finds (said in the note). Trials at rates more than
+    :data:`RATE_TOLERANCE` apart are refused: one array holds one rate."""
+    if not np.isfinite(t).all():
+        raise ValueError(f"{path}: timestamps hold NaN or Inf")
+    dt = np.diff(t, axis=-1)
+    if (dt <= 0).any():
+        raise ValueError(f"{path}: timestamps must increase within each trial")
+    steps = np.median(dt, axis=-1)
+    lo, hi = int(np.argmin(steps)), int(np.argmax(steps))
+    if steps[hi] > (1 + MIXED_RATES) * steps[lo]:
+        raise ValueError(f"{path}: trials at different rates (trial {lo}: a step of "
+                         f"{steps[lo]:.6g}, trial {hi}: {steps[hi]:.6g}); one X array holds one "
+                         "rate: resample the trials to one rate, or store each rate in its own "
+                         "file")  # fmt: skip
+    if float(np.median(steps)) < 1.0:
+        return t, ""
+    unit, how = _tick_unit(t.reshape(-1)[: t.shape[-1]])
+    return t * unit, (f"timestamps step by {float(np.median(steps)):g}: taken as {how} in units "
+                      f"of {unit:g} s; give fs (Hz) in the file to state the rate")  # fmt: skip
 
 
 def _uniform(X: np.ndarray, t: np.ndarray, path: Path) -> tuple[np.ndarray, float, float, int]:
@@ -160,12 +217,33 @@ def _labels(y: np.ndarray | None, path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------- a folder of recordings
-def _recording_files(folder: Path) -> list[Path]:
-    files = sorted(p for p in folder.rglob("*") if p.suffix.lower() in (".csv", ".npy")
-                   and p.is_file() and not p.name.startswith("."))  # fmt: skip
-    if len(files) > MAX_FILES:
-        raise ValueError(f"{folder}: {len(files)} files; at most {MAX_FILES} recordings")
-    return files
+def _recording_files(folder: Path) -> tuple[list[Path], int]:
+    """The recording files under ``folder`` and how many symbolic links were followed to them.
+    Links (to files or class folders) are followed wherever they point; a link that leads
+    nowhere, or back into a folder already walked, is refused by name."""
+    files: list[Path] = []
+    links, seen = 0, set()
+    for root, dirs, names in os.walk(folder, followlinks=True):
+        real = os.path.realpath(root)
+        if real in seen:
+            raise ValueError(f"{root}: a symbolic link leads back into {real}, which is read "
+                             "already; remove the link")  # fmt: skip
+        seen.add(real)
+        links += sum(os.path.islink(os.path.join(root, d)) for d in dirs)
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in sorted(names):
+            p = Path(root, name)
+            if name.startswith(".") or p.suffix.lower() not in RECORDING_SUFFIXES:
+                continue
+            if not p.exists():
+                raise ValueError(f"{p}: a symbolic link to nothing ({os.readlink(p)}); remove it "
+                                 "or restore its target")  # fmt: skip
+            links += p.is_symlink()
+            files.append(p)
+            if len(files) > MAX_FILES:
+                raise ValueError(f"{folder}: more than {MAX_FILES} files; at most {MAX_FILES} "
+                                 "recordings")  # fmt: skip
+    return sorted(files), links
 
 
 def _label_of(p: Path, folder: Path) -> str:
@@ -175,32 +253,41 @@ def _label_of(p: Path, folder: Path) -> str:
     return re.split(r"[_\-\s]", p.stem, maxsplit=1)[0] or p.stem
 
 
-def _read_folder(folder: Path) -> tuple[dict, Conversion]:
-    files = _recording_files(folder)
+@dataclass
+class _Recording:
+    """One file read: ``X [channels, samples]`` float32, channel names, its rate (Hz) when its
+    timestamps tell it, how the rate was known, timing jitter, whether it was resampled."""
+
+    X: np.ndarray
+    names: list[str]
+    fs_hz: float | None
+    rate_from: str
+    jitter: float = 0.0
+    resampled: bool = False
+    notes: list[str] = field(default_factory=list)
+
+
+def _read_folder(folder: Path, fs_hz: float | None = None) -> tuple[dict, Conversion]:
+    files, links = _recording_files(folder)
     if not files:
-        raise ValueError(f"{folder}: no .csv or .npy recordings (and no manifest.json)")
-    recs, names, steps, jitters, resampled = [], None, [], [], 0
-    for p in files:
-        data, cols, step, jitter, was_resampled = _read_one(p)
-        if names is None:
-            names = cols
-        elif cols != names:
-            raise ValueError(f"{p}: columns {cols[:5]}... differ from {files[0].name}'s")
-        recs.append(data)
-        if step is not None:
-            steps.append(step)
-            jitters.append(jitter)
-        resampled += was_resampled
+        raise ValueError(f"{folder}: no .csv, .tsv or .npy recordings (and no manifest.json)")
+    recs = [_read_one(p) for p in files]
+    names = recs[0].names
+    for p, r in zip(files, recs, strict=True):
+        if r.names != names:
+            raise ValueError(f"{p}: columns {r.names[:5]} differ from {files[0].name}'s "
+                             f"{names[:5]}; every recording needs the same channels in the same "
+                             "order")  # fmt: skip
     labels = [_label_of(p, folder) for p in files]
     classes = sorted(set(labels))
     if len(classes) < 2:
         raise ValueError(f"{folder}: every file has the label {classes[0]!r}; put each class in "
                          "its own sub-folder or start file names with the class (Class_*.csv)")  # fmt: skip
-    step = float(np.median(steps)) if steps else None
-    fs, unit_note = _rate(step, files[0])
-    jitter = float(np.median(jitters)) if jitters else 0.0
-    lengths = np.array([r.shape[1] for r in recs])
-    window = max(MIN_WINDOW, int(lengths.min()))
+    fs, rate_note, resampled = _common_rate(recs, files, fs_hz, folder)
+    X_all = [r.X for r in recs]
+    jitter = float(np.median([r.jitter for r in recs]))
+    lengths = np.array([x.shape[1] for x in X_all])
+    window = _window_length(lengths)
     keep = lengths >= window
     hop = max(1, window // 2)
     n_windows = int(sum((n - window) // hop + 1 for n in lengths[keep]))
@@ -211,71 +298,203 @@ def _read_folder(folder: Path) -> tuple[dict, Conversion]:
     k = 0
     for i in np.flatnonzero(keep):
         for s in range(0, lengths[i] - window + 1, hop):
-            X[k], y[k], rec[k] = recs[i][:, s : s + window], classes.index(labels[i]), i
+            X[k], y[k], rec[k] = X_all[i][:, s : s + window], classes.index(labels[i]), i
             k += 1
     notes = [f"{len(files)} recordings of {lengths.min()}-{lengths.max()} samples, "
              f"{len(classes)} classes, {len(names)} channels; cut into {n_windows} windows of "
              f"{window} samples every {hop}"]  # fmt: skip
     if (~keep).any():
-        notes.append(f"{int((~keep).sum())} recording(s) shorter than {window} samples left out")
-    if unit_note:
-        notes.append(unit_note)
+        short = [files[i].name for i in np.flatnonzero(~keep)]
+        more = " ..." if len(short) > 3 else ""
+        notes.append(f"{len(short)} recording(s) shorter than {window} samples left out "
+                     f"(a stray few under half the median length): {', '.join(short[:3])}{more}")  # fmt: skip
+    notes.append(rate_note)
+    if links:
+        notes.append(f"{links} symbolic link(s) followed")
+    seen: dict[str, list[str]] = {}  # each distinct note once, with the files it holds for
+    for p, r in zip(files, recs, strict=True):
+        for n in r.notes:
+            seen.setdefault(n, []).append(p.name)
+    for n, where in seen.items():
+        notes.append(
+            f"{n} ({where[0]}" + (f" and {len(where) - 1} more)" if len(where) > 1 else ")")
+        )
     arrays = {"X": X, "y": y, "recording": rec, "fs": np.array(fs),
               "class_names": np.array(classes), "channel_names": np.array(names)}  # fmt: skip
+    resampled += sum(r.resampled for r in recs)
     return arrays, Conversion(f"{folder.name}/: a folder of recordings", fs, jitter, resampled,
                               notes)  # fmt: skip
 
 
-def _rate(step: float | None, example: Path) -> tuple[float, str]:
-    """The sampling rate from the median timestamp step. Fractional steps are taken as seconds;
-    integer ticks have no stated unit: they are taken as milliseconds, and the note says so
-    (the encoders' bands scale with the rate, so a wrong unit does not change what is learnt)."""
-    if step is None:
-        return (
-            1.0,
-            f"no timestamp column in {example.name}: rate taken as 1 Hz (bands are relative)",
-        )
-    if step < 1.0:
-        return 1.0 / step, ""
-    return 1000.0 / step, (f"timestamps in {example.name} step by {step:g} ticks of unstated "
-                           f"unit: taken as ms ({1000.0 / step:.4g} Hz); the rate only scales "
-                           "the reported frequencies")  # fmt: skip
+def _window_length(lengths: np.ndarray) -> int:
+    """Windows as long as the shortest recording, except that a few stray short ones (under half
+    the median length, at most :data:`STRAY_SHARE` of the recordings or one) are left out
+    rather than shortening every window."""
+    short = lengths < np.median(lengths) / 2
+    if 0 < short.sum() <= max(1, STRAY_SHARE * len(lengths)):
+        return max(MIN_WINDOW, int(lengths[~short].min()))
+    return max(MIN_WINDOW, int(lengths.min()))
 
 
-def _read_one(p: Path) -> tuple[np.ndarray, list[str], float | None, float, bool]:
-    """One recording -> ``(X [channels, samples] float32, channel names, median timestamp step
-    or None, timing jitter, resampled?)``; irregular timestamps are resampled (:func:`_uniform`)."""
+def _common_rate(recs: list[_Recording], files: list[Path], fs_hz: float | None,
+                 folder: Path) -> tuple[float, str, int]:  # fmt: skip
+    """One rate for every recording: ``fs_hz`` (``--fs``) where given, else the recordings'
+    own (timestamps); recordings at another rate are resampled (polyphase, anti-aliased) to the
+    rate most of them have. Returns ``(fs, note, recordings resampled)``."""
+    timed = [r for r in recs if r.fs_hz is not None]
+    if fs_hz is not None:
+        for p, r in zip(files, recs, strict=True):
+            known = r.fs_hz is not None and r.rate_from != "ticks"
+            if known and abs(r.fs_hz - fs_hz) > RATE_TOLERANCE * fs_hz:
+                raise ValueError(f"{p}: its timestamps ({r.rate_from}) say {r.fs_hz:.6g} Hz, "
+                                 f"--fs says {fs_hz:g} Hz; drop --fs or correct it")  # fmt: skip
+        for r in recs:
+            r.fs_hz = fs_hz
+        return fs_hz, f"rate {fs_hz:g} Hz from --fs", 0
+    if len(timed) < len(recs):
+        p = files[next(i for i, r in enumerate(recs) if r.fs_hz is None)]
+        raise ValueError(f"{p}: no time column (a column named time / timestamp, with or without "
+                         "a unit such as time_ms, or a first column of steadily increasing "
+                         "values), so the sampling rate cannot be known: give it with --fs HZ")  # fmt: skip
+    rates = np.array([r.fs_hz for r in recs])
+    keys = np.round(np.log(rates) / np.log1p(MIXED_RATES)).astype(np.int64)
+    values, counts = np.unique(keys, return_counts=True)
+    ref = float(np.median(rates[keys == values[np.argmax(counts)]]))
+    other = np.flatnonzero(np.abs(rates - ref) > MIXED_RATES * ref)
+    how = sorted({r.rate_from for r in recs})
+    note = f"rate {ref:.6g} Hz from the timestamps ({', '.join(how)})"
+    if "ticks" in how:
+        note += ("; timestamps are ticks of unstated unit (taken as ms, us or ns by their step): "
+                 "--fs HZ states the rate")  # fmt: skip
+    for i in other:
+        recs[i].X = _resample(recs[i].X, recs[i].fs_hz, ref)
+    if len(other):
+        shown = ", ".join(f"{files[i].name} at {rates[i]:.4g} Hz" for i in other[:3])
+        note += (f"; {len(other)} recording(s) at other rates resampled to {ref:.6g} Hz "
+                 f"(polyphase, anti-aliased): {shown}{' ...' if len(other) > 3 else ''}")  # fmt: skip
+    return ref, note, len(other)
+
+
+def _resample(X: np.ndarray, fs_from: float, fs_to: float) -> np.ndarray:
+    """``X [channels, samples]`` at ``fs_from`` -> at ``fs_to`` (Hz), polyphase with SciPy's
+    anti-aliasing filter; the ratio is taken to 1 part in 1000."""
+    from fractions import Fraction
+
+    from scipy.signal import resample_poly
+
+    ratio = Fraction(fs_to / fs_from).limit_denominator(1000)
+    out = resample_poly(X.astype(np.float64), ratio.numerator, ratio.denominator, axis=1)
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def _read_one(p: Path) -> _Recording:
+    """One recording file -> :class:`_Recording`; irregular timestamps are resampled onto a
+    uniform grid (:func:`_uniform`)."""
     if p.suffix.lower() == ".npy":
-        a = np.load(p, allow_pickle=False)
-        if a.ndim != 2 or a.dtype.kind not in "fiu":
-            raise ValueError(f"{p}: a recording .npy must be numeric [samples, channels]")
-        names = [f"ch{i}" for i in range(a.shape[1])]
-        return np.ascontiguousarray(a.T, dtype=np.float32), names, None, 0.0, False
-    with open(p, newline="") as f:
-        header = next(csv.reader(f), None)
-    if not header:
-        raise ValueError(f"{p}: empty CSV file")
-    cols = [h.strip() for h in header]
-    try:
-        data = np.loadtxt(p, delimiter=",", skiprows=1, dtype=np.float64, ndmin=2)
-    except ValueError as e:
-        raise ValueError(f"{p}: a recording CSV holds a header line and numbers ({e})") from e
-    if data.shape[1] != len(cols):
-        raise ValueError(f"{p}: {data.shape[1]} values per row but {len(cols)} column names")
-    tcol = next((i for i, c in enumerate(cols) if c.lower() in TIME_COLUMNS), None)
-    chans = [i for i in range(len(cols)) if i != tcol]
-    if not np.isfinite(data[:, chans]).all():
-        raise ValueError(f"{p}: non-finite values in the channels")
-    X = np.ascontiguousarray(data[:, chans].T, dtype=np.float32)
-    if tcol is None or len(data) < 2:
-        return X, [cols[i] for i in chans], None, 0.0, False
-    t = data[:, tcol]
+        return _read_npy(p)
+    table = read_table(p)
+    names, values = table.names, table.values
+    tcol, unit, how = _time_column(table)
+    notes = list(table.notes)
+    chans = [i for i in range(len(names)) if i != tcol]
+    if not chans:
+        raise ValueError(f"{p}: only a time column ({names[tcol]!r}); a recording needs at "
+                         "least one channel column")  # fmt: skip
+    X = np.ascontiguousarray(values[:, chans].T, dtype=np.float32)
+    if not table.header:
+        notes.append("no header line: channels named col1, col2, ... by position")
+    if how == "index":
+        notes.append(f"column {names[tcol]!r} holds sample numbers (dropped; no rate)")
+    if tcol is None or how == "index" or len(values) < 2:
+        return _Recording(X, [names[i] for i in chans], None, "", notes=notes)
+    t = values[:, tcol]
+    line_numbers = table.line_numbers
     dt = np.diff(t)
     if (dt < 0).any():
-        raise ValueError(f"{p}: the timestamps ({cols[tcol]}) must increase (row "
-                         f"{int(np.argmax(dt < 0)) + 2} goes back in time)")  # fmt: skip
+        raise ValueError(f"{p}: the timestamps ({names[tcol]}) must increase (line "
+                         f"{line_numbers[int(np.argmax(dt < 0)) + 1]} goes back in time)")  # fmt: skip
     if (dt == 0).any():  # a repeated row (seen at the end of real recordings): keep the first
         keep = np.r_[True, dt > 0]
         X, t = np.ascontiguousarray(X[:, keep]), t[keep]
-    X3, fs, jitter, resampled = _uniform(X[None], t[None], p)
-    return X3[0], [cols[i] for i in chans], 1.0 / fs, jitter, bool(resampled)
+    if len(t) < 2:
+        return _Recording(X, [names[i] for i in chans], None, "", notes=notes)
+    if how == "by value":
+        notes.append(f"column {names[tcol]!r} taken as time (steadily increasing values)")
+    rate_from = f"column {names[tcol]!r}"
+    if unit is None:
+        unit, rate_from = _tick_unit(t)
+    X3, fs, jitter, resampled = _uniform(X[None], (t * unit)[None], p)
+    return _Recording(X3[0], [names[i] for i in chans], fs, rate_from, jitter, bool(resampled),
+                      notes)  # fmt: skip
+
+
+def _read_npy(p: Path) -> _Recording:
+    """A ``.npy`` recording ``[samples, channels]``, its header checked before its data is read."""
+    try:
+        with open(p, "rb") as f:
+            major, _ = np.lib.format.read_magic(f)
+            read = (np.lib.format.read_array_header_1_0 if major == 1
+                    else np.lib.format.read_array_header_2_0)  # fmt: skip
+            shape, _, dtype = read(f)
+    except (ValueError, OSError, EOFError) as e:
+        raise ValueError(f"{p}: not a .npy array ({e})") from None
+    if len(shape) != 2 or dtype.kind not in "fiu":
+        raise ValueError(f"{p}: a recording .npy must be numeric [samples, channels], got "
+                         f"{dtype} {tuple(shape)}")  # fmt: skip
+    need = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+    if need > p.stat().st_size:
+        raise ValueError(f"{p}: its header declares {tuple(shape)} {dtype} ({need} bytes) but "
+                         f"the file holds {p.stat().st_size} bytes (truncated or forged)")  # fmt: skip
+    check_allocation(4 * int(np.prod(shape, dtype=np.float64)), f"the recording {p}")
+    try:
+        a = np.load(p, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise ValueError(f"{p}: not a readable .npy array ({e})") from None
+    X = np.ascontiguousarray(a.T, dtype=np.float32)
+    if not np.isfinite(X).all():
+        r, c = np.argwhere(~np.isfinite(X.T))[0]
+        raise ValueError(f"{p}: non-finite value at sample {r}, channel {c}")
+    return _Recording(X, [f"ch{i}" for i in range(a.shape[1])], None, "")
+
+
+def _time_column(table: Table) -> tuple[int | None, float | None, str]:
+    """``(column, seconds per unit or None, how)`` of the table's time column: by name (its unit
+    from the name, e.g. ``time_ms``), else a first column of steadily increasing values; a
+    counter stepping by exactly 1 (or named like one) is a sample number (``how == 'index'``)."""
+    for j, name in enumerate(table.names):
+        m = TIME_NAME.match(name.strip())
+        if m:
+            unit = m.group("unit")
+            return j, (UNITS[unit.lower().replace("µ", "u")] if unit else None), "named"
+    if table.names and table.names[0].strip().lower() in INDEX_NAMES:
+        return 0, None, "index"
+    t = table.values[:, 0]
+    if len(t) < 3 or table.values.shape[1] < 2:
+        return None, None, ""
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        return None, None, ""
+    med = float(np.median(dt))
+    if float(np.median(np.abs(dt - med))) > 0.25 * med:
+        return None, None, ""  # increasing but not steadily: a channel
+    if (dt == 1).all() and (t == np.round(t)).all():
+        return 0, None, "index"
+    return 0, None, "by value"
+
+
+def _tick_unit(t: np.ndarray) -> tuple[float, str]:
+    """Seconds per unit of timestamps whose unit no name states: fractional steps under 1 are
+    seconds; epoch times are recognised by their size (s, ms, us, ns since 1970); other
+    integer ticks are taken as ms, us or ns, whichever puts the rate between 10 Hz and 100 kHz
+    first (``how == 'ticks'``: the run's printout says so, and ``--fs`` states the rate)."""
+    step = float(np.median(np.diff(t)))
+    if step < 1.0:
+        return 1.0, "seconds"
+    t0 = abs(float(t[0]))
+    for exponent, unit in ((9, 1.0), (12, 1e-3), (15, 1e-6), (18, 1e-9)):
+        if 1.0 * 10**exponent <= t0 < 1e1 * 10**exponent:  # 2001-2286 in that unit
+            return unit, "epoch time"
+    for unit in (1e-3, 1e-6, 1e-9):
+        if step * unit <= 0.1:
+            return unit, "ticks"
+    return 1e-9, "ticks"

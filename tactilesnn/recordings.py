@@ -36,6 +36,7 @@ def load_data_file(
     test_fraction: float = 0.2,
     window_s: float | None = None,
     hop_s: float | None = None,
+    fs_hz: float | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:
     """Recordings in the documented format, or a folder written by ``tactilesnn generate``
     (:func:`~tactilesnn.datasets_synth.generate.read_dataset_folder`) -> ``(train, test)``
@@ -48,9 +49,10 @@ def load_data_file(
     ``test_fraction`` of the recordings (stratified by class, from ``seed``) is held out.
     ``window_s`` (and ``hop_s``): after the split, cut every recording into windows of that
     length (:func:`cut_windows`); they keep their recording's id, so scores are also accumulated
-    per recording.
+    per recording. ``fs_hz``: the sampling rate (Hz) of a folder of recordings without
+    timestamps (``--fs``); where the data states its rate, a different ``fs_hz`` is refused.
     """
-    arrays = read_data_arrays(Path(path))
+    arrays = read_data_arrays(Path(path), fs_hz)
     train, test = datasets_from_arrays(arrays, path, seed, test_fraction)
     if window_s is None:
         if hop_s is not None:
@@ -134,22 +136,31 @@ def _names(values: object, what: str, path: Path | str) -> tuple[str, ...]:
     return names
 
 
-def read_data_arrays(path: Path) -> dict[str, np.ndarray]:
+def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.ndarray]:
     """The arrays of the documented format from ``path``: an ``.npz`` (converted when it holds
     timestamps instead of ``fs``), a folder written by ``tactilesnn generate``, or a folder of
-    recordings as they come (:mod:`tactilesnn.readers`)."""
+    recordings as they come (:mod:`tactilesnn.readers`). ``fs_hz``: the rate (Hz) the user
+    states (``--fs``): required for recordings without timestamps, checked against any rate
+    the data states."""
     from .readers import needs_reading, read_recordings
 
+    path = Path(path)
+    if fs_hz is not None and not (math.isfinite(fs_hz) and fs_hz > 0):
+        raise ValueError(f"--fs must be a positive number of Hz, got {fs_hz}")
     if path.is_dir():
         if needs_reading(path):
-            arrays, conv = read_recordings(path)
+            arrays, conv = read_recordings(path, fs_hz=fs_hz)
             log.info("read %s", conv.line())
             return arrays
         from .datasets_synth.generate import read_dataset_folder
 
-        return read_dataset_folder(path)
+        return _check_stated_rate(read_dataset_folder(path), fs_hz, path)
     if not path.is_file():
         raise FileNotFoundError(f"data file {path} does not exist")
+    if path.suffix.lower() in (".csv", ".tsv", ".npy", ".txt"):
+        raise ValueError(f"{path}: one {path.suffix} file is one recording; --data takes a folder "
+                         "of them (one recording per file, labelled by sub-folder or by the file "
+                         "name up to the first _), or an .npz (see README)")  # fmt: skip
     check_npz_size(path)  # from the headers, before any array is read
     try:
         with np.load(path, allow_pickle=False) as f:
@@ -157,8 +168,24 @@ def read_data_arrays(path: Path) -> dict[str, np.ndarray]:
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
     if needs_reading(path, set(arrays)):
-        arrays, conv = read_recordings(path, arrays)
+        arrays, conv = read_recordings(path, arrays, fs_hz)
         log.info("read %s", conv.line())
+        return arrays
+    return _check_stated_rate(arrays, fs_hz, path)
+
+
+def _check_stated_rate(arrays: dict[str, np.ndarray], fs_hz: float | None, path: Path
+                       ) -> dict[str, np.ndarray]:  # fmt: skip
+    """``--fs`` where the data states its rate: the same rate, else a refusal."""
+    if fs_hz is None or "fs" not in arrays:
+        return arrays
+    try:
+        stated = float(np.asarray(arrays["fs"], np.float64).reshape(-1)[0])
+    except (TypeError, ValueError, IndexError):
+        return arrays  # the loader names what is wrong with fs
+    if abs(stated - fs_hz) > 0.01 * fs_hz:
+        raise ValueError(f"{path} states fs = {stated:g} Hz; --fs says {fs_hz:g} Hz: drop --fs "
+                         "(the file's rate is used) or correct the file")  # fmt: skip
     return arrays
 
 

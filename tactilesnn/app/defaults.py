@@ -151,9 +151,11 @@ def run_spec(
     data = settings.get("data")
     if (settings.get("data_window_s") or settings.get("data_hop_s")) and not data:
         raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
+    if settings.get("fs") is not None and not data:
+        raise ValueError("--fs states the rate of --data recordings; a synthetic task has its own")
     select: tuple[str, ...] = ()
     if data:
-        source: Any = FileSource(Path(data), *data_window(settings))
+        source: Any = FileSource(Path(data), *data_window(settings), fs_hz=settings.get("fs"))
         if not is_event_file(Path(data)) and not encoder_settings_given(_given(settings, toml)):
             select = DATA_ENCODER_CANDIDATES
     else:

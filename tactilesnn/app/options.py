@@ -99,6 +99,13 @@ RUN_OPTIONS: tuple[Option, ...] = (
         "folder written by tactilesnn generate",
     ),
     Option(
+        "fs",
+        None,
+        "with --data: the sampling rate (Hz) of recordings without a time column; where the "
+        "data states its rate, a different --fs is refused",
+        float,
+    ),
+    Option(
         "data_window_s",
         None,
         "with --data: cut each recording into windows of this many "

@@ -91,6 +91,7 @@ class FileSource:
     window_s: float | None = None
     hop_s: float | None = None
     sha256: str | None = None
+    fs_hz: float | None = None  # the rate the user stated (--fs), for files without timestamps
 
     @property
     def label(self) -> str:
@@ -105,6 +106,8 @@ class FileSource:
     def record(self) -> dict[str, Any]:
         """Absolute path and hash: a run folder's data, wherever it is evaluated from."""
         cut = {"data_window_s": self.window_s, "data_hop_s": self.hop_s} if self.window_s else {}
+        if self.fs_hz is not None:
+            cut["data_fs_hz"] = self.fs_hz
         return {"task": None, "task_kwargs": {}, "data": str(Path(self.path).resolve()),
                 "data_sha256": self.current_sha256, **cut}  # fmt: skip
 
@@ -118,7 +121,8 @@ class FileSource:
                 f"{self.current_sha256[:12]}... vs {self.sha256[:12]}...); pass the training "
                 "data, or evaluate on new data with --data"
             )
-        return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s)
+        return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s,
+                              fs_hz=self.fs_hz)  # fmt: skip
 
 
 DataSource = TaskSource | FileSource
@@ -128,7 +132,8 @@ def source_of(record: dict[str, Any]) -> DataSource:
     """The data source a run folder's ``config.json`` (or ``run.json``) describes."""
     if record.get("data"):
         return FileSource(Path(record["data"]), record.get("data_window_s"),
-                          record.get("data_hop_s"), record.get("data_sha256"))  # fmt: skip
+                          record.get("data_hop_s"), record.get("data_sha256"),
+                          record.get("data_fs_hz"))  # fmt: skip
     return TaskSource(record["task"], dict(record.get("task_kwargs") or {}))
 
 
@@ -345,14 +350,16 @@ def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
 
 
 def evaluation_data(pipe: SpikePipeline, record: dict, data: Path | None = None,
-                    every: bool = False, progress: bool = False) -> WindowDataset:  # fmt: skip
+                    every: bool = False, progress: bool = False,
+                    fs_hz: float | None = None) -> WindowDataset:  # fmt: skip
     """What to evaluate a trained pipeline on: the test split of its own data (``record``: its
     ``config.json``), or of ``data`` (cut as its data was; ``every``: all its recordings),
     with channels and classes matched to the run's by name (refused where they differ)."""
     if data is None:
         return source_of(record).load(pipe.config.seed, progress=progress)[1]
     tr, test = load_data_file(Path(data), pipe.config.seed, window_s=record.get("data_window_s"),
-                              hop_s=record.get("data_hop_s"))  # fmt: skip
+                              hop_s=record.get("data_hop_s"),
+                              fs_hz=fs_hz if fs_hz is not None else record.get("data_fs_hz"))  # fmt: skip
     if every:
         test = tr.concat(test)
     if abs(test.fs_hz - pipe.fs_hz) > 1e-6 * pipe.fs_hz:
