@@ -423,7 +423,8 @@ def _read_one(p: Path) -> _Recording:
     rate_from = f"column {names[tcol]!r}"
     if unit is None:
         unit, rate_from = _tick_unit(t)
-    X3, fs, jitter, resampled = _uniform(X[None], (t * unit)[None], p)
+    X3, _, jitter, resampled = _uniform(X[None], t[None], p)  # in ticks: the grid exact
+    fs = (1.0 / unit) / float(np.median(np.diff(t)))
     return _Recording(X3[0], [names[i] for i in chans], fs, rate_from, jitter, bool(resampled),
                       notes)  # fmt: skip
 
