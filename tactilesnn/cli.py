@@ -12,10 +12,10 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
-from .app.options import Option, pipeline_options, run_options, train_options
-from .datasets_synth import TASKS
+if TYPE_CHECKING:  # the settings need torch: imported once the command line is known good
+    from .app.options import Option
 
 log = logging.getLogger("tactilesnn")
 
@@ -69,6 +69,8 @@ def _add_option(p: argparse.ArgumentParser | argparse._ArgumentGroup, o: Option)
 
 def _add_train_args(p: argparse.ArgumentParser) -> None:
     """``--config``, the run options, then one flag per pipeline setting."""
+    from .app.options import pipeline_options, run_options
+
     p.add_argument(
         "--config", help="TOML file of settings (nested sections or flat keys); flags win"
     )
@@ -81,6 +83,8 @@ def _add_train_args(p: argparse.ArgumentParser) -> None:
 
 def _settings(args: argparse.Namespace) -> dict:
     """The train settings of parsed ``args``: every run option, the pipeline settings given."""
+    from .app.options import train_options
+
     return {k: getattr(args, k) for k in train_options() if hasattr(args, k)}
 
 
@@ -327,7 +331,7 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_tasks(args: argparse.Namespace) -> int:
-    from .datasets_synth import get_task
+    from .datasets_synth import TASKS, get_task
 
     for name in sorted(TASKS):
         task = get_task(name)
@@ -467,6 +471,9 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    from .app.options import run_options
+    from .datasets_synth import TASKS
+
     p = _command(sub, "generate", "render a synthetic task into sharded files")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
     p.add_argument("--n", type=int, required=True, help="number of samples (scans or trials)")
@@ -513,6 +520,8 @@ def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    from .datasets_synth import TASKS
+
     p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service's base URL")
     p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
@@ -615,8 +624,16 @@ def _read_config(parser: argparse.ArgumentParser, argv: list[str]):
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    from .app.quick_args import QuickError, check
+
     argv = list(sys.argv[1:] if argv is None else argv)
+    try:  # mistakes answered before the settings (and torch) are imported
+        check(argv)
+    except QuickError as e:
+        prog = f"tactilesnn {e.command}" if e.command else "tactilesnn"
+        print(f"usage: {prog} [-h] ...\n{prog}: error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None  # as argparse does
+    parser = build_parser()
     try:
         _read_config(parser, argv)
     except ValueError as e:

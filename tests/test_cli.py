@@ -185,3 +185,58 @@ def test_a_mistyped_flag_or_choice_gets_a_suggestion(capsys):
     with pytest.raises(SystemExit):
         main(["train", "--encoder", "cgtw"])
     assert "did you mean cgwt?" in capsys.readouterr().err
+
+
+def test_the_quick_flag_table_is_the_parser_s():
+    """``app/flag_table.json`` answers typos before torch is imported; it must list exactly
+    the full parser's flags and choices. Regenerate with
+    ``python -c "from tests.test_cli import write_flag_table; write_flag_table()"``."""
+    import json
+
+    from tactilesnn.app.quick_args import TABLE_FILE, flag_table
+    from tactilesnn.cli import build_parser
+
+    assert json.loads(TABLE_FILE.read_text()) == json.loads(
+        json.dumps(flag_table(build_parser()))
+    ), "app/flag_table.json is stale: " + write_flag_table.__doc__
+
+
+def write_flag_table() -> None:
+    """regenerate it with tests.test_cli.write_flag_table()"""
+    import json
+
+    from tactilesnn.app.quick_args import TABLE_FILE, flag_table
+    from tactilesnn.cli import build_parser
+
+    TABLE_FILE.write_text(json.dumps(flag_table(build_parser()), indent=1, sort_keys=True) + "\n")
+
+
+@pytest.mark.parametrize(
+    "argv,match",
+    [
+        (["train", "--epcohs", "5"], "did you mean --epochs?"),
+        (["train", "--encoder", "stfy"], "did you mean stft?"),
+        (["trian"], "did you mean train?"),
+        (["train", "--data", "/no/such/file.npz"], "--data /no/such/file.npz: no such file"),
+        (["evaluate", "run", "--fs"], "argument --fs: expected one argument"),
+    ],
+)
+def test_mistakes_are_answered_before_torch_is_imported(argv, match):
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom tactilesnn.cli import main\ntry:\n    rc = main(sys.argv[1:])\n"
+            "except SystemExit as e:\n    rc = e.code\nprint('torch' in sys.modules, rc)")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True,
+                       timeout=120)  # fmt: skip
+    assert r.stdout.split() == ["False", "2"], r.stdout + r.stderr
+    assert match in r.stderr
+
+
+def test_the_quick_check_leaves_good_command_lines_to_the_parser():
+    from tactilesnn.app.quick_args import check
+
+    for argv in (["train", "--epochs", "3", "--encoder", "stft", "--no-export"],
+                 ["train", "--ep", "3"], ["bench", "fit", "--anything"], ["--version"],
+                 ["train", "--help"], ["-v", "train", "--difficulty", "-0.5"]):  # fmt: skip
+        check(argv)

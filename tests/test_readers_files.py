@@ -81,7 +81,7 @@ def test_a_headerless_folder_needs_fs_and_then_trains(tmp_path, capsys):
     folder = headerless_folder(tmp_path / "slides")
     with pytest.raises(ValueError, match=r"Denim_12.5_-0.02.csv: no time column .* --fs HZ"):
         read_data_arrays(folder)
-    assert main(["train", "--data", str(folder), "--out", str(tmp_path / "run")]) == 2
+    assert main(["train", "--data", str(folder), "--out", str(tmp_path / "run")]) == 2  # read error
     assert "--fs HZ" in capsys.readouterr().err
     arrays = read_data_arrays(folder, fs_hz=357.0)
     assert arrays["X"].shape[1] == 16 and float(arrays["fs"]) == 357.0
