@@ -32,7 +32,7 @@ log = logging.getLogger("tactilesnn")
 
 def load_data_file(
     path: Path,
-    seed: int,
+    seed: int = 0,
     test_fraction: float = 0.2,
     window_s: float | None = None,
     hop_s: float | None = None,

@@ -174,6 +174,7 @@ def test_fs_that_contradicts_the_data_is_refused(tmp_path):
     with pytest.raises(ValueError, match="states fs = 200 Hz; --fs says 100 Hz"):
         load_data_file(path, 0, fs_hz=100.0)
     assert load_data_file(path, 0, fs_hz=200.0)[0].fs_hz == 200.0
+    assert len(load_data_file(path)[0]) > 0  # the README's `load_data_file("my.npz")`
 
 
 def test_a_symlinked_class_folder_is_followed_and_a_broken_link_named(tmp_path):

@@ -40,32 +40,73 @@ def plot_confusion(cm: np.ndarray, names: tuple[str, ...] | list[str], path: Pat
     plt.close(fig)
 
 
-def plot_training(history: list[float], val_history: list[float], path: Path) -> None:
-    """Training error (and validation error if any) per epoch."""
+def plot_training(history: list[float], val_history: list[float], path: Path,
+                  solve: dict | None = None) -> None:  # fmt: skip
+    """Training error (and validation error if any) per epoch; a model solved in one go
+    (``solve``: its ``model_fit`` report with a ``cross_validation`` table) is drawn as what
+    the solve did instead: the cross-validated error against the penalty, one line per set of
+    read-out instants, the chosen point marked, the final training and validation errors."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5.0, 3.2))
-    epochs = np.arange(1, len(history) + 1)
-    ax.plot(epochs, 100 * np.asarray(history), marker="o", ms=3, label="training error")
-    if val_history:
-        ax.plot(epochs[: len(val_history)], 100 * (1 - np.asarray(val_history)), marker="s",
-                ms=3, label="validation error")  # fmt: skip
-    ax.set_xlabel("epoch")
+    table = (solve or {}).get("cross_validation") or []
+    if table and len(history) <= 1:
+        for k in sorted({r["instants"] for r in table}, reverse=True):
+            rows = sorted((r for r in table if r["instants"] == k), key=lambda r: r["penalty"])
+            ax.plot([r["penalty"] for r in rows], [100 * (1 - r["cv_accuracy"]) for r in rows],
+                    marker="o", ms=3, label=f"cross-validated, {k} instant(s)")  # fmt: skip
+        chosen = [r for r in table if r["penalty"] == solve["penalty"]  # type: ignore[index]
+                  and r["instants"] == solve["instants"]]  # type: ignore[index]  # fmt: skip
+        if chosen:
+            ax.plot([chosen[0]["penalty"]], [100 * (1 - chosen[0]["cv_accuracy"])], "k*", ms=10,
+                    label="chosen")  # fmt: skip
+        if history:
+            ax.axhline(100 * history[0], color="C2", ls="--", lw=1, label="final training error")
+        if val_history:
+            ax.axhline(100 * (1 - val_history[-1]), color="C3", ls=":", lw=1,
+                       label="validation error")  # fmt: skip
+        ax.set_xscale("log")
+        ax.set_xlabel("penalty (L2, per window)")
+        ax.set_title(f"readout solve: {solve.get('solver', '')}", fontsize=8)  # type: ignore[union-attr]
+    else:
+        epochs = np.arange(1, len(history) + 1)
+        ax.plot(epochs, 100 * np.asarray(history), marker="o", ms=3, label="training error")
+        if val_history:
+            ax.plot(epochs[: len(val_history)], 100 * (1 - np.asarray(val_history)), marker="s",
+                    ms=3, label="validation error")  # fmt: skip
+        ax.set_xlabel("epoch")
     ax.set_ylabel("error (%)")
     ax.set_ylim(bottom=0)  # from zero: small errors look small
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
+#: most test windows drawn side by side (one per class; more classes: this many, spread out)
+MAX_WINDOW_COLUMNS = 8
+
+
+def classes_drawn(y: np.ndarray, n_classes: int, per_class: int = 1) -> tuple[list[int], list[int]]:
+    """``(classes drawn, classes present in y)`` for :func:`plot_windows`: every class present,
+    or :data:`MAX_WINDOW_COLUMNS` ``// per_class`` of them spread evenly."""
+    present = [c for c in range(n_classes) if (y == c).any()]
+    if len(present) * per_class <= MAX_WINDOW_COLUMNS:
+        return present, present
+    keep = max(1, MAX_WINDOW_COLUMNS // per_class)
+    idx = np.unique(np.linspace(0, len(present) - 1, keep).round().astype(int))
+    return [present[i] for i in idx], present
+
+
 def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int = 1) -> None:
-    """One column per picked test window (``per_class`` of each of the first 4 classes): the
-    pipeline's input channels (a.u. over ms), the encoder's map if it has one (log magnitude,
-    band centres in Hz), the spike raster (afferent vs ms) and the class scores."""
+    """One column per picked test window (``per_class`` of each class present, at most
+    :data:`MAX_WINDOW_COLUMNS` columns: with more classes, that many spread evenly over them,
+    said in the title): the pipeline's input channels (a.u. over ms), the encoder's map if it
+    has one (log magnitude, band centres in Hz), the spike raster (afferent vs ms) and the
+    class scores."""
     plt = _pyplot()
-    picks = [int(i) for c in range(min(4, len(pipe.class_names)))
-             for i in np.flatnonzero(y == c)[:per_class]]  # fmt: skip
+    shown, present = classes_drawn(np.asarray(y), len(pipe.class_names), per_class)
+    picks = [int(i) for c in shown for i in np.flatnonzero(y == c)[:per_class]]
     if not picks:
         return
     Xs = np.asarray(X)[picks]
@@ -113,6 +154,9 @@ def plot_windows(pipe, X: np.ndarray, y: np.ndarray, path: Path, per_class: int 
                       fontsize=7, ha="right" if len(sc) > 4 else "center")  # fmt: skip
         if col == 0:
             ax.set_ylabel("score")
+    if len(shown) < len(present):
+        fig.suptitle(f"test windows of {len(shown)} of the {len(present)} classes (spread "
+                     "evenly; the confusion matrix has them all)", fontsize=9)  # fmt: skip
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -339,7 +339,7 @@ def _write_run(writer: RunWriter, spec: RunSpec, record: dict, res: TrainResult,
                       {"labels": list(test.class_names), "matrix": res.confusion.tolist()})  # fmt: skip
     plot_confusion(res.confusion, test.class_names, writer.file("confusion_matrix.png"))
     plot_training(res.history, res.metrics["val_accuracy_history"],
-                  writer.file("training_error.png"))  # fmt: skip
+                  writer.file("training_error.png"), res.metrics.get("model_fit"))  # fmt: skip
     plot_windows(res.pipeline, test.X, test.y, writer.file("test_windows.png"))
     writer.write_json("metrics.json", res.metrics)
 

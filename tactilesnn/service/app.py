@@ -29,6 +29,7 @@ import time
 from collections.abc import Iterable
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import asynccontextmanager
+from typing import Any
 
 import numpy as np
 from starlette.applications import Starlette
@@ -352,12 +353,14 @@ class Service:
         async def events():
             try:
                 yield ": connected\n\n"
-                while True:
+                while not self.hub.closed:
                     try:
                         text = await asyncio.wait_for(queue.get(), timeout=15.0)
                     except asyncio.TimeoutError:
                         yield ": keep-alive\n\n"  # proxies close silent connections
                         continue
+                    if text is None:  # the server is stopping
+                        return
                     yield f"data: {text}\n\n"
             finally:
                 self.hub.unsubscribe(queue)
@@ -446,12 +449,25 @@ def serve(
     import uvicorn
 
     hosts = default_allowed_hosts(host) | set(allowed_hosts)
-    uvicorn.run(
-        create_app(model_path, threads=threads, stream_ttl_s=stream_ttl_s, allowed_hosts=hosts),
-        host=host,
-        port=port,
-        log_level="info",
-        timeout_graceful_shutdown=10,
-        limit_concurrency=MAX_CONNECTIONS,
-        timeout_keep_alive=5,
-    )
+    app = create_app(model_path, threads=threads, stream_ttl_s=stream_ttl_s, allowed_hosts=hosts)
+    config = uvicorn.Config(app, host=host, port=port, log_level="info",
+                            timeout_graceful_shutdown=10, limit_concurrency=MAX_CONNECTIONS,
+                            timeout_keep_alive=5)  # fmt: skip
+    stopping_server(config, app.state.hub).run()
+
+
+def stopping_server(config: Any, hub: LiveHub) -> Any:
+    """A :class:`uvicorn.Server` for ``config`` that, asked to stop (SIGTERM / SIGINT), also
+    ends the live pages' event streams: they never end by themselves, so uvicorn's graceful
+    shutdown would wait out its whole timeout for them and then log an error."""
+    import uvicorn
+
+    class StoppingServer(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: Any) -> None:
+            try:
+                asyncio.get_running_loop().call_soon_threadsafe(hub.close)
+            except RuntimeError:  # not on the loop's thread
+                hub.close()
+            super().handle_exit(sig, frame)
+
+    return StoppingServer(config)

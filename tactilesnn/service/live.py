@@ -99,6 +99,16 @@ class LiveHub:
     def __init__(self) -> None:
         self.queues: set[asyncio.Queue] = set()
         self.published = 0
+        self.closed = False
+
+    def close(self) -> None:
+        """End every open page's event stream (the server is stopping: a page's connection
+        would otherwise hold the shutdown until its grace period ends). Call on the loop."""
+        self.closed = True
+        for q in self.queues:
+            if q.full():
+                q.get_nowait()
+            q.put_nowait(None)  # the end-of-stream mark
 
     @property
     def active(self) -> bool:

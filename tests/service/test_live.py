@@ -178,3 +178,45 @@ def test_live_page_updates_in_a_real_browser(exported, tmp_path):
     finally:
         server.terminate()
         server.wait(timeout=30)
+
+
+def test_sigterm_with_live_pages_open_stops_at_once(exported):
+    """Open live pages (event streams that never end by themselves) must not hold the shutdown
+    until uvicorn's 10 s grace period runs out, nor leave an ERROR in the log."""
+    import signal
+
+    path, _, _ = exported
+    port = _free_port()
+    server = subprocess.Popen([sys.executable, "-m", "tactilesnn.service", str(path), "--port",
+                               str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                              text=True)  # fmt: skip
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                urllib.request.urlopen(url + "/healthz", timeout=1).read()
+                break
+            except OSError:
+                if time.monotonic() > deadline or server.poll() is not None:
+                    pytest.fail(f"service did not start: {server.stderr.read()[-2000:]}")
+                time.sleep(0.2)
+        pages = [urllib.request.urlopen(url + "/v1/live", timeout=30) for _ in range(3)]
+        for page in pages:
+            assert page.readline().startswith(b": connected")
+        health = urllib.request.urlopen(url + "/healthz", timeout=5).read()
+        assert b'"live_pages":3' in health.replace(b" ", b"")
+        t0 = time.monotonic()
+        server.send_signal(signal.SIGTERM)
+        rc = server.wait(timeout=30)
+        took = time.monotonic() - t0
+        log = server.stderr.read()
+        # uvicorn re-raises the signal once it has shut down: -15 is its orderly exit
+        assert rc in (0, -signal.SIGTERM) and took < 8.0, (took, log[-2000:])  # not the 10 s
+        assert "Finished server process" in log, log[-2000:]
+        assert "ERROR" not in log and "Traceback" not in log, log[-2000:]
+        for page in pages:
+            page.close()
+    finally:
+        if server.poll() is None:
+            server.kill()
