@@ -98,6 +98,7 @@ def _task_option_values(args: argparse.Namespace) -> dict:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    from .app.commands import parity_line, stream_hint
     from .app.defaults import run_spec
     from .app.run import train_run
 
@@ -141,145 +142,34 @@ def cmd_train(args: argparse.Namespace) -> int:
     if "onnx" in m:
         print(
             f"model.onnx: {m['onnx']['nodes']} nodes; on the test split onnxruntime vs torch: "
-            f"{_parity(m['onnx'])}"
+            f"{parity_line(m['onnx'])}"
         )
     print(f"run folder: {path}")
-    from .encoders import ENCODERS
-
-    if "onnx" in m and hasattr(ENCODERS.get(encoder), "stream_module"):
-        print(f"for streams (each sample transformed once): tactilesnn export {path} --stream "
-              f"--out {path / 'stream.onnx'} (a window every half window; --stream-step SAMPLES "
-              "for another step, one hop for a window every frame)")  # fmt: skip
+    hint = stream_hint(encoder, path) if "onnx" in m else None
+    if hint:
+        print(hint)
     return 0
 
 
-def _parity(rep: dict) -> str:
-    """One line of an export's verification report."""
-    text = (
-        f"encoder spike times within {rep.get('encoder_max_time_diff_ms', 0.0):.1e} ms, model "
-        f"scores within {rep.get('model_max_score_diff', 0.0):.1e}; end to end max score "
-        f"difference {rep['max_score_diff']:.1e}"
-    )
-    if rep.get("windows_beyond_atol"):
-        text += f" ({rep['windows_beyond_atol']} window(s) with a spike on a step boundary)"
-    return text + f", predictions agree {100 * rep['prediction_agreement']:.2f} %"
-
-
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .app.run import evaluation_data, load_run
-    from .pipeline import accuracy_ci95
-    from .training import recording_accuracy, stream_metrics
+    from .app.commands import evaluate, evaluation_lines
 
-    pipe, cfg = load_run(Path(args.run_dir))
-    test = evaluation_data(pipe, cfg, Path(args.data) if args.data else None, every=args.all,
-                           progress=not args.quiet, fs_hz=args.fs)  # fmt: skip
-    scores = pipe.scores(pipe.encode(test.X, progress=not args.quiet)).numpy()
-    pred = scores.argmax(1)
-    per_rec = recording_accuracy(scores, test.y, test.scan)
-    acc = float((pred == test.y).mean()) if test.y.size else 0.0
-    in_rec = pipe.encode_in_recordings(test.X, test.scan) if test.y.size else None
-    st = stream_metrics(pipe, scores, in_rec, test.y, None) if in_rec is not None else None
-    recall = {
-        name: float((pred[test.y == i] == i).mean()) if (test.y == i).any() else None
-        for i, name in enumerate(pipe.class_names)
-    }
+    rep = evaluate(Path(args.run_dir), Path(args.data) if args.data else None, every=args.all,
+                   fs_hz=args.fs, progress=not args.quiet)  # fmt: skip
     if args.json:
-        out = {"run": str(args.run_dir), "test_accuracy": acc, "n": int(test.y.size),
-               "per_class_recall": recall, **(per_rec or {}),
-               **({"in_stream": st} if st else {})}  # fmt: skip
-        print(json.dumps(out))
-        return 0
-    print(f"{args.run_dir}: accuracy {100 * acc:.2f} % (+-{100 * accuracy_ci95(acc, test.y.size):.2f} %"
-          f" 95% CI) on {test.y.size} windows")  # fmt: skip
-    if per_rec is not None:
-        a, n = per_rec["test_accuracy_per_recording"], per_rec["n_test_recordings"]
-        print(f"  per recording (scores summed over its windows): {100 * a:.2f} % "
-              f"(+-{100 * per_rec['test_accuracy_per_recording_ci95']:.2f} %) on {n} recordings")  # fmt: skip
-    if st is not None:
-        print(f"  as a stream serves them (each window coded with its recording's past, "
-              f"{st['test_windows_with_past']} have one): {100 * st['test_accuracy']:.2f} %")  # fmt: skip
-    width = max(len(n) for n in pipe.class_names)
-    for name, r in recall.items():
-        print(f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}")
+        print(json.dumps({k: v for k, v in rep.items() if k != "test_accuracy_ci95"}))
+    else:
+        print("\n".join(evaluation_lines(rep)))
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .app.run import load_run, run_data
-    from .datasets_synth import get_task
-    from .export import data_hash, export_pipeline
+    from .app.commands import export_run
 
-    pipe, cfg = load_run(Path(args.run_dir))
-    if args.format == "nir":
-        pipe.model.to_nir()  # refuses models NIR cannot express, before any work
-    if args.stream_step is not None and not args.stream:
-        raise SystemExit("--stream-step sets the stream graph's step: add --stream")
-    if args.stream:
-        from .export.stream import StreamEncoderGraph
-
-        StreamEncoderGraph(pipe, args.stream_step)  # refuses a step that does not fit, first
-    if cfg.get("data"):
-        _, test = run_data(cfg, pipe.config.seed)
-    else:
-        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=not args.quiet)
-    if args.format == "nir":
-        from .export.nir import compare, write_nir
-
-        path = write_nir(pipe.model, Path(args.out), overwrite=args.overwrite)
-        rep = compare(pipe.model, pipe.encode(test.X), path)
-        if not rep["simulated"]:
-            print(f"exported {path} (recurrent graph; not simulated by the reference consumer)")
-            return 0
-        print(
-            f"exported {path} (model only; input: the spike raster at "
-            f"{pipe.model.config.dt_ms:g} ms). Read back with nir.read and simulated with nirtorch "
-            f"on {test.y.size} test windows: max score difference "
-            f"{rep['subtract_reset_max_score_diff']:.2e}, predictions agree "
-            f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
-            f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
-        )
-        return 0
-    meta = {"training_data_sha256": data_hash(cfg), "run": str(args.run_dir)}
-    if args.stream and (args.quantize or args.format != "onnx"):
-        raise SystemExit(
-            "--stream writes the float32 ONNX stream graph: drop --quantize / --format"
-        )
-    if args.stream:
-        from .export.stream import export_stream
-
-        rep = export_stream(pipe, Path(args.out), test.X, metadata=meta, overwrite=args.overwrite,
-                            step=args.stream_step)  # fmt: skip
-        step_ms = 1000.0 * rep["step_samples"] / pipe.fs_hz
-        print(
-            f"exported the stream graph {args.out} ({rep['step_samples']} samples = {step_ms:.4g} "
-            f"ms per call: a window's scores every call, every sample transformed once): "
-            f"{rep['nodes']} nodes; on {rep['windows_checked']} windows "
-            f"of the test windows joined into one stream, onnxruntime vs torch: spike times within "
-            f"{rep['encoder_max_time_diff_ms']:.2g} ms, scores within {rep['max_score_diff']:.2g}, "
-            f"predictions agree {100 * rep['prediction_agreement']:.2f} %"
-        )
-        return 0
-    report = export_pipeline(
-        pipe,
-        Path(args.out),
-        test.X,
-        metadata=meta,
-        overwrite=args.overwrite,
-        progress=not args.quiet,
-    )
-    print(
-        f"exported {args.out}: {report['nodes']} nodes; on {report['n_checked']} test windows "
-        f"onnxruntime vs torch: {_parity(report)}"
-    )
-    if args.quantize:
-        from .export import quantize_int8
-
-        q = quantize_int8(Path(args.out), test.X, test.y, overwrite=args.overwrite)
-        print(
-            f"int8 model {q['path']}: test accuracy {100 * q['int8_accuracy']:.2f} % vs float32 "
-            f"{100 * q['float_accuracy']:.2f} % (change {100 * q['accuracy_change']:+.2f} points); "
-            f"{q['int8_bytes']} vs {q['float_bytes']} bytes"
-        )
+    lines = export_run(Path(args.run_dir), Path(args.out), fmt=args.format, stream=args.stream,
+                       stream_step=args.stream_step, quantize=args.quantize,
+                       overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+    print("\n".join(lines))
     return 0
 
 
@@ -308,39 +198,21 @@ def _parse_convert(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def cmd_generate(args: argparse.Namespace) -> int:
-    from .datasets_synth.generate import generate
+    from .app.commands import generate_dataset
 
-    m = generate(
-        args.task,
-        args.n,
-        args.seed,
-        Path(args.out),
-        shard_size=args.shard_size,
-        workers=args.workers,
-        overwrite=args.overwrite,
-        resume=args.resume,
-        progress=not args.quiet,
-        task_kwargs=_task_option_values(args),
-        scheduler=args.scheduler,
-    )
-    print(
-        f"{args.out}: {m['n_samples']} samples, {m['n_windows']} windows in "
-        f"{len(m['shards'])} shards ({m['fs_hz']:g} Hz, classes {', '.join(m['class_names'])})"
-    )
+    lines = generate_dataset(args.task, args.n, args.seed, Path(args.out),
+                             shard_size=args.shard_size, workers=args.workers,
+                             overwrite=args.overwrite, resume=args.resume,
+                             progress=not args.quiet, task_kwargs=_task_option_values(args),
+                             scheduler=args.scheduler)  # fmt: skip
+    print("\n".join(lines))
     return 0
 
 
 def cmd_tasks(args: argparse.Namespace) -> int:
-    from .datasets_synth import TASKS, get_task
+    from .app.commands import describe_tasks
 
-    for name in sorted(TASKS):
-        task = get_task(name)
-        classes = task.class_names
-        shown = ", ".join(classes[:6]) + (", ..." if len(classes) > 6 else "")
-        doc = (type(task).__doc__ or "").strip().splitlines()[0]
-        print(f"{name}: {doc}\n  {len(classes)} classes ({shown}); {len(task.channel_names)} "
-              f"channels at {task.fs_hz:g} Hz, {task.window}-sample windows; "
-              f"{task.n_samples} samples by default; units: {getattr(task, 'units', '-')}")  # fmt: skip
+    print("\n".join(describe_tasks()))
     return 0
 
 
@@ -369,25 +241,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_demo_stream(args: argparse.Namespace) -> int:
-    import urllib.error
+    from .app.commands import stream_demo
 
-    from .service.client import ServiceError
-    from .service.demo import demo_stream
-
-    try:
-        n = demo_stream(args.url, args.task, stream=args.stream, seconds=args.seconds,
-                        speed=args.speed, chunk_ms=args.chunk_ms, seed=args.seed)  # fmt: skip
-    except (ServiceError, urllib.error.URLError) as e:
-        raise ValueError(f"the service at {args.url} answered: {e} (is tactilesnn serve "
-                         "running with a model?)") from e  # fmt: skip
-    print(f"streamed {args.task} to {args.url} (stream {args.stream!r}): {n} windows classified")
+    print("\n".join(stream_demo(args.url, args.task, args.stream, args.seconds, args.speed,
+                                args.chunk_ms, args.seed)))  # fmt: skip
     return 0
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    from .service.command import run
+    from .app.commands import serve
 
-    return run(args)
+    return serve(args)
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -471,11 +335,11 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    from .app.commands import task_names
     from .app.options import run_options
-    from .datasets_synth import TASKS
 
     p = _command(sub, "generate", "render a synthetic task into sharded files")
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
+    p.add_argument("--task", default="hook_loop", choices=task_names(), help="synthetic task")
     p.add_argument("--n", type=int, required=True, help="number of samples (scans or trials)")
     p.add_argument("--seed", type=int, default=0, help="sample i depends only on (task, seed, i)")
     p.add_argument("--out", required=True, help="dataset folder (train --data reads it)")
@@ -510,21 +374,21 @@ def _parse_sweep(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .service.command import add_arguments
+    from .app.commands import add_serve_arguments
 
     p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only; without "
                  "torch: python -m tactilesnn.service)")  # fmt: skip
-    add_arguments(p)
+    add_serve_arguments(p)
     p.set_defaults(func=cmd_serve)
     return p
 
 
 def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .datasets_synth import TASKS
+    from .app.commands import task_names
 
     p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service's base URL")
-    p.add_argument("--task", default="hook_loop", choices=sorted(TASKS), help="synthetic task")
+    p.add_argument("--task", default="hook_loop", choices=task_names(), help="synthetic task")
     p.add_argument("--stream", default="demo", help="stream id on the service")
     p.add_argument("--seconds", type=float, default=0.0,
                    help="seconds of signal to send (default: 0 = until interrupted)")  # fmt: skip
@@ -592,7 +456,7 @@ def _all_flags(parser: argparse.ArgumentParser) -> set[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .core.version import __version__
+    from .app.environment import __version__
 
     parser = SuggestingParser(prog="tactilesnn", description=DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
@@ -640,7 +504,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
-    from .core.perf import fit_threads, tune_allocator
+    from .app.environment import fit_threads, tune_allocator
 
     tune_allocator()
     logging.basicConfig(
@@ -652,7 +516,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         logging.getLogger("tactilesnn").info(
             "other processes are running: %d compute thread(s) (OMP_NUM_THREADS or "
             "TACTILESNN_THREADS choose)", threads)  # fmt: skip
-    from .export.onnx import ExportError
+    from .app.commands import ExportError
 
     try:
         return args.func(args)

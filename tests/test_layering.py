@@ -137,7 +137,7 @@ def test_no_import_circle():
 def test_the_service_never_imports_torch():
     """``tactilesnn.service`` runs with numpy + onnxruntime only (a deployment without torch)."""
     graph = _graph()
-    seen, todo = set(), [m for m in graph if m.startswith("service") and m != "service.demo"]
+    seen, todo = set(), [m for m in graph if m.startswith("service")]
     while todo:
         m = todo.pop()
         if m in seen:
@@ -152,3 +152,22 @@ def test_the_service_never_imports_torch():
                  for a in n.names} | {(n.module or "").split(".")[0] for n in ast.walk(tree)
                                       if isinstance(n, ast.ImportFrom) and not n.level}  # fmt: skip
         assert "torch" not in names, f"tactilesnn.{m} imports torch"
+
+
+def test_the_command_line_imports_only_the_application_layer():
+    """cli.py parses, calls ``app`` and prints: every package import it makes is of ``app``."""
+    graph = _graph()
+    outside = sorted(m for m in graph["cli"] if m in graph and not m.startswith("app"))
+    assert not outside, f"cli.py imports {outside}: go through tactilesnn.app"
+
+
+def test_architecture_page_names_only_modules_that_exist():
+    """docs/architecture.md's tree names modules (``name.py``) that are in the package."""
+    import re
+
+    page = (ROOT.parent / "docs" / "architecture.md").read_text()
+    tree = page[page.index("```") : page.index("```", page.index("```") + 3)]
+    named = set(re.findall(r"\b([a-z_]+)\.py\b", tree))
+    files = {p.stem for p in ROOT.rglob("*.py")}
+    missing = sorted(named - files)
+    assert not missing, f"docs/architecture.md names {missing}, not in the package"

@@ -15,7 +15,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .client import Client
+from ..service.client import Client
 
 log = logging.getLogger("tactilesnn")
 

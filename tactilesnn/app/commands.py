@@ -1,0 +1,216 @@
+"""The commands other than ``train``, ``convert``, ``sweep`` and ``bench`` as application
+functions: each takes typed arguments, does the work through the layers below, and returns the
+lines to print (the command line parses and prints; nothing else)."""
+
+from __future__ import annotations
+
+import argparse
+import urllib.error
+from pathlib import Path
+from typing import Any
+
+from ..datasets_synth import TASKS, get_task
+from ..datasets_synth.generate import generate
+from ..encoders import ENCODERS
+from ..export import data_hash, export_pipeline, quantize_int8
+from ..export.onnx import ExportError
+from ..pipeline import accuracy_ci95
+from ..service import command as service_command
+from ..service.client import ServiceError
+from ..training import recording_accuracy, stream_metrics
+from .demo import demo_stream
+from .run import evaluation_data, load_run, run_data
+
+__all__ = [
+    "ExportError",
+    "describe_tasks",
+    "evaluate",
+    "export_run",
+    "generate_dataset",
+    "serve",
+    "stream_demo",
+    "task_names",
+]  # fmt: skip
+
+
+def task_names() -> list[str]:
+    """The registered synthetic tasks, sorted."""
+    return sorted(TASKS)
+
+
+def parity_line(rep: dict) -> str:
+    """One line of an export's verification report."""
+    text = (
+        f"encoder spike times within {rep.get('encoder_max_time_diff_ms', 0.0):.1e} ms, model "
+        f"scores within {rep.get('model_max_score_diff', 0.0):.1e}; end to end max score "
+        f"difference {rep['max_score_diff']:.1e}"
+    )
+    if rep.get("windows_beyond_atol"):
+        text += f" ({rep['windows_beyond_atol']} window(s) with a spike on a step boundary)"
+    return text + f", predictions agree {100 * rep['prediction_agreement']:.2f} %"
+
+
+def stream_hint(encoder: str, path: Path) -> str | None:
+    """How to export a run's stream graph, where its encoder has a stream form."""
+    if not hasattr(ENCODERS.get(encoder), "stream_module"):
+        return None
+    return (f"for streams (each sample transformed once): tactilesnn export {path} --stream "
+            f"--out {path / 'stream.onnx'} (a window every half window; --stream-step SAMPLES "
+            "for another step, one hop for a window every frame)")  # fmt: skip
+
+
+# ---------------------------------------------------------------- evaluate
+def evaluate(run_dir: Path, data: Path | None = None, every: bool = False,
+             fs_hz: float | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    """A run folder on its test split or on ``data`` (every recording with ``every``): accuracy
+    per window (with its 95 % interval) and per recording, in a stream where the encoder has
+    one, and per-class recall."""
+    pipe, cfg = load_run(Path(run_dir))
+    test = evaluation_data(pipe, cfg, data, every=every, progress=progress, fs_hz=fs_hz)
+    scores = pipe.scores(pipe.encode(test.X, progress=progress)).numpy()
+    pred = scores.argmax(1)
+    per_rec = recording_accuracy(scores, test.y, test.scan)
+    acc = float((pred == test.y).mean()) if test.y.size else 0.0
+    in_rec = pipe.encode_in_recordings(test.X, test.scan) if test.y.size else None
+    st = stream_metrics(pipe, scores, in_rec, test.y, None) if in_rec is not None else None
+    recall = {
+        name: float((pred[test.y == i] == i).mean()) if (test.y == i).any() else None
+        for i, name in enumerate(pipe.class_names)
+    }
+    return {"run": str(run_dir), "test_accuracy": acc, "n": int(test.y.size),
+            "test_accuracy_ci95": accuracy_ci95(acc, test.y.size), "per_class_recall": recall,
+            **(per_rec or {}), **({"in_stream": st} if st else {})}  # fmt: skip
+
+
+def evaluation_lines(rep: dict[str, Any]) -> list[str]:
+    """:func:`evaluate`'s report as the command prints it."""
+    lines = [f"{rep['run']}: accuracy {100 * rep['test_accuracy']:.2f} % "
+             f"(+-{100 * rep['test_accuracy_ci95']:.2f} % 95% CI) on {rep['n']} windows"]  # fmt: skip
+    if "test_accuracy_per_recording" in rep:
+        lines.append(f"  per recording (scores summed over its windows): "
+                     f"{100 * rep['test_accuracy_per_recording']:.2f} % "
+                     f"(+-{100 * rep['test_accuracy_per_recording_ci95']:.2f} %) on "
+                     f"{rep['n_test_recordings']} recordings")  # fmt: skip
+    if "in_stream" in rep:
+        st = rep["in_stream"]
+        lines.append(f"  as a stream serves them (each window coded with its recording's past, "
+                     f"{st['test_windows_with_past']} have one): "
+                     f"{100 * st['test_accuracy']:.2f} %")  # fmt: skip
+    recall = rep["per_class_recall"]
+    width = max(len(n) for n in recall)
+    lines += [f"  {name:<{width}}  recall {'-' if r is None else f'{100 * r:6.2f} %'}"
+              for name, r in recall.items()]  # fmt: skip
+    return lines
+
+
+# ---------------------------------------------------------------- export
+def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False,
+               stream_step: int | None = None, quantize: bool = False, overwrite: bool = False,
+               progress: bool = True) -> list[str]:  # fmt: skip
+    """Export a run folder (ONNX window graph, ONNX stream graph or NIR), every conflict among
+    the options refused before any work; returns the lines to print."""
+    if stream_step is not None and not stream:
+        raise ValueError("--stream-step sets the stream graph's step: add --stream")
+    if stream and (quantize or fmt != "onnx"):
+        raise ValueError(
+            "--stream writes the float32 ONNX stream graph: drop --quantize / --format"
+        )
+    pipe, cfg = load_run(Path(run_dir))
+    if fmt == "nir":
+        pipe.model.to_nir()  # refuses models NIR cannot express, before any work
+    if stream:
+        from ..export.stream import StreamEncoderGraph
+
+        StreamEncoderGraph(pipe, stream_step)  # refuses a step that does not fit, first
+    if cfg.get("data"):
+        _, test = run_data(cfg, pipe.config.seed)
+    else:
+        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=progress)
+    if fmt == "nir":
+        from ..export.nir import compare, write_nir
+
+        path = write_nir(pipe.model, Path(out), overwrite=overwrite)
+        rep = compare(pipe.model, pipe.encode(test.X), path)
+        if not rep["simulated"]:
+            return [f"exported {path} (recurrent graph; not simulated by the reference consumer)"]
+        return [
+            f"exported {path} (model only; input: the spike raster at "
+            f"{pipe.model.config.dt_ms:g} ms). Read back with nir.read and simulated with nirtorch "
+            f"on {test.y.size} test windows: max score difference "
+            f"{rep['subtract_reset_max_score_diff']:.2e}, predictions agree "
+            f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
+            f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
+        ]
+    meta = {"training_data_sha256": data_hash(cfg), "run": str(run_dir)}
+    if stream:
+        from ..export.stream import export_stream
+
+        rep = export_stream(pipe, Path(out), test.X, metadata=meta, overwrite=overwrite,
+                            step=stream_step)  # fmt: skip
+        step_ms = 1000.0 * rep["step_samples"] / pipe.fs_hz
+        return [
+            f"exported the stream graph {out} ({rep['step_samples']} samples = {step_ms:.4g} "
+            f"ms per call: a window's scores every call, every sample transformed once): "
+            f"{rep['nodes']} nodes; on {rep['windows_checked']} windows "
+            f"of the test windows joined into one stream, onnxruntime vs torch: spike times within "
+            f"{rep['encoder_max_time_diff_ms']:.2g} ms, scores within {rep['max_score_diff']:.2g}, "
+            f"predictions agree {100 * rep['prediction_agreement']:.2f} %"
+        ]
+    report = export_pipeline(pipe, Path(out), test.X, metadata=meta, overwrite=overwrite,
+                             progress=progress)  # fmt: skip
+    lines = [f"exported {out}: {report['nodes']} nodes; on {report['n_checked']} test windows "
+             f"onnxruntime vs torch: {parity_line(report)}"]  # fmt: skip
+    if quantize:
+        q = quantize_int8(Path(out), test.X, test.y, overwrite=overwrite)
+        lines.append(
+            f"int8 model {q['path']}: test accuracy {100 * q['int8_accuracy']:.2f} % vs float32 "
+            f"{100 * q['float_accuracy']:.2f} % (change {100 * q['accuracy_change']:+.2f} points); "
+            f"{q['int8_bytes']} vs {q['float_bytes']} bytes"
+        )
+    return lines
+
+
+# ---------------------------------------------------------------- synthetic tasks
+def describe_tasks() -> list[str]:
+    """One paragraph per registered task: its classes, channels, rate, window and units."""
+    lines = []
+    for name in task_names():
+        task = get_task(name)
+        classes = task.class_names
+        shown = ", ".join(classes[:6]) + (", ..." if len(classes) > 6 else "")
+        doc = (type(task).__doc__ or "").strip().splitlines()[0]
+        lines.append(f"{name}: {doc}\n  {len(classes)} classes ({shown}); "
+                     f"{len(task.channel_names)} channels at {task.fs_hz:g} Hz, {task.window}-sample "
+                     f"windows; {task.n_samples} samples by default; units: "
+                     f"{getattr(task, 'units', '-')}")  # fmt: skip
+    return lines
+
+
+def generate_dataset(task: str, n: int, seed: int, out: Path, **kw: Any) -> list[str]:
+    """Render a synthetic task into sharded files (see
+    :func:`~tactilesnn.datasets_synth.generate.generate`)."""
+    m = generate(task, n, seed, Path(out), **kw)
+    return [f"{out}: {m['n_samples']} samples, {m['n_windows']} windows in "
+            f"{len(m['shards'])} shards ({m['fs_hz']:g} Hz, classes "
+            f"{', '.join(m['class_names'])})"]  # fmt: skip
+
+
+# ---------------------------------------------------------------- the service
+def add_serve_arguments(p: argparse.ArgumentParser) -> None:
+    service_command.add_arguments(p)
+
+
+def serve(args: argparse.Namespace) -> int:
+    return service_command.run(args)
+
+
+def stream_demo(url: str, task: str, stream: str, seconds: float, speed: float, chunk_ms: float,
+                seed: int) -> list[str]:  # fmt: skip
+    """Stream a synthetic task to a running service (its live page shows it)."""
+    try:
+        n = demo_stream(url, task, stream=stream, seconds=seconds, speed=speed,
+                        chunk_ms=chunk_ms, seed=seed)  # fmt: skip
+    except (ServiceError, urllib.error.URLError) as e:
+        raise ValueError(f"the service at {url} answered: {e} (is tactilesnn serve running "
+                         "with a model?)") from e  # fmt: skip
+    return [f"streamed {task} to {url} (stream {stream!r}): {n} windows classified"]
