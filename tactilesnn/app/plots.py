@@ -186,3 +186,65 @@ def _plot_input(fig, ax, x: np.ndarray, t_ms: np.ndarray, names: list[str], firs
         if first:
             ax.set_ylabel(f"all {len(names)} channels")
     ax.set_xlabel("ms", fontsize=8)
+
+
+# ---------------------------------------------------------------- cost against error
+def pareto_front(rows: list[dict], cost_key: str = "ms_per_signal_s_batch1") -> None:
+    """Mark ``row["front"]``: no other row has lower-or-equal error and cost, one strictly."""
+    timed = [r for r in rows if r.get(cost_key) is not None]
+    for r in rows:
+        r["front"] = False
+    for r in timed:
+        e, c = r["test_error"], r[cost_key]
+        r["front"] = not any(
+            (o["test_error"] <= e and o[cost_key] <= c) and (o["test_error"] < e or o[cost_key] < c)
+            for o in timed
+        )
+
+
+def plot_cost_error(
+    rows: list[dict],
+    path: Path,
+    title: str,
+    cost_key: str = "ms_per_signal_s_batch1",
+    xlabel: str = "compute per second of signal (ms, 1 thread, batch 1)",
+) -> None:
+    """Test error vs ``cost_key`` (log axes) with 95 % intervals; the rows marked ``front`` in
+    red and labelled (``label``, else config and precision)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    marks = {"torch float32": "o", "onnxruntime float32": "s", "onnxruntime int8": "^"}
+    for r in rows:
+        if r.get(cost_key) is None:
+            continue
+        err = max(r["test_error"], 1e-4)
+        ax.errorbar(r[cost_key], 100 * err, yerr=100 * r["test_error_ci95"],
+                    fmt=marks.get(r.get("precision"), "o"), ms=7 if r["front"] else 4,
+                    color="C3" if r["front"] else "C0", alpha=0.9 if r["front"] else 0.45,
+                    elinewidth=0.6)  # fmt: skip
+        if r["front"]:
+            label = r.get("label") or f"{r['config']}\n{r['precision']}"
+            ax.annotate(label, (r[cost_key], 100 * err), fontsize=6, xytext=(4, 4),
+                        textcoords="offset points")  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    log_ticks(ax)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("test error (%)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def log_ticks(ax) -> None:
+    """Log axes labelled at 1, 2 and 5 of each decade as plain numbers, minor ticks unlabelled:
+    matplotlib's default labels every minor tick of an axis spanning less than a decade, and
+    those labels ran into each other (``2x10^-1 3x10^-1 ...``)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        axis.set_minor_formatter(NullFormatter())

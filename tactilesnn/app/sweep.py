@@ -229,7 +229,8 @@ def run_sweep(
 def plot_front(rows: list[dict], path: Path) -> None:
     """Test error vs training time (fit + encode seconds) of the finished trials, the Pareto
     front marked (``row["pareto_front"]``), drawn as ``bench pareto`` draws its points."""
-    from .bench.pareto import pareto_front, plot
+    from .plots import pareto_front
+    from .plots import plot_cost_error as plot
 
     done = [r for r in rows if "test_accuracy" in r]
     if not done:

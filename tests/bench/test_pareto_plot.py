@@ -5,7 +5,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from tactilesnn.app.bench.pareto import log_ticks
+from tactilesnn.app.plots import log_ticks
 
 
 def test_an_axis_spanning_less_than_a_decade_gets_readable_labels():
