@@ -3,7 +3,10 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install train test lint bench clean
+# test workers: one per CPU, at most 4 (idle workers take queued tests from busy ones)
+WORKERS ?= $(shell $(PY) -c "import os; print(min(4, os.cpu_count() or 1))")
+
+.PHONY: install train test test-quick lint bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -21,7 +24,12 @@ train: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check tactilesnn tests train.py
 	$(BIN)/ruff format --check tactilesnn tests train.py
-	$(BIN)/pytest
+	$(BIN)/pytest -n $(WORKERS) --dist worksteal
+
+# the suite without the slow, browser and real-data tests (about a minute)
+test-quick: $(STAMP)
+	$(BIN)/ruff check tactilesnn tests train.py
+	$(BIN)/pytest -n $(WORKERS) --dist worksteal -m "not slow and not browser and not data and not gpu"
 
 # the benchmark peers (snnTorch, Norse, SpikingJelly, ssqueezepy, fCWT); fCWT loads Debian's
 # libfftw3-single3 (apt-get install libfftw3-single3)

@@ -35,13 +35,9 @@ from .config import (
 )
 from .core.checks import check_float32_range
 from .core.data import WindowDataset
-from .core.device import resolve_device
-from .encoders import ENCODERS
 from .models.base import seeded
-from .pipeline import SpikePipeline
-from .selection import median_power_frequency, select_encoder
-from .trainer import Trainer
-from .training import split_validation
+from .selection import fit_encoder_to_data, select_encoder
+from .training import fit_pipeline
 
 #: ``encoder=AUTO``: chosen among the data-file candidates on held-out training windows (not a
 #: registered name: a mode of the estimator, as of ``train --data``)
@@ -135,20 +131,15 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if self.encoder == AUTO and data.X.ndim == 3:
             config, self.encoder_selection_ = select_encoder(config, data,
                                                              DATA_ENCODER_CANDIDATES)  # fmt: skip
-        fit_set, val_set = split_validation(data, float(self.val_fraction), config.seed)
-        pipe = SpikePipeline(config, data.fs_hz, data.X.shape[-1], data.channel_names,
-                             [str(c) for c in self.classes_])  # fmt: skip
-        pipe.calibrate(fit_set.X)
-        dev = resolve_device(config.train.device)  # the encoder runs where the training does
-        spikes = pipe.encode(fit_set.X, progress=self.progress, device=dev)
-        val = None
-        if val_set is not None:
-            val = (pipe.encode(val_set.X, device=dev), val_set.y)
-        trainer = Trainer(pipe.model, config.train, progress=self.progress)
-        self.history_ = trainer.fit(spikes, fit_set.y, val=val, groups=fit_set.scan)
-        self.pipeline_ = pipe
-        calib = val if val is not None else (spikes, fit_set.y)
-        self.temperature_ = _temperature(pipe.scores(calib[0]).numpy(), np.asarray(calib[1]))
+        with seeded(config.seed):  # the one fit path (as tactilesnn train fits)
+            fitted = fit_pipeline(config, data, progress=self.progress,
+                                  val_fraction=float(self.val_fraction))  # fmt: skip
+        self.history_ = fitted.history
+        self.pipeline_ = fitted.pipeline
+        calib = ((fitted.val_spikes, fitted.val_set.y) if fitted.val_set is not None
+                 else (fitted.train_spikes, fitted.train_y))  # fmt: skip
+        self.temperature_ = _temperature(self.pipeline_.scores(calib[0]).numpy(),
+                                         np.asarray(calib[1]))  # fmt: skip
         return self
 
     def _dataset(self, X, y, fs_hz, groups, channel_names) -> tuple[WindowDataset, np.ndarray]:
@@ -193,10 +184,6 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         flat = {k: v for k, v in defaults.items() if k not in ("encoder", "model")}
         encoder = self.encoder if self.encoder != AUTO else defaults.get("encoder", DEFAULT_ENCODER)
         d = PipelineConfig.from_flat(encoder=encoder, model=self.model, **flat).to_dict()
-        fitted = getattr(ENCODERS.config_class(encoder), "data_defaults", None)
-        if fitted is not None and data.X.ndim == 3:  # bands that follow the rate and spectrum
-            median = median_power_frequency(data.X, data.fs_hz)
-            d["encoder"].update(fitted(data.fs_hz, data.X.shape[-1], median))
         d["encoder"].update(self.encoder_params or {})
         d["model"].update(self.model_params or {})
         d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
@@ -208,7 +195,10 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             d["level_share"] = self.level_share
         d["train"].update(batch_size=self.batch_size, seed=self.seed,
                           **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
-        return PipelineConfig.from_dict(d)
+        # bands that follow the rate and spectrum, as train --data sets them (the user's win)
+        return fit_encoder_to_data(
+            PipelineConfig.from_dict(d), data, keep=self.encoder_params or ()
+        )
 
     # ------------------------------------------------------------------ predict
     def decision_function(self, X: Any) -> np.ndarray:

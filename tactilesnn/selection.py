@@ -3,8 +3,10 @@ name no encoder): each candidate with its defaults for the data's rate, window a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -89,13 +91,27 @@ def candidate_configs(
     """``config`` with each candidate encoder at its defaults for the data's rate, window and
     spectrum (``data_defaults`` of its config)."""
     median = median_power_frequency(train.X, train.fs_hz)
-    configs = {}
-    for name in candidates:
-        cls = ENCODERS.config_class(name)
-        defaults = getattr(cls, "data_defaults", None)
-        fitted = defaults(train.fs_hz, train.X.shape[-1], median) if defaults else {}
-        configs[name] = config.replace(encoder=cls(**fitted))
-    return configs
+    return {name: fit_encoder_to_data(config.replace(encoder=ENCODERS.config_class(name)()),
+                                      train, median_hz=median) for name in candidates}  # fmt: skip
+
+
+def fit_encoder_to_data(config: PipelineConfig, train: WindowDataset, keep: Iterable[str] = (),
+                        median_hz: float | None = None) -> PipelineConfig:  # fmt: skip
+    """``config`` with its encoder's settings that follow the data (``data_defaults`` of its
+    config: bands that reach 0.45 fs and down to the spectrum's median, the dynamic range) taken
+    from ``train``'s rate, window and spectrum, except the fields in ``keep`` (the user's). The
+    one place a data file's facts set an encoder: ``tactilesnn train --data``, the encoder
+    selection and :class:`~tactilesnn.estimator.SpikeClassifier` all come here."""
+    cls = type(config.encoder)
+    defaults = getattr(cls, "data_defaults", None)
+    if defaults is None or train.X.ndim != 3:
+        return config
+    if median_hz is None:
+        median_hz = median_power_frequency(train.X, train.fs_hz)
+    fitted = defaults(train.fs_hz, train.X.shape[-1], median_hz)
+    fields = {f.name: getattr(config.encoder, f.name) for f in dataclasses.fields(config.encoder)}
+    kept = {k: fields[k] for k in keep if k in fields}
+    return config.replace(encoder=cls(**{**fields, **fitted, **kept}))
 
 
 @dataclass(frozen=True)

@@ -56,35 +56,44 @@ def split_validation(
     return data.subset(~is_val), data.subset(is_val)
 
 
-def fit_and_evaluate(
+@dataclass
+class Fitted:
+    """A pipeline fitted by :func:`fit_pipeline`: the trainer (its history), the windows it was
+    fitted on and held out for validation, the spikes and labels it learnt (``train_*``: the
+    fitted windows, then those coded with their past) and validated on, the windows it also learnt coded
+    with their recording's past (``in_recordings``: their indices and spikes, or None), and the
+    seconds spent encoding and fitting."""
+
+    pipeline: SpikePipeline
+    trainer: Trainer
+    history: list[float]
+    fit_set: WindowDataset
+    val_set: WindowDataset | None
+    val_spikes: torch.Tensor | None
+    train_spikes: torch.Tensor
+    train_y: np.ndarray
+    in_recordings: tuple[np.ndarray, torch.Tensor] | None
+    encode_seconds: float
+    fit_seconds: float
+
+
+def fit_pipeline(
     config: PipelineConfig,
     train: WindowDataset,
-    test: WindowDataset,
     progress: bool = False,
     val_fraction: float = 0.0,
     checkpoint: Callable[[int, dict], None] | None = None,
     resume: dict | None = None,
     require_export: bool = False,
     with_past: bool = True,
-) -> TrainResult:
-    """Fit ``config`` on ``train`` (optionally holding out validation scans) and test it.
-
-    ``with_past``: an encoder that codes a window with its recording's past in a stream also
-    trains on (and is tested on) that code (:meth:`SpikePipeline.encode_in_recordings`); off
-    while encoders are compared (the final fit only pays for it).
-
-    Building the pipeline checks the configuration against the data (channels, rates, window)
-    and, with ``require_export``, that the model can be exported, before any training. Random
-    draws from torch's global generator (augmentation, dropout) start from ``config.seed``; the
-    caller's generator is left as it was.
-    """
-    with seeded(config.seed):
-        return _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, resume,
-                                 require_export, with_past)  # fmt: skip
-
-
-def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, resume,
-                      require_export, with_past) -> TrainResult:  # fmt: skip
+) -> Fitted:
+    """The one way a pipeline is fitted (``tactilesnn train``, :class:`SpikeClassifier`, the
+    encoder selection and the benchmarks all come here): hold out ``val_fraction`` of the
+    recordings for validation and early stopping, build the pipeline (checked against the data
+    and, with ``require_export``, against the exporter, before any work), calibrate and encode,
+    add every window that has a past in its recording coded with it (``with_past``: an encoder
+    whose stream form carries state; off while encoders are compared), and train (the readout:
+    its exact solve). The caller seeds torch's generator (:func:`~.models.base.seeded`)."""
     fit_set, val_set = split_validation(train, val_fraction, config.seed)
     pipe = SpikePipeline(
         config, train.fs_hz, train.X.shape[-1], train.channel_names, train.class_names
@@ -97,7 +106,6 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
     dev = resolve_device(config.train.device)  # the encoder runs where the training does
     s_train = pipe.encode(fit_set.X, progress=progress, device=dev)
     s_val = pipe.encode(val_set.X, progress=progress, device=dev) if val_set is not None else None
-    s_test = pipe.encode(test.X, progress=progress, device=dev)
     # an encoder whose stream form carries state codes a window served in a stream with its
     # past: trained on both codes of every window that has one, so that the window graph (a
     # window alone) and the stream graph (a live stream) both get windows like those it learnt
@@ -108,7 +116,6 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
         s_train = torch.cat([s_train, s_past])
         fit_y = np.concatenate([fit_set.y, fit_set.y[at]])
         fit_groups = np.concatenate([fit_set.scan, fit_set.scan[at]])
-    test_rec = pipe.encode_in_recordings(test.X, test.scan) if with_past else None
     t_enc = time.perf_counter() - t0
     trainer = Trainer(pipe.model, config.train, progress=progress)
     history = trainer.fit(
@@ -119,7 +126,39 @@ def _fit_and_evaluate(config, train, test, progress, val_fraction, checkpoint, r
         resume=resume,
         groups=fit_groups,
     )
-    t_fit = time.perf_counter() - t0 - t_enc
+    return Fitted(pipe, trainer, history, fit_set, val_set, s_val, s_train, fit_y, in_rec,
+                  t_enc, time.perf_counter() - t0 - t_enc)  # fmt: skip
+
+
+def fit_and_evaluate(
+    config: PipelineConfig,
+    train: WindowDataset,
+    test: WindowDataset,
+    progress: bool = False,
+    val_fraction: float = 0.0,
+    checkpoint: Callable[[int, dict], None] | None = None,
+    resume: dict | None = None,
+    require_export: bool = False,
+    with_past: bool = True,
+) -> TrainResult:
+    """Fit ``config`` on ``train`` (:func:`fit_pipeline`) and test it on ``test``: accuracy per
+    window (with its interval), per recording, in a stream, early decisions, the confusion
+    matrix. Random draws from torch's global generator (augmentation, dropout) start from
+    ``config.seed``; the caller's generator is left as it was."""
+    with seeded(config.seed):
+        fitted = fit_pipeline(config, train, progress, val_fraction, checkpoint, resume,
+                              require_export, with_past)  # fmt: skip
+        return _evaluate(fitted, test, progress, with_past)
+
+
+def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bool) -> TrainResult:
+    pipe, trainer, history = fitted.pipeline, fitted.trainer, fitted.history
+    fit_set, val_set, in_rec = fitted.fit_set, fitted.val_set, fitted.in_recordings
+    dev = resolve_device(pipe.config.train.device)
+    t0 = time.perf_counter()
+    s_test = pipe.encode(test.X, progress=progress, device=dev)
+    test_rec = pipe.encode_in_recordings(test.X, test.scan) if with_past else None
+    t_enc, t_fit = fitted.encode_seconds + time.perf_counter() - t0, fitted.fit_seconds
     test_scores = pipe.scores(s_test).numpy()
     pred = test_scores.argmax(1)
     early = early_decision_metrics(pipe, s_test, test.y, pred)

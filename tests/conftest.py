@@ -3,7 +3,9 @@ examples on every run, so a landing is judged on a fixed set; elsewhere each run
 ones (that is how the lying-header case of ``test_fuzz_hostile.py`` was found).
 
 The CLI fits torch's threads to the CPUs other processes leave (``core/perf.py``); tests that
-compare two in-process runs bit for bit need one count throughout, so the suite fixes it.
+compare two in-process runs bit for bit need one count throughout, so the suite fixes it. Under
+pytest-xdist (``make test`` runs a worker per CPU, up to 4, idle workers steal queued tests) each worker
+gets its share of the CPUs.
 
 Graphs are exported with the TorchScript-based exporter here (``TACTILESNN_ONNX_EXPORTER``): the
 suite exports ~170 component graphs, which the supported ``torch.export``-based exporter (the
@@ -15,6 +17,11 @@ import os
 import torch
 from hypothesis import settings
 
+_workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+if _workers > 1:  # pytest-xdist (make test): the CPUs shared among the workers, not oversubscribed
+    _threads = max(1, (os.cpu_count() or 1) // _workers)
+    torch.set_num_threads(_threads)
+    os.environ.setdefault("OMP_NUM_THREADS", str(_threads))
 os.environ.setdefault("TACTILESNN_THREADS", str(torch.get_num_threads()))
 os.environ.setdefault("TACTILESNN_ONNX_EXPORTER", "torchscript")
 settings.register_profile("ci", derandomize=True)

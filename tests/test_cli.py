@@ -69,6 +69,7 @@ def test_unknown_names_are_refused(tmp_path, capsys):
     assert "not a run folder" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_train_py_is_the_same_cli():
     def run(*argv):
         return subprocess.run([sys.executable, "train.py", *argv], capture_output=True,

@@ -100,6 +100,7 @@ def test_encoding_on_a_device_moves_the_encoder_there_and_back_even_on_failure(m
     assert seen == ["meta"] and moves == ["meta", "cpu"]  # the batch went there; back after
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 @pytest.mark.parametrize("encoder", ENCODERS_ON_A_DEVICE)
 def test_encoding_on_the_gpu_matches_the_cpu(encoder):

@@ -147,6 +147,7 @@ def test_building_a_model_leaves_the_global_generator_alone():
     assert torch.equal(torch.rand(3), expected)
 
 
+@pytest.mark.slow
 def test_sklearn_check_estimator():
     """scikit-learn's own estimator checks (its 2-D feature tables are one-channel windows of
     their columns). One check is expected to fail, with the reason below; the checks that need
@@ -197,3 +198,39 @@ def test_windows_that_say_their_rate_and_channels_are_checked_at_predict():
         clf.predict(replace(data, fs_hz=200.0))
     with pytest.raises(ValueError, match="not the model's"):
         clf.predict(replace(data, channel_names=("ch0", "other")))
+
+
+@pytest.mark.parametrize("encoder", ["lif", "cgwt"])
+def test_the_cli_and_the_estimator_fit_the_same_weights(tmp_path, encoder):
+    """One fit path: ``tactilesnn train --data F --encoder E`` and ``SpikeClassifier(encoder=E)``
+    on the same training split learn the same weights (cgwt: both also learn every window coded
+    with its recording's past)."""
+    from tactilesnn.cli import main
+    from tactilesnn.recordings import load_data_file
+
+    rng = np.random.default_rng(0)
+    n, fs, s = 24, 200.0, 800
+    y = np.arange(n) % 2
+    t = np.arange(s) / fs
+    X = np.sin(
+        2 * np.pi * np.where(y == 0, 4.0, 11.0)[:, None, None] * t + rng.uniform(0, 6, (n, 3, 1))
+    )
+    X = (X + 0.2 * rng.normal(size=(n, 3, s))).astype(np.float32)
+    path = tmp_path / "d.npz"
+    np.savez(path, X=X, y=y, fs=fs, class_names=np.array(["slow", "fast"]))
+    out = tmp_path / "run"
+    argv = ["train", "--data", str(path), "--encoder", encoder, "--model", "readout", "--no-export",
+            "--quiet", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    cli = dict(np.load(out / "weights.npz", allow_pickle=False))
+    train, _ = load_data_file(path)  # the split train --data made (seed 0), cut the same way
+    from tactilesnn.recordings import auto_window, cut_windows
+
+    cut = auto_window(path)
+    if cut is not None:
+        train = cut_windows(train, *cut)
+    clf = SpikeClassifier(encoder=encoder, model="readout").fit(train)
+    est = clf.pipeline_.weights()
+    assert set(cli) == set(est)
+    for key in cli:
+        np.testing.assert_array_equal(cli[key], est[key], err_msg=key)

@@ -115,6 +115,7 @@ def test_a_folder_with_one_label_says_how_to_label(tmp_path):
         read_recordings(folder)
 
 
+@pytest.mark.data
 @pytest.mark.skipif(not (SHARED / "braille_icub_abc").is_dir(), reason="shared data not here")
 def test_the_shipped_braille_file_reads_as_it_comes():
     tr, te = load_data_file(SHARED / "braille_icub_abc" / "braille_abc_icub.npz", seed=0)
@@ -122,6 +123,7 @@ def test_the_shipped_braille_file_reads_as_it_comes():
     assert tr.class_names == ("A", "B", "C") and len(tr) + len(te) == 45
 
 
+@pytest.mark.data
 @pytest.mark.skipif(not (SHARED / "fabric_slide").is_dir(), reason="shared data not here")
 def test_the_shipped_fabric_slides_read_as_they_come():
     arrays, conv = read_recordings(SHARED / "fabric_slide" / "fabric")

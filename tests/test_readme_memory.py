@@ -47,7 +47,7 @@ def _limited() -> None:
 
 def _run(argv: list[str]) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).with_name("tactilesnn")
-    env = {**os.environ, "OMP_NUM_THREADS": "2"}
+    env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
     return subprocess.run(
         [str(exe), *argv], preexec_fn=_limited, capture_output=True, text=True, env=env,
         timeout=900,
@@ -58,6 +58,7 @@ def test_readme_lists_the_task_commands() -> None:
     assert {"texture", "stiffness_curvature", "material", "touch"} <= set(readme_train_commands())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("task", TASKS)
 def test_readme_command_runs_under_2gib(task: str, tmp_path: Path) -> None:
     argv = readme_train_commands()[task]
@@ -71,8 +72,9 @@ def test_readme_command_runs_under_2gib(task: str, tmp_path: Path) -> None:
     assert "test accuracy" in proc.stdout
     assert (out / "weights.npz").is_file()
     assert (out / "model.onnx").is_file(), proc.stdout
-    ev = _run(["evaluate", str(out), "--json", "--quiet"])
-    assert ev.returncode == 0, ev.stderr[-3000:]
+    if task == "touch":  # the largest task's data: evaluate under the limit too (once suffices)
+        ev = _run(["evaluate", str(out), "--json", "--quiet"])
+        assert ev.returncode == 0, ev.stderr[-3000:]
 
 
 def test_limit_is_real(tmp_path: Path) -> None:
@@ -85,6 +87,7 @@ def test_limit_is_real(tmp_path: Path) -> None:
     assert proc.returncode != 0 and "MemoryError" in proc.stderr
 
 
+@pytest.mark.slow
 def test_a_1000_x_13000_sample_20_class_file_trains_under_2gib(tmp_path: Path) -> None:
     """The issue's size: 1,000 recordings of 13,000 samples at 2 kHz, 20 classes (a tone per
     class, random phase and gain, noise). `train --data` with no setting but the epochs: cut into

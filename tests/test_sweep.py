@@ -89,6 +89,7 @@ def test_local_sweep_gathers_a_table_and_resumes_without_rerunning(tmp_path, cap
     assert json.loads((out / "results.json").read_text()) == rows
 
 
+@pytest.mark.slow
 def test_dask_sweep_completes_when_a_worker_is_killed(tmp_path):
     distributed = pytest.importorskip("distributed")
     cfg = _write(tmp_path, f"[base]\nepochs = 3\n{SMALL}\n[grid]\nencoder = ['gwt', 'stft']\n"

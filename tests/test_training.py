@@ -95,6 +95,7 @@ def test_toml_config_and_flag_override(tmp_path, capsys):
     assert "unknown setting 'epochz'" in capsys.readouterr().err
 
 
+@pytest.mark.data
 @pytest.mark.skipif(not ICUB.is_file(), reason="real iCub recordings not available")
 def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     raw = np.load(ICUB, allow_pickle=False)

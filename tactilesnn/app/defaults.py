@@ -32,7 +32,7 @@ from ..config import (
 )
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.base import task_parameters
-from ..encoders import build_encoder
+from ..encoders import ENCODERS, build_encoder
 from ..recordings import auto_window, event_layout, is_event_file
 from .options import run_options, train_options
 from .run import FileSource, RunSpec, TaskSource
@@ -154,10 +154,15 @@ def run_spec(
     if settings.get("fs") is not None and not data:
         raise ValueError("--fs states the rate of --data recordings; a synthetic task has its own")
     select: tuple[str, ...] = ()
+    keep: tuple[str, ...] | None = None
     if data:
         source: Any = FileSource(Path(data), *data_window(settings), fs_hz=settings.get("fs"))
-        if not is_event_file(Path(data)) and not encoder_settings_given(_given(settings, toml)):
-            select = DATA_ENCODER_CANDIDATES
+        given = _given(settings, toml)
+        if not is_event_file(Path(data)):
+            if not encoder_settings_given(given):
+                select = DATA_ENCODER_CANDIDATES
+            else:  # the encoder named: its settings the user did not give follow the data
+                keep = _encoder_fields_given(config, given, toml)
     else:
         task = settings["task"]
         source = TaskSource(task, {**task_params(task, settings), "seed": config.seed})
@@ -166,7 +171,20 @@ def run_spec(
                 and not encoder_settings_given(given)):  # fmt: skip
             select = DATA_ENCODER_CANDIDATES  # a wide task took the data-file defaults
     return RunSpec(source, config, None if out is None else Path(out), export=bool(settings["export"]),
-                   val_fraction=float(settings["val_fraction"]), select_encoders=select, **run)  # fmt: skip
+                   val_fraction=float(settings["val_fraction"]), select_encoders=select,
+                   fit_encoder_keep=keep, **run)  # fmt: skip
+
+
+def _encoder_fields_given(config: PipelineConfig, given: set[str],
+                          toml: dict[str, Any] | None) -> tuple[str, ...]:  # fmt: skip
+    """The fields of ``config``'s encoder the user set (flags, flat TOML keys, or the keys of a
+    TOML ``[encoder]`` section)."""
+    flags = ENCODERS.config_class(config.encoder_type).FLAGS
+    fields = {flags[k] for k in given if k in flags}
+    section = (toml or {}).get("encoder")
+    if isinstance(section, dict):
+        fields |= set(section)
+    return tuple(sorted(fields))
 
 
 def _given(settings: dict[str, Any], toml: dict[str, Any] | None) -> set[str]:

@@ -36,6 +36,7 @@ from ..recordings import load_data_file
 from ..selection import (
     SelectionBudget,
     candidate_configs,
+    fit_encoder_to_data,
     probe,
     select_encoder,
     selection_seconds,
@@ -152,6 +153,9 @@ class RunSpec:
     val_fraction: float = 0.0
     #: encoders to choose among on held-out training recordings (empty: ``config``'s own)
     select_encoders: tuple[str, ...] = ()
+    #: a data file's encoder fitted to its facts (rate, window, spectrum) before training,
+    #: except these fields the user set (None: ``config``'s encoder as it is)
+    fit_encoder_keep: tuple[str, ...] | None = None
     #: the TOML text the settings came from (kept in the run folder as ``config.toml``)
     config_text: str | None = None
     progress: bool = True
@@ -195,6 +199,10 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
     try:
         state = _open_partial(partial, record, spec)
         train, test = _load(spec)
+        if spec.fit_encoder_keep is not None:
+            spec = replace(
+                spec, config=fit_encoder_to_data(spec.config, train, spec.fit_encoder_keep)
+            )
         plan, budget, configs, probes = _plan(spec, train, test)
         log.info("%s", plan.plan_line())
         config, selection = spec.config, None

@@ -4,6 +4,7 @@ peak memory, the references on the identical split, and the table."""
 import json
 
 import numpy as np
+import pytest
 
 from tactilesnn.app.bench import fit, standins
 
@@ -24,6 +25,7 @@ def test_stand_ins_have_the_stated_shapes(tmp_path) -> None:
     assert np.array_equal(again["X"], ev["X"])
 
 
+@pytest.mark.slow
 def test_a_run_is_timed_in_its_own_process_against_references(tmp_path) -> None:
     path = standins.events(tmp_path / "ev.npz", n=60)
     quiet = fit.run_train(path, tmp_path / "run")

@@ -17,6 +17,7 @@ def data():
     return HookLoopTask(seed=0).build()
 
 
+@pytest.mark.slow
 def test_spectral_pipeline_beats_amplitude_baseline(data):
     train, test = data
     baseline = linear_amplitude_baseline(train.X, train.y, test.X, test.y)
@@ -27,6 +28,7 @@ def test_spectral_pipeline_beats_amplitude_baseline(data):
     assert gwt - baseline >= 0.05
 
 
+@pytest.mark.slow
 def test_bench_writes_results_and_plot(tmp_path, capsys):
     out = tmp_path / "bench"
     res = gwt_vs_stft.run(seeds=2, out=out, epochs=1, progress=False)

@@ -22,6 +22,7 @@ def test_pareto_front_definition():
     assert [r["front"] for r in rows] == [True, True, False, False, False]
 
 
+@pytest.mark.slow
 def test_quick_pareto_writes_table_plot_and_a_front(tmp_path, capsys):
     out = tmp_path / "p"
     assert main(["bench", "pareto", "--quick", "--out", str(out), "--quiet"]) == 0
@@ -68,6 +69,7 @@ def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, 
     assert not json.loads((tmp_path / "f" / "stability.json").read_text())["ok"]
 
 
+@pytest.mark.slow
 def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     from tactilesnn.app.bench import skip
 

@@ -4,6 +4,7 @@ taxels shuffled): transfer must then work, and the taxel matching must find the 
 import json
 
 import numpy as np
+import pytest
 
 from tactilesnn.app.bench import sim2real
 from tactilesnn.datasets_synth import get_task
@@ -24,6 +25,7 @@ def _stand_in(root, n=30):
              t=t, robot_state=robot, class_names=np.array(["A", "B", "C"]))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_matching_recovers_a_shuffle():
     task = get_task("braille", seed=5, n_samples=30)
     X = np.stack([task.sample(i)[0] for i in range(30)])
@@ -35,6 +37,7 @@ def test_matching_recovers_a_shuffle():
     assert live.sum() >= 4 and np.array_equal(order[live], PERM[live])
 
 
+@pytest.mark.slow
 def test_bench_sim2real_on_a_synthetic_stand_in(tmp_path):
     _stand_in(tmp_path / "data")
     res = sim2real.run(tmp_path / "out", data_root=tmp_path / "data", synthetic=60, seeds=1,

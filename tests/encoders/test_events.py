@@ -74,6 +74,7 @@ def _shared(rel: str):
 STM = _shared("st_mnist/st_mnist_events.npz")
 
 
+@pytest.mark.data
 @pytest.mark.skipif(STM is None, reason="real ST-MNIST events not available")
 def test_real_st_mnist_events_pass_through_exactly():
     raw = np.load(STM, allow_pickle=False)

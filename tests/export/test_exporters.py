@@ -51,6 +51,7 @@ PIPELINES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flat", PIPELINES, ids=lambda f: f"{f['encoder']}+{f['model']}")
 def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_path, flat):
     pipe, X = _calibrated(400.0, 200, 3, **flat)
@@ -81,6 +82,7 @@ def test_a_part_only_the_older_exporter_writes_is_chained_at_the_newer_opset(tmp
     assert rep["prediction_agreement"] == 1.0
 
 
+@pytest.mark.slow
 def test_the_stream_graph_from_the_supported_exporter_matches_the_legacy_one(tmp_path):
     pipe, X = _calibrated(400.0, 200, 3, encoder="cgwt", model="snn", snn_hidden=8)
     a = export_stream(pipe, tmp_path / "a.onnx", X, exporter="torch.export")

@@ -9,9 +9,12 @@ import torch
 from tactilesnn.models._lif_triton import kernel
 from tactilesnn.models.snn import LIFLayer
 
-pytestmark = pytest.mark.skipif(
-    not torch.cuda.is_available() or kernel() is None, reason="needs a CUDA GPU and Triton"
-)
+pytestmark = [
+    pytest.mark.gpu,
+    pytest.mark.skipif(
+        not torch.cuda.is_available() or kernel() is None, reason="needs a CUDA GPU and Triton"
+    ),
+]
 
 
 @pytest.mark.parametrize("reset", ["subtract", "zero"])

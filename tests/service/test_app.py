@@ -140,6 +140,7 @@ def test_idle_streams_expire_and_ids_are_url_encoded(tmp_path, served):
             assert r.status_code == 200 and r.json()["stream"] == sid  # two streams, not one
 
 
+@pytest.mark.slow
 def test_soak_thousands_of_abandoned_streams_never_lock_out(tmp_path, served):
     """2,000 streams opened and abandoned against a 64-stream table with a short TTL: the
     table never holds more than its limit, every stream opened after the TTL is accepted (no

@@ -102,6 +102,7 @@ def _browser() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
+@pytest.mark.browser
 def test_live_page_updates_in_a_real_browser(exported, tmp_path):
     """Headless Chromium (Debian package, driven by Playwright) opens the page of a running
     service while demo-stream feeds it; the raster and the scores must change between updates.
