@@ -47,18 +47,33 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
+from ..core.memory import release_memory
 from .base import SpikeModel, register_model, seeded
-from .softmax_fit import CV_WINDOWS, PENALTY_FACTORS, choose_penalty, fit_features, whole_groups
+from .softmax_fit import (
+    CV_WINDOWS,
+    PENALTY_FACTORS,
+    choose_penalty,
+    fit_features,
+    fit_softmax,
+    row_space,
+    whole_groups,
+)
 
 log = logging.getLogger("tactilesnn")
 
 #: training windows at which the penalty is ``weight_decay`` (see the module docstring)
 PRIOR_WINDOWS = 256
 SOLVERS = ("exact", "adam")
-#: the exact solver's float32 feature matrix may take this much (its working set is about twice
-#: that: a column cut, the Gram matrix); above it the readout trains by the trainer's Adam epochs
-#: (with the configured penalty, every instant)
-EXACT_BUDGET_BYTES = 384 << 20
+#: the exact solver's float32 feature matrix may take this much (its working set adds the
+#: float64 ``N x N`` Gram matrix where features outnumber windows, the features then let go);
+#: above it, the exact fit on the windows it holds (:data:`EXACT_MIN_SHARE`) or Adam's epochs
+EXACT_BUDGET_BYTES = 320 << 20
+#: over the budget, the exact fit still runs on the whole recordings the budget holds when they
+#: are at least this share of the training windows (else Adam trains on all of them). The
+#: 22-channel electrode stand-in (``bench fit``; 5,600 windows x 19,088 features): Adam's
+#: epochs on every window 60 s, 35.93 % per window, 1.20 GB peak; the exact fit on the 78 % the
+#: budget holds 9 s, 38.93 %, 1.46 GB (at a 384 MiB budget: 94 %, 39.93 %, 1.77 GB)
+EXACT_MIN_SHARE = 0.75
 
 
 @dataclass(frozen=True)
@@ -215,11 +230,40 @@ class LIReadout(SpikeModel):
             return f if cols is None else f[:, cols]
         sub = spikes if idx is None else spikes[torch.from_numpy(idx)]
         step = self.batch_size(sub)
-        parts = []
+        width = self.linear.in_features if cols is None else len(cols)
+        out = torch.empty(len(sub), width, dtype=torch.float32)  # filled: no second copy
         for i in range(0, len(sub), step):
             f = self.features(sub[i : i + step])
-            parts.append(f if cols is None else f[:, cols])
-        return torch.cat(parts)
+            out[i : i + step] = f if cols is None else f[:, cols]
+        return out
+
+    def _exact(self, held: list[Tensor], spikes: Tensor, rows: np.ndarray | None,
+               cols: Tensor | None, y: Tensor, lam: float) -> tuple[Tensor, Tensor, int, Tensor]:  # fmt: skip
+        """The exact fit on the features ``held.pop()`` (of ``spikes[rows]``, columns ``cols``;
+        handed over in a list so that this frame holds their last reference):
+        ``(W [d, classes] float64, b, function evaluations, training logits)``. With more
+        features than windows the fit runs in their row space (:func:`row_space`), and the
+        features are let go during it: the weights are then summed from blocks of them computed
+        again (``W = F^T a``), so only one ``N x d`` matrix is ever held."""
+        part = held.pop()
+        g, lk = row_space(part)
+        if lk is None:
+            w, b, evals = fit_features(part, y, self.n_classes, lam)
+            return w, b, evals, part @ w.float() + b.float()
+        del part  # the features freed: the row space is all the fit needs
+        z, b, evals = fit_softmax(g, y, self.n_classes, lam)
+        logits = (g @ z.to(g.dtype)).double() + b  # F W = L_K L_K^T L_K^-T z = G z
+        a = torch.linalg.solve_triangular(g.T.double(), z, upper=True)  # [N, classes]
+        del g, lk
+        n = len(y)
+        width = self.linear.in_features if cols is None else len(cols)
+        w = torch.zeros(width, self.n_classes, dtype=torch.float64)
+        step = max(1, (64 << 20) // (4 * width))  # 64 MiB of features at a time
+        idx = np.arange(len(spikes)) if rows is None else rows
+        for i in range(0, n, step):
+            f = self._training_features(spikes, idx[i : i + step], cols)
+            w.addmm_(f.T.double(), a[i : i + step])
+        return w, b, evals, logits
 
     @torch.no_grad()
     def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None) -> dict | None:
@@ -265,25 +309,35 @@ class LIReadout(SpikeModel):
             if not best or acc > best[0]:  # ties: the candidate tried first (more instants)
                 best = (acc, subset, lam)
         del cv_feats
+        release_memory()  # the cross-validation's features handed back before the final fit
         _, subset, lam = best
         used = cols[:, subset].reshape(-1)
         weight = torch.zeros(self.n_classes, d, dtype=torch.float64)
         report = {"penalty": lam, "instants": len(subset),
                   "instants_ms": [float(self.times_ms[j]) for j in subset],
                   "cross_validation": table, "cv_windows": len(cv)}  # fmt: skip
-        if 4 * n * len(used) <= EXACT_BUDGET_BYTES:
+        fit_n = min(n, EXACT_BUDGET_BYTES // (4 * len(used)))
+        if fit_n >= EXACT_MIN_SHARE * n:
             every = len(subset) == cfg.n_times
+            # over the budget by a little: the exact fit on the most whole recordings it allows
+            rows = None if fit_n == n else whole_groups(groups, fit_n)
             if feats is not None:
                 part = feats if every else feats[:, used]
             else:
-                part = self._training_features(spikes, None, None if every else used)
+                part = self._training_features(spikes, rows, None if every else used)
             del feats
-            w, b, evals = fit_features(part, y, self.n_classes, lam)
+            fit_y = y if rows is None else y[torch.from_numpy(rows)]
+            cols_used = None if every else used
+            held = [part]  # handed over: _exact holds the features' last reference
+            del part
+            w, b, evals, logits = self._exact(held, spikes, rows, cols_used, fit_y, lam)
             weight[:, used] = w.T
             self.linear.bias.copy_(b.float())
-            logits = part @ w.float() + b.float()
             report.update(solver="exact (L-BFGS, float32 data)", function_evaluations=evals,
-                          train_error=float((logits.argmax(1) != y).float().mean()))  # fmt: skip
+                          train_error=float((logits.argmax(1) != fit_y).float().mean()))  # fmt: skip
+            if rows is not None:
+                report.update(fit_windows=len(rows), solver="exact (L-BFGS, float32 data) on "
+                              f"{len(rows)} of {n} windows (whole recordings; the byte budget)")  # fmt: skip
         else:  # the trainer's epochs, on the chosen instants only (see loss())
             weight[:, used] = self.linear.weight.double()[:, used]
             self.instant_mask.zero_()

@@ -54,27 +54,35 @@ CV_TOL = 1e-4
 
 def row_space(features: Tensor) -> tuple[Tensor, Tensor | None]:
     """``F [N, d]`` -> ``(G, L_K)``: ``(F, None)`` when ``d <= N`` (fitted as it is), else
-    ``G = L_K`` ``[N, N]`` (float64), the Cholesky factor of ``F F^T`` (+ :data:`RIDGE`), with
-    which :func:`from_row_space` maps a solution back to ``d`` features. ``F F^T`` is summed in
-    float64 over blocks of columns (no float64 copy of ``F``)."""
+    ``G = L_K`` ``[N, N]`` in ``F``'s dtype, the Cholesky factor of ``F F^T`` (+ :data:`RIDGE`),
+    with which :func:`from_row_space` maps a solution back to ``d`` features. ``F F^T`` is
+    summed in float64 over blocks of columns (no float64 copy of ``F``) and factored in place:
+    one ``N x N`` float64 matrix at a time, the factor then kept in ``F``'s dtype."""
     n, d = features.shape
     if d <= n:
         return features, None
+    ridge = RIDGE
+    while True:
+        k = _row_gram(features)
+        k.diagonal().add_(ridge * float(k.diagonal().mean()) + 1e-20)  # (1e-20: a float32 root)
+        _, info = torch.linalg.cholesky_ex(k, out=(k, torch.empty((), dtype=torch.int32)))
+        if int(info) == 0 or ridge >= 1e-2:  # rounding made it indefinite: a larger ridge
+            break
+        ridge *= 10
+    lk = k.tril_().to(features.dtype)
+    del k
+    return lk, lk
+
+
+def _row_gram(features: Tensor) -> Tensor:
+    """``F F^T`` ``[N, N]`` float64, summed over blocks of 16 MiB of float64 columns."""
+    n, d = features.shape
     k = torch.zeros(n, n, dtype=torch.float64)
-    step = max(1, (64 << 20) // (8 * n))  # 64 MiB of float64 columns at a time
+    step = max(1, (16 << 20) // (8 * n))  # 16 MiB of float64 columns at a time
     for j in range(0, d, step):
         block = features[:, j : j + step].double()
         k.addmm_(block, block.T)
-    del block
-    k.diagonal().add_(RIDGE * float(k.diagonal().mean()) + 1e-300)
-    lk, info = torch.linalg.cholesky_ex(k)
-    ridge = RIDGE
-    while int(info) != 0 and ridge < 1e-2:  # rounding made it indefinite: a larger ridge
-        k.diagonal().add_(9 * ridge * float(k.diagonal().mean()))
-        ridge *= 10
-        lk, info = torch.linalg.cholesky_ex(k)
-    del k
-    return lk, lk
+    return k
 
 
 def from_row_space(features: Tensor, lk: Tensor | None, z: Tensor) -> Tensor:
@@ -82,7 +90,7 @@ def from_row_space(features: Tensor, lk: Tensor | None, z: Tensor) -> Tensor:
     ``G``: ``W = F^T L_K^{-T} z`` (``z`` itself when the features were fitted as they are)."""
     if lk is None:
         return z
-    a = torch.linalg.solve_triangular(lk.T, z, upper=True)
+    a = torch.linalg.solve_triangular(lk.T.double(), z, upper=True)
     return (features.T @ a.to(features.dtype)).double()
 
 
@@ -93,14 +101,17 @@ def gram(g: Tensor) -> Tensor:
     return out.double()
 
 
-def curvature_factor(gg: Tensor, n: int, penalty: float) -> Tensor:
+def curvature_factor(gg: Tensor, n: int, penalty: float, inplace: bool = False) -> Tensor:
     """The Cholesky factor ``L`` of ``G^T G / 4N + 2 penalty I`` (+ a floor for a zero column
-    with no penalty)."""
-    m = gg.div(4.0 * n)
+    with no penalty); ``inplace``: in ``gg``'s memory (which it then holds)."""
+    m = gg.div_(4.0 * n) if inplace else gg.div(4.0 * n)
     m.diagonal().add_(
         2.0 * penalty + 1e-12 * (1.0 + (float(m.diagonal().max()) if m.numel() else 0.0))
     )
-    return torch.linalg.cholesky(m)
+    if not inplace:
+        return torch.linalg.cholesky(m)
+    torch.linalg.cholesky(m, out=m)
+    return m.tril_()
 
 
 def fit_softmax(
@@ -123,7 +134,8 @@ def fit_softmax(
     the largest gradient entry is below ``tol`` (or after ``max_iter`` iterations)."""
     n, r = g.shape
     dt = g.dtype
-    lf = curvature_factor(gram(g) if gg is None else gg, n, penalty)
+    lf = curvature_factor(gram(g), n, penalty, inplace=True) if gg is None else (
+        curvature_factor(gg, n, penalty))  # fmt: skip
     onehot = torch.zeros(n, n_classes, dtype=torch.float64)
     onehot[torch.arange(n), y] = 1.0
     u = torch.zeros(r, n_classes, dtype=torch.float64)
@@ -208,7 +220,6 @@ def choose_penalty(
         fit, out = torch.from_numpy(~held), torch.from_numpy(held)
         f_fit = features[fit]
         g, lk = row_space(f_fit)
-        g = g.to(features.dtype)
         gg = gram(g)
         warm = None
         for i in order:
@@ -237,7 +248,6 @@ def fit_features(
     """The exact fit on features ``[N, d]`` (float32 or float64): ``(W [d, classes] float64,
     b [classes], function evaluations)`` through :func:`row_space` and :func:`fit_softmax`."""
     g, lk = row_space(features)
-    g = g.to(features.dtype)  # (a float32 copy of L_K where the features are float32)
     z, b, evals = fit_softmax(g, y, n_classes, penalty, tol=tol)
     del g
     return from_row_space(features, lk, z), b, evals

@@ -206,3 +206,27 @@ def test_silent_inputs_give_finite_zero_weights(n_times):
     w = model.linear.weight.detach()
     assert info is not None and torch.isfinite(w).all() and torch.all(w == 0)
     assert torch.isfinite(model.scores(spikes)).all()
+
+
+def test_a_little_over_the_budget_the_exact_fit_takes_the_recordings_that_fit(monkeypatch):
+    """Every instant's features over the budget by a little: the exact fit runs on the whole
+    recordings the budget holds (here 81 of 90 windows), not Adam's epochs on all."""
+    from tactilesnn.config import TrainConfig
+    from tactilesnn.models import li_readout
+    from tactilesnn.models.softmax_fit import fit_features, whole_groups
+
+    spikes, y = _timing_problem(5)
+    groups = np.arange(90) // 3
+    monkeypatch.setattr(li_readout, "EXACT_BUDGET_BYTES", 4 * 32 * 82)  # 82 windows of 90
+    monkeypatch.setattr(li_readout, "instant_subsets", lambda n: [list(range(n))])
+    model = build_model(ReadoutConfig(n_times=4), 8, 1, 3, 400.0)
+    trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
+    history = trainer.fit(spikes, y, groups=groups)
+    info = trainer.history["solved"]
+    rows = whole_groups(groups, 82)
+    assert len(rows) == 81 and info["fit_windows"] == 81 and len(history) == 1
+    assert not info.get("train_epochs") and "81 of 90 windows" in info["solver"]
+    # the weights are the exact fit on those windows' features
+    feats = model.features(spikes[torch.from_numpy(rows)])  # standardised as the solve's
+    w, b, _ = fit_features(feats, torch.from_numpy(y[rows]), 3, info["penalty"])
+    np.testing.assert_allclose(model.linear.weight.detach().numpy(), w.T.numpy(), atol=1e-5)
