@@ -230,3 +230,4 @@ def test_a_little_over_the_budget_the_exact_fit_takes_the_recordings_that_fit(mo
     feats = model.features(spikes[torch.from_numpy(rows)])  # standardised as the solve's
     w, b, _ = fit_features(feats, torch.from_numpy(y[rows]), 3, info["penalty"])
     np.testing.assert_allclose(model.linear.weight.detach().numpy(), w.T.numpy(), atol=1e-5)
+    np.testing.assert_allclose(model.linear.bias.detach().numpy(), b.numpy(), atol=1e-5)
