@@ -24,10 +24,18 @@ def test_threads_follow_the_cpus_left_by_running_processes(monkeypatch):
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.delenv("TACTILESNN_THREADS", raising=False)
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas() -> set[int]:
+        return {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+
     before = torch.get_num_threads()
+    saved = threadpool_limits(limits=None)  # restores numpy's BLAS pools on exit
     try:
         torch.set_num_threads(2)
+        threadpool_limits(limits=2, user_api="blas")
         assert fit_threads(cpus=2, others=2) == 1 and torch.get_num_threads() == 1
+        assert blas() <= {1}  # numpy's BLAS follows torch's threads (no spinning pool)
         assert fit_threads(cpus=4, others=1) == 3
         assert fit_threads(cpus=2, others=0) == 2
         assert fit_threads(cpus=2, others=0) is None  # already so
@@ -37,6 +45,7 @@ def test_threads_follow_the_cpus_left_by_running_processes(monkeypatch):
         assert fit_threads(cpus=2, others=5) is None and torch.get_num_threads() == 1
     finally:
         torch.set_num_threads(before)
+        saved.restore_original_limits()
 
 
 def test_runnable_processes_are_read_from_the_kernel_count(tmp_path):
