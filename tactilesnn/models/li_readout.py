@@ -67,13 +67,14 @@ SOLVERS = ("exact", "adam")
 #: the exact solver's float32 feature matrix may take this much (its working set adds the
 #: float64 ``N x N`` Gram matrix where features outnumber windows, the features then let go);
 #: above it, the exact fit on the windows it holds (:data:`EXACT_MIN_SHARE`) or Adam's epochs
-EXACT_BUDGET_BYTES = 320 << 20
+EXACT_BUDGET_BYTES = 256 << 20
 #: over the budget, the exact fit still runs on the whole recordings the budget holds when they
 #: are at least this share of the training windows (else Adam trains on all of them). The
 #: 22-channel electrode stand-in (``bench fit``; 5,600 windows x 19,088 features): Adam's
-#: epochs on every window 60 s, 35.93 % per window, 1.20 GB peak; the exact fit on the 78 % the
-#: budget holds 9 s, 38.93 %, 1.46 GB (at a 384 MiB budget: 94 %, 39.93 %, 1.77 GB)
-EXACT_MIN_SHARE = 0.75
+#: epochs on every window 60 s, 35.93 % per window / 53.5 % per recording, 1.20 GB peak; the
+#: exact fit on the 63 % a 256 MiB budget holds: 37.14 / 56.0 %, 1.3-1.4 GB (on 78 % at 320 MiB:
+#: 38.93 / 56.0 %, but 1.4-1.7 GB, over the 1.5 GB a file of 100 MB may take)
+EXACT_MIN_SHARE = 0.6
 
 
 @dataclass(frozen=True)
