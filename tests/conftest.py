@@ -27,3 +27,9 @@ os.environ.setdefault("TACTILESNN_ONNX_EXPORTER", "torchscript")
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The slow tests first: under pytest-xdist the workers then start on the long ones and
+    share the short ones at the end, instead of one worker finishing a long test alone."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
