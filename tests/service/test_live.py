@@ -98,6 +98,19 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _wait_until_up(server: subprocess.Popen, url: str, timeout_s: float = 60.0) -> None:
+    """Until the service at ``url`` answers ``/healthz`` (fails if it exits or takes too long)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            urllib.request.urlopen(url + "/healthz", timeout=1).read()
+            return
+        except OSError:
+            if time.monotonic() > deadline or server.poll() is not None:
+                pytest.fail(f"service did not start: {server.stderr.read()[-2000:]}")
+            time.sleep(0.2)
+
+
 def _browser() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
@@ -123,15 +136,7 @@ def test_live_page_updates_in_a_real_browser(exported, tmp_path):
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                urllib.request.urlopen(url + "/healthz", timeout=1).read()
-                break
-            except OSError:
-                if time.monotonic() > deadline or server.poll() is not None:
-                    pytest.fail(f"service did not start: {server.stderr.read()[-2000:]}")
-                time.sleep(0.2)
+        _wait_until_up(server, url)
         with sync_api.sync_playwright() as p:
             flags = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                      "--disable-background-networking", "--disable-component-update",
@@ -193,15 +198,7 @@ def test_sigterm_with_live_pages_open_stops_at_once(exported):
                               text=True)  # fmt: skip
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                urllib.request.urlopen(url + "/healthz", timeout=1).read()
-                break
-            except OSError:
-                if time.monotonic() > deadline or server.poll() is not None:
-                    pytest.fail(f"service did not start: {server.stderr.read()[-2000:]}")
-                time.sleep(0.2)
+        _wait_until_up(server, url)
         pages = [urllib.request.urlopen(url + "/v1/live", timeout=30) for _ in range(3)]
         for page in pages:
             assert page.readline().startswith(b": connected")
