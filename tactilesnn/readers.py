@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation
+from .core.files import npy_header
 from .core.tables import Table, read_table
 
 log = logging.getLogger("tactilesnn")
@@ -433,10 +434,7 @@ def _read_npy(p: Path) -> _Recording:
     """A ``.npy`` recording ``[samples, channels]``, its header checked before its data is read."""
     try:
         with open(p, "rb") as f:
-            major, _ = np.lib.format.read_magic(f)
-            read = (np.lib.format.read_array_header_1_0 if major == 1
-                    else np.lib.format.read_array_header_2_0)  # fmt: skip
-            shape, _, dtype = read(f)
+            shape, dtype = npy_header(f)
     except (ValueError, OSError, EOFError) as e:
         raise ValueError(f"{p}: not a .npy array ({e})") from None
     if len(shape) != 2 or dtype.kind not in "fiu":

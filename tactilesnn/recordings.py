@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation, check_finite, check_float32_range, check_positive
+from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
 from .datasets_synth import WindowDataset
 
@@ -114,13 +115,9 @@ def check_npz_size(path: Path) -> None:
 def _npy_header(z: zipfile.ZipFile, member: str) -> tuple[tuple[int, ...], np.dtype]:
     with z.open(member) as f:
         try:
-            major, _ = np.lib.format.read_magic(f)
-            read = (np.lib.format.read_array_header_1_0 if major == 1
-                    else np.lib.format.read_array_header_2_0)  # fmt: skip
-            shape, _, dtype = read(f)
+            return npy_header(f)
         except ValueError as e:
             raise ValueError(f"member {member}: not a .npy array ({e})") from e
-    return tuple(shape), dtype
 
 
 def _names(values: object, what: str, path: Path | str) -> tuple[str, ...]:
@@ -322,13 +319,7 @@ def auto_window(path: Path) -> tuple[float, float] | None:
 def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
     """Shape of ``member`` of the ``.npz`` at ``path`` from its header (no data read)."""
     with zipfile.ZipFile(path) as z, z.open(member) as f:
-        major, _ = np.lib.format.read_magic(f)
-        read = (
-            np.lib.format.read_array_header_1_0
-            if major == 1
-            else np.lib.format.read_array_header_2_0
-        )
-        return tuple(read(f)[0])
+        return npy_header(f)[0]
 
 
 def event_layout(path: Path) -> tuple[str, tuple[int, ...]] | None:

@@ -6,6 +6,7 @@ import json
 import os
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -75,3 +76,14 @@ def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def npy_header(f: Any) -> tuple[tuple[int, ...], np.dtype]:
+    """``(shape, dtype)`` from the header of the ``.npy`` stream ``f`` (a file or a zip member),
+    no data read: what an array would take is known before it is loaded. ValueError if it is
+    not a ``.npy`` header."""
+    major, _ = np.lib.format.read_magic(f)
+    read = (np.lib.format.read_array_header_1_0 if major == 1
+            else np.lib.format.read_array_header_2_0)  # fmt: skip
+    shape, _, dtype = read(f)
+    return tuple(shape), dtype
