@@ -171,6 +171,20 @@ def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.nda
     return _check_stated_rate(arrays, fs_hz, path)
 
 
+def _classes_from_labels(y: np.ndarray, path: Path | str) -> dict[str, np.ndarray]:
+    """``y`` and ``class_names`` from labels alone (a file without ``class_names``): integer
+    labels keep their values as names (``0..C-1`` stay as they are; other values are numbered in
+    sorted order), text labels are numbered in sorted order."""
+    y = np.asarray(y)
+    if y.ndim != 1 or y.dtype.kind not in "iuUS":
+        return {}  # the loader names what is wrong with y
+    values, idx = np.unique(y, return_inverse=True)
+    names = [v.decode(errors="replace") if isinstance(v, bytes) else str(v) for v in values]
+    log.info("%s: no class_names; %d classes named by the labels' values (%s)", path,
+             len(names), ", ".join(names[:6]) + (" ..." if len(names) > 6 else ""))  # fmt: skip
+    return {"y": idx.astype(np.int64), "class_names": np.array(names)}
+
+
 def _check_stated_rate(arrays: dict[str, np.ndarray], fs_hz: float | None, path: Path
                        ) -> dict[str, np.ndarray]:  # fmt: skip
     """``--fs`` where the data states its rate: the same rate, else a refusal."""
@@ -220,11 +234,14 @@ def datasets_from_arrays(
         arrays = events_as_channels(arrays, path)
     if any(k.startswith("X@") for k in arrays):
         arrays = merge_streams(arrays, path)
-    missing = [k for k in ("X", "y", "fs", "class_names") if k not in arrays]
+    missing = [k for k in ("X", "y", "fs") if k not in arrays]
     if missing:
         raise ValueError(
-            f"{path}: missing {missing}; expected X [N, channels, samples], y [N], fs, class_names"
+            f"{path}: missing {missing}; expected X [N, channels, samples], y [N], fs and "
+            "optionally class_names"
         )
+    if "class_names" not in arrays:
+        arrays = {**arrays, **_classes_from_labels(arrays["y"], path)}
     X, y_raw, fs_arr = arrays["X"], arrays["y"], arrays["fs"]
     if X.dtype.kind not in "fiu":
         raise ValueError(f"{path}: X must hold real numbers, got dtype {X.dtype}")

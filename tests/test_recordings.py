@@ -277,3 +277,25 @@ def test_sizes_no_sensor_has_are_refused_before_anything_is_built(tmp_path):
         )
         with pytest.raises(ValueError, match=r"no data|polarities|channels"):
             load_data_file(path, seed=0)
+
+
+@pytest.mark.parametrize(
+    "labels, names",
+    [(np.array([0, 1, 2] * 8), ["0", "1", "2"]),
+     (np.array([3, 7, 9] * 8), ["3", "7", "9"]),
+     (np.array(["soft", "hard", "mid"] * 8), ["hard", "mid", "soft"])],
+)  # fmt: skip
+def test_class_names_are_optional(tmp_path, labels, names):
+    """A file with X, y and fs only: the classes are named by the labels' values (integer
+    labels keep their values, text labels are numbered in sorted order)."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(24, 2, 50)).astype(np.float32)
+    np.savez(tmp_path / "f.npz", X=X, y=labels, fs=100.0)
+    train, test = load_data_file(tmp_path / "f.npz", seed=0)
+    assert list(train.class_names) == names
+    y = np.concatenate([train.y, test.y])
+    X_all = np.concatenate([train.X, test.X])
+    for k, name in enumerate(names):  # every window keeps its own label
+        rows = [i for i in range(24) if str(labels[i]) == name]
+        want = {X[i].tobytes() for i in rows}
+        assert {x.tobytes() for x in X_all[y == k]} == want

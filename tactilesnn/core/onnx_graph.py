@@ -10,6 +10,7 @@ import tempfile
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import onnx
 import torch
@@ -160,13 +161,7 @@ def exported_to_onnx(
             # optimised once, here: the exporter's own pass folds only inputs up to 8,192
             # values (a slice of a 100-step decay matrix, 10,000, stayed three nodes); running
             # both cost 0.2 s more per default-task export
-            import onnxscript.optimizer
-
-            program.model = onnxscript.optimizer.optimize(
-                program.model,
-                input_size_limit=FOLD_INPUT_VALUES,
-                output_size_limit=FOLD_OUTPUT_VALUES,
-            )
+            program.model = optimize_exactly(program.model)
     finally:
         for q, level in zip(quiet, levels, strict=True):
             q.setLevel(level)
@@ -176,6 +171,51 @@ def exported_to_onnx(
     literal_zero_reshapes(model)
     merge_constants(model)
     return model
+
+
+def optimize_exactly(model: Any) -> Any:
+    """``onnxscript.optimizer.optimize`` (constant folding up to :data:`FOLD_INPUT_VALUES` /
+    :data:`FOLD_OUTPUT_VALUES` values, its rewrite rules) with its no-op rules made exact.
+
+    Its rules ``x + 0``, ``x - 0``, ``x * 1``, ``x / 1`` match a scalar constant within an
+    absolute tolerance of 1e-8 (``math.isclose(..., abs_tol=1e-8)``): ``x + 1e-30``, a floor
+    that keeps ``0 / (0 + floor)`` finite, was removed and a constant window's level code
+    became NaN in onnxruntime (and ``x * (1 + 1e-9)`` would become ``x``). Here those four
+    rules fire only where the constant is exactly 0 or 1; every other rule is the library's."""
+    import onnxscript.optimizer
+    from onnxscript import rewriter
+    from onnxscript.rewriter.rules.common import _no_op
+
+    default = rewriter._DEFAULT_REWRITE_RULES
+    tolerant = set(_no_op.rules) - {_no_op.dropout_zero_rule, _no_op.dropout_inference_rule}
+    rules = tuple(r for r in default if r not in tolerant) + _exact_no_op_rules()
+    rewriter._DEFAULT_REWRITE_RULES = rules  # read by the optimiser when it runs
+    try:
+        return onnxscript.optimizer.optimize(model, input_size_limit=FOLD_INPUT_VALUES,
+                                             output_size_limit=FOLD_OUTPUT_VALUES)  # fmt: skip
+    finally:
+        rewriter._DEFAULT_REWRITE_RULES = default
+
+
+def _exact_no_op_rules() -> tuple:
+    """``x + 0``, ``0 + x``, ``x - 0``, ``x * 1``, ``1 * x``, ``x / 1`` -> ``x`` where the scalar
+    constant is exactly 0 or 1 (see :func:`optimize_exactly`)."""
+    from onnxscript.rewriter import _ir_utils
+    from onnxscript.rewriter._rewrite_rule import RewriteRule
+
+    def exactly(target: float):
+        def condition(context: object, x: object, c: object, **_: object) -> bool:
+            return _ir_utils.get_singleton_value(c, rank=0) == target
+
+        return condition
+
+    def identity(op: Any, x: Any, **_: object) -> Any:
+        return op.Identity(x)
+
+    pairs = [(lambda op, x, c: op.Add(x, c), 0.0), (lambda op, x, c: op.Add(c, x), 0.0),
+             (lambda op, x, c: op.Sub(x, c), 0.0), (lambda op, x, c: op.Mul(x, c), 1.0),
+             (lambda op, x, c: op.Mul(c, x), 1.0), (lambda op, x, c: op.Div(x, c), 1.0)]  # fmt: skip
+    return tuple(RewriteRule(target, identity, exactly(value)) for target, value in pairs)
 
 
 #: loggers silenced while the torch.export-based exporter runs (its failures still raise)

@@ -80,6 +80,22 @@ class CausalGWTConfig(ScalogramLatencySettings):
 class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
     """Causal (streamable) Gabor bank -> latency code."""
 
+    #: runs saved before the stream's input gain load with gain 1 (as they were exported)
+    optional_state: ClassVar[tuple[str, ...]] = ("gate_rms", "stream_gain")
+
+    def __init__(self, config, fs_hz: float, window: int, n_channels: int) -> None:
+        super().__init__(config, fs_hz, window, n_channels)
+        # per channel a power of two whose square brings the training windows' typical range
+        # near 1 (:func:`stream_gains`): the stream graph's recursion then runs on normal
+        # float32 numbers whatever the sensor's units (data near 1e-40 was subnormal there, and
+        # rounded unlike the float64 reference); exact, and the code is scale-free
+        self.register_buffer("stream_gain", torch.ones(n_channels))
+
+    def fit(self, X: np.ndarray) -> CausalGWTLatencyEncoder:
+        super().fit(X)
+        self.stream_gain.copy_(torch.from_numpy(stream_gains(X)))
+        return self
+
     def scaled(self, x: Tensor) -> Tensor:
         """:func:`level_off`: the bank's output is that of the window (scaled), computed
         without the window's level (see there); a run saved before that: :func:`unit_peak`."""
@@ -185,6 +201,21 @@ class _ScalogramCode(nn.Module):
         return self.code(self.scalogram(x))  # (the window comes level_off: _WithSlot)
 
 
+def stream_gains(X: np.ndarray, n_max: int = 4096) -> np.ndarray:
+    """Per channel ``g = 2 ** (-round(log2(r) / 2))``, ``r`` the median range (max - min, input
+    units) of up to ``n_max`` evenly spaced windows ``X [N, C, W]`` (1 where that is 0 or not
+    finite): the samples times ``g`` twice have a range near 1 (within a factor 2). Applied
+    twice because the gain data near 1e-40 needs, 2 ** 133, is beyond float32's largest value;
+    each factor a power of two, so both products are exact."""
+    arr = np.asarray(X)
+    idx = np.unique(np.linspace(0, len(arr) - 1, min(len(arr), n_max)).astype(int))
+    x = np.asarray(arr[idx], np.float64)
+    r = np.median(x.max(-1) - x.min(-1), axis=0)  # [C]
+    ok = np.isfinite(r) & (r > 0)
+    e = np.where(ok, -np.round(np.log2(np.where(ok, r, 1.0)) / 2), 0.0)
+    return np.exp2(np.clip(e, -126, 126)).astype(np.float32)
+
+
 def in_range_units(mag: Tensor, rng: Tensor) -> Tensor:
     """A stream window's magnitudes ``mag [B, C, bands, F]`` as the code takes them: in units
     of their largest (the code is scale-free; this keeps its float32 squares in range whatever
@@ -219,8 +250,9 @@ class CausalStreamCode(nn.Module):
     takes it (one hop: one frame).
 
     State (``[B, units]`` each, :attr:`state_names`): ``cgwt_tail`` the last ``taps - 1``
-    samples less the stream's level (a fresh stream: zeros, the bank's constant past; the bank
-    runs on the samples less the level, see :func:`level_off`), ``cgwt_rec`` the frame
+    samples less the stream's level, times the channel's fitted ``stream_gain`` squared (a fresh
+    stream: zeros, the bank's constant past; the bank runs on the samples less the level, see
+    :func:`level_off`), ``cgwt_rec`` the frame
     recursion's values (zeros), ``cgwt_frames`` the window's magnitudes before the chunk's, and
     ``cgwt_extent`` per channel the stream's level (its first sample) then the largest and the
     negated smallest sample of each of those frames (a window whose range is zero is silent, as
@@ -239,6 +271,7 @@ class CausalStreamCode(nn.Module):
         bank: CausalGaborScalogram = encoder.scalogram
         check_stream_step(step, encoder.window, bank.hop)
         self.bank, self.code = bank, encoder.code
+        self.register_buffer("gain", encoder.stream_gain.detach().clone().view(1, -1, 1))
         self.scatter = encoder.band_scatter if encoder.restricted else None
         self.step, self.channels = int(step), encoder.n_channels
         self.f_step = self.step // bank.hop
@@ -264,7 +297,10 @@ class CausalStreamCode(nn.Module):
         b, c, n = chunk.shape
         nb, k, nt, fk = self.bank.n_bands, self.bank.order, self.bank.n_taps, self.f_kept
         level, extent = extent.reshape(b, c, -1).split([1, 2 * fk], -1)
-        xs = chunk - level  # the stream's level off (exact: the bank has no DC gain)
+        # the stream's level off (exact: the bank has no DC gain), times the fitted gain twice
+        # (powers of two: exact; scaled before the difference, which then cannot overflow)
+        g = self.gain
+        xs = (chunk * g) * g - (level * g) * g
         buf = torch.cat([tail.reshape(b * c, 1, nt - 1), xs.reshape(b * c, 1, n)], -1)
         re, im, state = self.bank.frames_from(buf, rec.reshape(b * c, nb, 2 * k))
         mag = _modulus(re, im).reshape(b, c, nb, self.f_step)  # [B, C, bands, F step]

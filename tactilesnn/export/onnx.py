@@ -303,7 +303,7 @@ def verify(
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
         got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"), trim=True)
         per_m = np.abs(got_m - ref).max(1)
-        dm, off_m = float(per_m.max()), int((per_m > tol).sum())
+        dm, off_m = float(per_m.max()), int((~(per_m <= tol)).sum())  # NaN counts as off
         del enc, mod  # one session at a time: each holds its own copy of the weights
         if off_m > _boundary_allowance(len(x)):
             raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
@@ -321,7 +321,7 @@ def verify(
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"), trim=True)[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
-    off = int((per_window > tol).sum())
+    off = int((~(per_window <= tol)).sum())  # a NaN score is off, not within tolerance
     if off > _boundary_allowance(len(x)):
         worst = float(per_window.max())
         raise ExportError(
@@ -370,6 +370,10 @@ def compare_spike_times(
     ``LATE_SPIKE_FACTOR ** (t / duration_ms)`` (late spikes code weak amplitudes).
     Such a flip is only accepted at the code's cutoff (the spike within
     ``tol_ms`` of the window end, where rounding decides whether it is emitted at all)."""
+    for name, a in (("the graph", got), ("torch", want)):
+        if np.isnan(a).any():
+            raise ExportError(f"exported encoder: {name} gives NaN spike times for "
+                              f"{int(np.isnan(a).sum())} slots (a spike time is finite or +inf)")  # fmt: skip
     fin_g, fin_w = np.isfinite(got), np.isfinite(want)
     flip = fin_g != fin_w
     if flip.any():

@@ -248,7 +248,7 @@ def export_stream(
     tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
     dt, flips = compare_spike_times(got_t, want_t, pipe.duration_ms, tol)
     per = np.abs(got_s - want_s).max(1)
-    off = int((per > score_tolerance(want_s)).sum())
+    off = int((~(per <= score_tolerance(want_s))).sum())  # a NaN score is off
     if off > _boundary_allowance(len(per)):
         raise ExportError(f"stream graph differs from torch by up to {per.max():.3g} on {off} of "
                           f"{len(per)} windows")  # fmt: skip

@@ -27,12 +27,17 @@ def _windows(n=12, seed=0):
     return x, np.arange(n) % 3
 
 
+#: the level code as ``train --data`` builds it (rank and linear pairs, the channel's share)
+DATA_LEVEL = {"level_neurons": 2, "level_scale": "rank+linear", "level_share": True}
+
+
 @pytest.mark.parametrize("encoder", DATA_ENCODER_CANDIDATES)
 @pytest.mark.parametrize("scale", [1.0, 1e-40])  # (1e-40: float32 denormals)
-def test_degenerate_channels_are_silent_and_export(encoder, scale, tmp_path):
+@pytest.mark.parametrize("level", [{}, DATA_LEVEL], ids=["no-level", "data-level"])
+def test_degenerate_channels_are_silent_and_export(encoder, scale, level, tmp_path):
     x, y = _windows()
     x = (x * np.float32(scale)).astype(np.float32)
-    cfg = PipelineConfig.from_flat(channels=("all",), encoder=encoder, model="readout")
+    cfg = PipelineConfig.from_flat(channels=("all",), encoder=encoder, model="readout", **level)
     pipe = SpikePipeline(cfg, FS, WINDOW, ("a", "b", "c", "d"), ("p", "q", "r"))
     pipe.fit(x, y)
     spikes = pipe.encoder.encode(x)[:, :, 0].reshape(len(x), 4, -1)
@@ -53,3 +58,42 @@ def test_runs_saved_before_the_stft_level_was_taken_off_keep_their_spikes():
     saved["encoder"].pop("level_off")
     assert saved_pipeline_config(saved).encoder.level_off is False
     assert PipelineConfig.from_dict(cfg.to_dict()).encoder.level_off is True
+
+
+@pytest.mark.parametrize("encoder", DATA_ENCODER_CANDIDATES)
+@pytest.mark.parametrize("exporter", ["torch.export", "torchscript"])
+def test_a_wholly_constant_file_exports(encoder, exporter, tmp_path):
+    """Every channel of every window constant (a sensor left unplugged): the level code's
+    share is 0 / (0 + floor), finite in torch and in the graph (the graph optimiser once
+    dropped the 1e-30 floor as 'adding zero', and onnxruntime coded NaN). Through both
+    exporters: the suite's default is the TorchScript one, the product's torch.export."""
+    x = np.full((12, 4, WINDOW), 3.0, np.float32)
+    y = np.arange(12) % 3
+    cfg = PipelineConfig.from_flat(channels=("all",), encoder=encoder, model="readout",
+                                   **DATA_LEVEL)  # fmt: skip
+    pipe = SpikePipeline(cfg, FS, WINDOW, ("a", "b", "c", "d"), ("p", "q", "r"))
+    pipe.fit(x, y)
+    assert not torch.isnan(pipe.encode(x)).any()
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", x, exporter=exporter)
+    assert rep["prediction_agreement"] == 1.0
+
+
+@pytest.mark.parametrize("scale", [1e-40, 1.0, 1e30])
+def test_the_cgwt_stream_graph_holds_at_any_scale(scale, tmp_path):
+    """The stream graph's recursion runs on the samples times a fitted power of two per
+    channel: at 1e-40 (subnormal float32) it once rounded unlike the float64 reference and the
+    export failed ("a spike ... is missing"); the gain is exact and the code scale-free."""
+    from tactilesnn.export.stream import export_stream
+
+    x, y = _windows(n=24)
+    x = x[:, [0, 0, 0, 0]] * np.float32(scale) * np.float32([1.0, 3.0, 0.25, 1e3])[:, None]
+    cfg = PipelineConfig.from_flat(channels=("all",), encoder="cgwt", model="readout")
+    pipe = SpikePipeline(cfg, FS, WINDOW, ("a", "b", "c", "d"), ("p", "q", "r"))
+    pipe.fit(x.astype(np.float32), y)
+    gain = pipe.encoder.stream_gain.numpy().astype(np.float64)
+    assert np.all(np.log2(gain) == np.round(np.log2(gain)))  # powers of two
+    x64 = x.astype(np.float64)
+    ranges = gain * gain * np.median(x64.max(-1) - x64.min(-1), axis=0)
+    assert np.all((ranges >= 0.5) & (ranges <= 2.0)), ranges
+    rep = export_stream(pipe, tmp_path / "s.onnx", x.astype(np.float32))
+    assert rep["prediction_agreement"] == 1.0
