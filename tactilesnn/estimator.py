@@ -156,14 +156,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if fs is None:
             raise ValueError("the sampling rate is unknown: pass fit(X, y, fs_hz=...) or "
                              "SpikeClassifier(fs_hz=...)")  # fmt: skip
-        if (
-            isinstance(fs, bool | np.bool_)
-            or not isinstance(fs, numbers.Real)  # (numpy's scalars too: np.float32(200))
-            or not math.isfinite(fs)
-            or fs <= 0
-        ):
-            raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
-        fs = float(fs)
+        fs = _rate(fs)
         arr = _windows(X)
         labels, y_idx = np.unique(column_or_1d(y, warn=True), return_inverse=True)
         if len(y_idx) != len(arr):
@@ -207,8 +200,15 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         scores = self._scores(X)
         return scores[:, 1] - scores[:, 0] if scores.shape[1] == 2 else scores
 
-    def _scores(self, X: Any) -> np.ndarray:
+    def _scores(self, X: Any, fs_hz: Any = None, channel_names: Any = None) -> np.ndarray:
         check_is_fitted(self, "pipeline_")
+        if not isinstance(X, WindowDataset) and (fs_hz is not None or channel_names is not None):
+            arr = _windows(X, min_samples=1)
+            fs = self.fs_hz_ if fs_hz is None else _rate(fs_hz)
+            names = (self.channel_names_ if channel_names is None
+                     else _channel_names(channel_names, arr.shape[1]))  # fmt: skip
+            X = WindowDataset(arr, np.zeros(len(arr), np.int64), np.arange(len(arr)), fs,
+                              tuple(str(c) for c in self.classes_), names)  # fmt: skip
         if isinstance(X, WindowDataset):  # it says its rate and channels: checked, as the CLI does
             X = self._matched(X)
         arr = _windows(X, min_samples=1)  # (a wrong window length is reported below)
@@ -239,14 +239,20 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         return replace(data, X=np.asarray(data.X)[:, [have.index(c) for c in want]],
                        channel_names=want)  # fmt: skip
 
-    def predict(self, X: Any) -> np.ndarray:
-        scores = self._scores(X)  # (first: it checks the estimator is fitted)
+    def predict(self, X: Any, *, fs_hz: Any = None, channel_names: Any = None) -> np.ndarray:
+        """Class labels ``[N]`` of the windows ``X``. ``fs_hz`` and ``channel_names``, where
+        given, say what ``X`` holds: another rate than the model's is refused, channels in
+        another order are put in the model's (by name), other channels refused (a
+        :class:`WindowDataset` says both itself)."""
+        scores = self._scores(X, fs_hz, channel_names)  # (first: it checks the estimator is fitted)
         return self.classes_[scores.argmax(1)]
 
-    def predict_proba(self, X: Any) -> np.ndarray:
+    def predict_proba(self, X: Any, *, fs_hz: Any = None, channel_names: Any = None
+                      ) -> np.ndarray:  # fmt: skip
         """Class probabilities ``[N, classes]``: a softmax of the scores divided by a temperature
-        fitted (maximum likelihood) on the validation windows, else the training windows."""
-        return _softmax(self._scores(X) / self.temperature_)
+        fitted (maximum likelihood) on the validation windows, else the training windows
+        (``fs_hz``, ``channel_names``: as :meth:`predict`)."""
+        return _softmax(self._scores(X, fs_hz, channel_names) / self.temperature_)
 
     def score(self, X: Any, y: Any = None, sample_weight: Any = None) -> float:
         """Accuracy on ``(X, y)``, or on a :class:`WindowDataset` (its labels: class names when
@@ -266,6 +272,19 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         tags.input_tags.allow_nan = False
         tags.input_tags.three_d_array = True
         return tags
+
+
+def _rate(fs: Any) -> float:
+    """``fs`` (Hz) as a float: a positive finite real number, numpy's scalars too
+    (``np.float32(200)``), not a bool."""
+    if (
+        isinstance(fs, bool | np.bool_)
+        or not isinstance(fs, numbers.Real)
+        or not math.isfinite(fs)
+        or fs <= 0
+    ):
+        raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
+    return float(fs)
 
 
 def _windows(X: Any, min_samples: int = 2) -> np.ndarray:

@@ -250,8 +250,15 @@ def _recording_files(folder: Path) -> tuple[list[Path], int]:
 def _label_of(p: Path, folder: Path) -> str:
     rel = p.relative_to(folder)
     if len(rel.parts) > 1:  # folder/<class>/file
-        return rel.parts[0]
-    return re.split(r"[_\-\s]", p.stem, maxsplit=1)[0] or p.stem
+        return readable_name(rel.parts[0])
+    return readable_name(re.split(r"[_\-\s]", p.stem, maxsplit=1)[0] or p.stem)
+
+
+def readable_name(name: str) -> str:
+    """A file or folder name as text: bytes that are not UTF-8 (a folder written under another
+    locale, kept by Python as surrogate escapes that no file or JSON can hold) as ``\\xff``
+    escapes, so two such names stay distinct and every run file can be written."""
+    return os.fsencode(name).decode("utf-8", "backslashreplace")
 
 
 @dataclass

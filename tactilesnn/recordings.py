@@ -99,6 +99,11 @@ def check_npz_size(path: Path) -> None:
             infos = z.infolist()
             if len(infos) > MAX_MEMBERS:
                 raise ValueError(f"{path}: {len(infos)} members; a recordings file has a few")
+            names = [i.filename for i in infos]
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:  # which copy a reader takes is up to the reader: refuse, never guess
+                raise ValueError(f"{path}: the archive holds {twice[0]!r} {names.count(twice[0])} "
+                                 "times; an .npz has each array once (rewrite it with np.savez)")  # fmt: skip
             for info in infos:
                 size = info.file_size  # the uncompressed size the directory declares
                 if info.filename.endswith(".npy"):

@@ -198,6 +198,15 @@ def test_windows_that_say_their_rate_and_channels_are_checked_at_predict():
         clf.predict(replace(data, fs_hz=200.0))
     with pytest.raises(ValueError, match="not the model's"):
         clf.predict(replace(data, channel_names=("ch0", "other")))
+    # plain arrays say it by keyword: the same checks
+    assert np.array_equal(clf.predict(X[:, ::-1], channel_names=["ch1", "ch0"]), want)
+    np.testing.assert_allclose(clf.predict_proba(X[:, ::-1], channel_names=["ch1", "ch0"]),
+                               clf.predict_proba(X))  # fmt: skip
+    assert np.array_equal(clf.predict(X, fs_hz=np.float32(100)), want)
+    with pytest.raises(ValueError, match="200 Hz, the model at 100 Hz"):
+        clf.predict(X, fs_hz=200)
+    with pytest.raises(ValueError, match="not the model's"):
+        clf.predict(X, channel_names=["ch0", "other"])
 
 
 @pytest.mark.parametrize("encoder", ["lif", "cgwt"])

@@ -343,3 +343,29 @@ def test_a_damaged_run_config_is_an_error_naming_it(tmp_path, pipeline):
     (run / "weights.npz").write_bytes(b"")
     with pytest.raises(ValueError, match=r"config.json is damaged \(pipeline"):
         load_run(run)
+
+
+def test_a_full_disk_during_an_export_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch,
+                                                                           capsys):  # fmt: skip
+    """The graph half-written when the disk fills: the error names it, the file already at
+    ``--out`` is untouched and no ``.m.onnx.tmp`` is left (every atomic write goes through
+    ``core.files.replace_atomically``)."""
+    import errno
+
+    import onnx
+
+    run = tmp_path / "r"
+    assert main(["train", "--epochs", "1", *TINY, "--out", str(run), "--quiet", "--no-export"]) == 0
+    target = tmp_path / "m.onnx"
+    target.write_bytes(b"the user's previous export")
+
+    def full(model, path, *a, **k):
+        with open(path, "wb") as f:
+            f.write(b"half a graph")
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(onnx, "save", full)
+    rc = main(["export", str(run), "--out", str(target), "--overwrite", "--quiet"])
+    assert rc == 2 and "No space left on device" in capsys.readouterr().err
+    assert target.read_bytes() == b"the user's previous export"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.onnx", "r"]

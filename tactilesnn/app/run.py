@@ -195,8 +195,8 @@ def train_run(spec: RunSpec) -> RunResult:
 def _train_run(spec: RunSpec, out: Path) -> RunResult:
     writer = RunWriter(out, overwrite=spec.overwrite)  # refuses an existing folder before work
     partial = out.with_name(out.name + ".partial")
-    record = spec.record()
     try:
+        record = spec.record()  # (hashes the data: inside, so a failure removes the temporary)
         state = _open_partial(partial, record, spec)
         train, test = _load(spec)
         if spec.fit_encoder_keep is not None:

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from ..core.files import write_json_atomic
+from ..core.files import write_json_atomic, write_text_atomic
 from ..core.stages import bar_disabled
 from .defaults import run_spec
 from .options import check_settings, train_options
@@ -220,9 +220,7 @@ def run_sweep(
     ordered = sorted(rows.values(), key=lambda r: -r.get("test_accuracy", -1.0))
     plot_front(ordered, out / "results.png")
     write_json_atomic(out / "results.json", ordered)
-    tmp = out / ".results.md.tmp"
-    tmp.write_text(results_table(ordered))
-    os.replace(tmp, out / "results.md")
+    write_text_atomic(out / "results.md", results_table(ordered))
     return ordered
 
 

@@ -5,22 +5,36 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 
-def write_json_atomic(path: Path, obj: object) -> None:
-    """Replace ``path`` with ``obj`` as JSON (temporary file + rename; the temporary file is
-    removed if the write fails, e.g. on a full disk)."""
+def replace_atomically(path: Path, write: Callable[[Path], object], suffix: str = "") -> None:
+    """``write(tmp)`` to a temporary file beside ``path`` (``.<name>.tmp<suffix>``; ``suffix``
+    for writers that insist on an extension), then rename it onto ``path``: readers see the old
+    file or the new one, never half of one; on any failure (a full disk) the temporary file is
+    removed and ``path`` left as it was."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.tmp{suffix}")
     try:
-        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=jsonable))
+        write(tmp)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` (:func:`replace_atomically`)."""
+    replace_atomically(path, lambda tmp: tmp.write_text(text))
+
+
+def write_json_atomic(path: Path, obj: object) -> None:
+    """Replace ``path`` with ``obj`` as JSON (temporary file + rename; the temporary file is
+    removed if the write fails, e.g. on a full disk)."""
+    write_text_atomic(path, json.dumps(obj, indent=2, sort_keys=True, default=jsonable))
 
 
 def file_sha256(path: Path) -> str:
@@ -37,7 +51,7 @@ def file_sha256(path: Path) -> str:
         files = [path / "manifest.json" if path.is_dir() else path]
     for p in files:
         if path.is_dir():
-            h.update(str(p.relative_to(path)).encode() + b"\0")
+            h.update(os.fsencode(p.relative_to(path)) + b"\0")  # (undecodable names too)
         with open(p, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):
                 h.update(block)
@@ -69,13 +83,7 @@ def jsonable(o: object) -> object:
 
 def write_npz_atomic(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """``arrays`` as a compressed ``.npz`` at ``path`` (temporary file + rename)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    try:
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    replace_atomically(path, lambda tmp: np.savez_compressed(tmp, **arrays), ".npz")
 
 
 def npy_header(f: Any) -> tuple[tuple[int, ...], np.dtype]:

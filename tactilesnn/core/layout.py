@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import numpy as np
 
+#: the largest taxel coordinate taken (mm, 1 km): beyond it positions are in the wrong units or
+#: corrupt, and their differences would lose the millimetres between neighbours
+MAX_POSITION_MM = 1e6
 #: a placement grid larger than this many cells means positions in the wrong units (or an outlier)
 MAX_CELLS = 1 << 16
 
 
 def check_taxel_xy(xy: object, taxels: int, where: str = "taxel_xy") -> np.ndarray:
-    """``xy`` as float64 ``[taxels, 2]``: finite and pairwise distinct (ValueError otherwise)."""
+    """``xy`` as float64 ``[taxels, 2]``: finite, within +-:data:`MAX_POSITION_MM`, pairwise
+    distinct (ValueError otherwise, naming the first taxel out of range)."""
     arr = np.asarray(xy)
     if arr.dtype.kind not in "fiu" or arr.shape != (taxels, 2):
         raise ValueError(f"{where} must be [{taxels} taxels, 2] numbers (x, y in mm), got "
@@ -26,6 +30,11 @@ def check_taxel_xy(xy: object, taxels: int, where: str = "taxel_xy") -> np.ndarr
     arr = arr.astype(np.float64)
     if not np.isfinite(arr).all():
         raise ValueError(f"{where} holds NaN or Inf")
+    far = np.abs(arr).max(1) > MAX_POSITION_MM
+    if far.any():
+        i = int(np.argmax(far))
+        raise ValueError(f"{where}: taxel {i} at ({arr[i, 0]:g}, {arr[i, 1]:g}) mm, beyond "
+                         f"+-{MAX_POSITION_MM:g} mm: positions are millimetres on the sensor")  # fmt: skip
     if taxels > 1 and len(np.unique(arr, axis=0)) < taxels:
         raise ValueError(f"{where}: two taxels share a position")
     return arr

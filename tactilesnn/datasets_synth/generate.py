@@ -19,12 +19,13 @@ import dataclasses
 import hashlib
 import json
 import logging
-import os
+import zipfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from ..core.files import replace_atomically, write_text_atomic
 from ..core.stages import bar_disabled
 from ..core.version import __version__
 from .base import get_task
@@ -55,9 +56,8 @@ def _render_shard(args: tuple) -> dict:
         if xs
         else np.zeros((0, len(task.channel_names), task.window), np.float32)
     )
-    tmp = Path(str(path) + ".tmp.npz")
-    np.savez(tmp, X=X, y=np.concatenate(ys), sample=np.concatenate(ids))
-    os.replace(tmp, path)
+    y, sample = np.concatenate(ys), np.concatenate(ids)
+    replace_atomically(path, lambda tmp: np.savez(tmp, X=X, y=y, sample=sample), ".npz")
     return {"file": Path(path).name, "first": first, "last": last, "windows": len(X),
             "sha256": _sha256(Path(path))}  # fmt: skip
 
@@ -147,9 +147,7 @@ def generate(
 
     def checkpoint() -> None:
         doc = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
-        tmp = partial_path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(doc, indent=2))
-        os.replace(tmp, partial_path)
+        write_text_atomic(partial_path, json.dumps(doc, indent=2))
 
     checkpoint()
     bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=bar_disabled(progress))
@@ -175,9 +173,7 @@ def generate(
     bar.close()
     manifest = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
     manifest["n_windows"] = sum(s["windows"] for s in manifest["shards"])
-    tmp = manifest_path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(manifest, indent=2))
-    os.replace(tmp, manifest_path)
+    write_text_atomic(manifest_path, json.dumps(manifest, indent=2))
     partial_path.unlink(missing_ok=True)
     return manifest
 
@@ -203,10 +199,10 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
         f = folder / sh["file"]
         if not f.is_file() or _sha256(f) != sh["sha256"]:
             raise ValueError(f"{f} is missing or differs from its manifest SHA-256")
-        with np.load(f, allow_pickle=False) as z:
-            xs.append(z["X"])
-            ys.append(z["y"])
-            ids.append(z["sample"])
+        xs_, ys_, ids_ = _read_shard(f, channels, window)
+        xs.append(xs_)
+        ys.append(ys_)
+        ids.append(ids_)
     if not xs:
         raise ValueError(f"{folder}: the manifest lists no shards")
     return {
@@ -217,6 +213,25 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
         "class_names": np.asarray(m["class_names"]),
         "channel_names": np.asarray(m["channel_names"]),
     }
+
+
+def _read_shard(f: Path, channels: int, window: int) -> tuple[np.ndarray, ...]:
+    """``(X [n, channels, window], y [n], sample [n])`` of one shard, each member present and
+    of the manifest's shape, else a ValueError naming the shard (its hash may have been
+    rewritten with its content)."""
+    try:
+        with np.load(f, allow_pickle=False) as z:
+            missing = [k for k in ("X", "y", "sample") if k not in z.files]
+            if missing:
+                raise ValueError(f"{f}: lacks {missing} (a shard holds X, y and sample)")
+            X, y, sample = z["X"], z["y"], z["sample"]
+    except (OSError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{f}: not a readable shard ({e})") from None
+    n = len(X)
+    if X.shape != (n, channels, window) or y.shape != (n,) or sample.shape != (n,):
+        raise ValueError(f"{f}: X {X.shape}, y {y.shape}, sample {sample.shape}; the manifest "
+                         f"says X [n, {channels}, {window}], y [n], sample [n]")  # fmt: skip
+    return X, y, sample
 
 
 def _manifest(path: Path) -> dict:

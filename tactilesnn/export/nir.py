@@ -27,7 +27,6 @@ own ``Affine`` mapping drops the bias (see :func:`_affine`), so ours replaces it
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from ..core.files import replace_atomically
 from ..models.functional import reduce_readout
 from ..models.snn_nir import require_nir
 
@@ -46,10 +46,8 @@ def write_nir(model: Any, path: Path, overwrite: bool = False) -> Path:
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
     graph = model.to_nir()
-    tmp = path.with_name(f".{path.name}.tmp")
     path.parent.mkdir(parents=True, exist_ok=True)
-    nir.write(str(tmp), graph)
-    os.replace(tmp, path)
+    replace_atomically(path, lambda tmp: nir.write(str(tmp), graph))
     return path
 
 

@@ -29,7 +29,7 @@ import onnx
 import torch
 from torch import Tensor, nn
 
-from ..core.files import file_sha256
+from ..core.files import file_sha256, replace_atomically
 from ..core.graph_contract import EARLY_OUTPUTS, SCORES_OUTPUT, WINDOW_INPUT, GraphContract
 from ..core.onnx_graph import chain, component_to_onnx, operator_nodes
 from ..core.onnx_run import run_batched
@@ -190,10 +190,8 @@ def check_out(out: Path, overwrite: bool) -> Path:
 
 def save_atomic(model: onnx.ModelProto, out: Path) -> None:
     """Write ``model`` to ``out`` through a temporary file in its folder (never half-written)."""
-    tmp_out = out.with_name(f".{out.name}.tmp")
     out.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save(model, str(tmp_out))
-    os.replace(tmp_out, out)
+    replace_atomically(out, lambda tmp: onnx.save(model, str(tmp)))
 
 
 def pipeline_contract(

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ...core.files import write_text_atomic
 from ...encoders.gwt import GaborScalogram, log_bands
 from ...encoders.stft import STFTScalogram
 
@@ -427,9 +428,7 @@ def run(
     if out is not None:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_suffix(".tmp")
-        tmp.write_text(json.dumps(results, indent=2))
-        os.replace(tmp, out)
+        write_text_atomic(out, json.dumps(results, indent=2))
         print(f"results: {out}")
     return results
 
