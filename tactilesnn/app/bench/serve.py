@@ -91,6 +91,59 @@ def _big_json(port: int, body: bytes, stop: float, errors: list) -> None:
     conn.close()
 
 
+def _big_npy(port: int, body: bytes, stop: float, errors: list) -> None:
+    """A client posting ``body`` (an 8 MB ``.npy`` batch) back to back until ``stop``."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    while time.perf_counter() < stop:
+        try:
+            conn.request("POST", "/v1/classify", body=body,
+                         headers={"Content-Type": "application/x-npy"})  # fmt: skip
+            r = conn.getresponse()
+            r.read()
+            if r.status != 200:
+                errors.append(r.status)
+        except Exception as e:
+            errors.append(type(e).__name__)
+            conn.close()
+            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+    conn.close()
+
+
+def _half_open(port: int, n: int, stop: float, errors: list, closed: list) -> None:
+    """``n`` connections that each send half a request line and nothing more, reopened as the
+    service closes them, until ``stop`` (``closed[0]``: how many it closed)."""
+    import selectors
+
+    sel = selectors.DefaultSelector()
+
+    def open_one() -> None:
+        try:
+            c = socket.create_connection(("127.0.0.1", port), timeout=5)
+            c.sendall(b"POST /v1/classify HT")
+            c.setblocking(False)
+            sel.register(c, selectors.EVENT_READ)
+        except OSError as e:
+            errors.append(type(e).__name__)
+
+    for _ in range(n):
+        open_one()
+    while time.perf_counter() < stop:
+        for key, _ in sel.select(timeout=0.1):
+            c = key.fileobj
+            try:
+                data = c.recv(4096)
+            except OSError:
+                data = b""
+            if not data:  # closed by the service: open another in its place
+                sel.unregister(c)
+                c.close()
+                closed[0] += 1
+                open_one()
+    for key in list(sel.get_map().values()):
+        key.fileobj.close()
+    sel.close()
+
+
 def _case(port: int, session, batch: int, clients: int, seconds: float, hostile: str) -> dict:
     """Normal clients' latency for ``seconds`` beside the ``hostile`` ones (see :func:`run`)."""
     x = np.random.default_rng(0).standard_normal((batch, len(session.channels), session.window))
@@ -109,6 +162,16 @@ def _case(port: int, session, batch: int, clients: int, seconds: float, hostile:
         rows = int((7.5 * 2**20) / (len(session.channels) * session.window * 12))
         body = json.dumps({"windows": np.round(np.repeat(x[:1], max(1, rows), 0), 6).tolist()})
         bad = [threading.Thread(target=_big_json, args=(port, body.encode(), stop, hostile_errors))]
+    elif hostile == "npy-8MB":
+        rows = int((7.9 * 2**20) / (len(session.channels) * session.window * 4))
+        big = io.BytesIO()
+        np.save(big, np.repeat(x[:1], max(1, rows), 0).astype(np.float32), allow_pickle=False)
+        bad = [threading.Thread(target=_big_npy, args=(port, big.getvalue(), stop,
+                                                       hostile_errors))]  # fmt: skip
+    elif hostile == "half-open-300":
+        closed = [0]
+        bad = [threading.Thread(target=_half_open, args=(port, 300, stop, hostile_errors,
+                                                         closed))]  # fmt: skip
     rss0, held_max, rss_max = _rss_bytes(), 0, 0
     for t in bad:
         t.start()
@@ -146,7 +209,15 @@ def session_uploads(port: int) -> int:
 
 
 #: the cases: windows per request and what else reaches the service meanwhile
-CASES = ((1, "none"), (32, "none"), (1, "stalled-8x7MB"), (1, "stalled-120x1KB"), (1, "json-8MB"))
+CASES = (
+    (1, "none"),
+    (32, "none"),
+    (1, "stalled-8x7MB"),
+    (1, "stalled-120x1KB"),
+    (1, "json-8MB"),
+    (1, "npy-8MB"),
+    (1, "half-open-300"),
+)
 
 
 def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
@@ -156,12 +227,13 @@ def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     import uvicorn
 
     from ...service.app import create_app
+    from ...service.connections import server_config
 
     app = create_app(model)
     session = app.state.session
     port = _free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning",
-                                           access_log=False, limit_concurrency=256))  # fmt: skip
+    server = uvicorn.Server(server_config(app, "127.0.0.1", port, log_level="warning",
+                                          access_log=False))  # fmt: skip
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     while not server.started:
@@ -171,16 +243,23 @@ def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     finally:
         server.should_exit = True
         thread.join(timeout=15)
+    alone = {r["batch"]: r["p99_ms"] for r in rows if r["hostile"] == "none"}
+    for r in rows:
+        base = alone.get(r["batch"])
+        r["p99_vs_alone"] = (r["p99_ms"] / base) if base and r["p99_ms"] is not None else None
     lines = [
         f"load test: {clients} clients x {seconds:g} s per case, loopback, model {model}",
-        "| windows / request | beside | requests/s | windows/s | p50 ms | p99 ms | errors | "
-        "upload bytes held (max) | RSS growth MB |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| windows / request | beside | requests/s | windows/s | p50 ms | p99 ms | p99 vs alone | "
+        "errors | upload bytes held (max) | RSS growth MB |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        ratio = "-" if r["p99_vs_alone"] is None else f"{r['p99_vs_alone']:.2f}x"
+        p50 = "-" if r["p50_ms"] is None else f"{r['p50_ms']:.2f}"
+        p99 = "-" if r["p99_ms"] is None else f"{r['p99_ms']:.2f}"
         lines.append(
             f"| {r['batch']} | {r['hostile']} | {r['requests_per_s']:.0f} | "
-            f"{r['windows_per_s']:.0f} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['errors']} | "
+            f"{r['windows_per_s']:.0f} | {p50} | {p99} | {ratio} | {r['errors']} | "
             f"{r['upload_bytes_held_max']} | {r['rss_growth_mb']:.0f} |"
         )
     table = "\n".join(lines)
