@@ -23,7 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.checks import check_allocation, check_finite, check_float32_range, check_positive
+from .core.checks import (
+    check_allocation,
+    check_finite,
+    check_float32_range,
+    check_positive,
+    check_rate,
+)
 from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
 from .datasets_synth import WindowDataset
@@ -149,6 +155,8 @@ def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.nda
     path = Path(path)
     if fs_hz is not None and not (math.isfinite(fs_hz) and fs_hz > 0):
         raise ValueError(f"--fs must be a positive number of Hz, got {fs_hz}")
+    if fs_hz is not None:
+        check_rate(fs_hz, "--fs")
     if path.is_dir():
         if needs_reading(path):
             arrays, conv = read_recordings(path, fs_hz=fs_hz)
@@ -259,6 +267,7 @@ def datasets_from_arrays(
     fs = float(fs_arr.reshape(()))
     if not np.isfinite(fs) or fs <= 0:
         raise ValueError(f"{path}: fs must be a positive sampling rate in Hz, got {fs}")
+    check_rate(fs, f"{path}: fs")
     if y_raw.shape != (X.shape[0],):
         raise ValueError(f"{path}: y must be [N={X.shape[0]}], got shape {y_raw.shape}")
     if y_raw.dtype.kind not in "iu":

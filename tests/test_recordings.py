@@ -299,3 +299,88 @@ def test_class_names_are_optional(tmp_path, labels, names):
         rows = [i for i in range(24) if str(labels[i]) == name]
         want = {X[i].tobytes() for i in rows}
         assert {x.tobytes() for x in X_all[y == k]} == want
+
+
+def _tiny_arrays(n=24):
+    rng = np.random.default_rng(0)
+    return {"X": rng.normal(size=(n, 2, 50)).astype(np.float32), "y": np.arange(n) % 2}
+
+
+@pytest.mark.parametrize("fs", [1e-291, 1e-4, 5e9])
+def test_rates_outside_what_a_sensor_samples_at_are_refused(tmp_path, fs):
+    np.savez(tmp_path / "f.npz", **_tiny_arrays(), fs=fs)
+    with pytest.raises(ValueError, match="outside 0.001 .. 1e\\+09 Hz"):
+        load_data_file(tmp_path / "f.npz", seed=0)
+
+
+def test_timestamps_in_the_wrong_units_are_refused_naming_the_file(tmp_path):
+    a = _tiny_arrays()
+    t = np.tile(np.arange(50) * 1e300, (24, 1))  # steps of 1e300 s: a rate of 1e-300 Hz
+    np.savez(tmp_path / "f.npz", X=a["X"].transpose(0, 2, 1), y=a["y"], t=t)
+    with pytest.raises(ValueError, match="f.npz.*sampling rate"):
+        load_data_file(tmp_path / "f.npz", seed=0)
+
+
+def test_an_archive_holding_a_member_twice_is_refused(tmp_path):
+    import io
+    import warnings
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "f.npz", "w") as z, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (zipfile warns of the duplicate name)
+        for k, v in {**_tiny_arrays(), "fs": np.float64(100.0), "X2": _tiny_arrays()["X"]}.items():
+            buf = io.BytesIO()
+            np.save(buf, v)
+            z.writestr(("X" if k == "X2" else k) + ".npy", buf.getvalue())
+    with pytest.raises(ValueError, match="holds 'X.npy' 2 times"):
+        load_data_file(tmp_path / "f.npz", seed=0)
+
+
+@pytest.mark.parametrize("far", [1e300, -2e6])
+def test_taxel_positions_beyond_a_kilometre_are_refused(tmp_path, far):
+    rng = np.random.default_rng(0)
+    X = rng.poisson(0.3, size=(24, 4, 2, 30)).astype(np.float32)
+    xy = np.array([[0.0, 0.0], [far, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    np.savez(tmp_path / "e.npz", X=X, y=np.arange(24) % 2, fs=50.0, taxel_xy=xy)
+    with pytest.raises(ValueError, match="taxel 1 at .* beyond"):
+        load_data_file(tmp_path / "e.npz", seed=0)
+
+
+def test_a_generated_shard_without_a_member_is_named(tmp_path):
+    import hashlib
+    import json
+
+    from tactilesnn.datasets_synth.generate import generate
+
+    out = tmp_path / "gen"
+    generate("touch", 8, 0, out, shard_size=4, progress=False)
+    shard = out / "shard-00001.npz"
+    arrays = dict(np.load(shard))
+    arrays.pop("y")
+    np.savez(shard, **arrays)
+    m = json.loads((out / "manifest.json").read_text())  # its hash rewritten with it
+    for s in m["shards"]:
+        s["sha256"] = hashlib.sha256((out / s["file"]).read_bytes()).hexdigest()
+    (out / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(ValueError, match="shard-00001.npz: lacks \\['y'\\]"):
+        load_data_file(out, seed=0)
+
+
+def test_folders_named_in_another_encoding_train_and_stay_distinct(tmp_path):
+    """Class folders whose names are not UTF-8 (written under another locale): read as \\xff
+    escapes, distinct, and the run's files can be written (hashing them failed before)."""
+    import os
+
+    from tactilesnn.core.files import file_sha256
+
+    root = os.fsencode(tmp_path / "d")
+    rng = np.random.default_rng(0)
+    for c in (b"caf\xe9", b"caf\xe8"):
+        os.makedirs(root + b"/" + c)
+        for i in range(3):
+            with open(root + b"/" + c + b"/r%d.npy" % i, "wb") as f:
+                np.save(f, rng.normal(size=(400, 2)).astype(np.float32))
+    folder = tmp_path / "d"
+    train, _ = load_data_file(folder, seed=0, fs_hz=100.0)
+    assert sorted(train.class_names) == ["caf\\xe8", "caf\\xe9"]
+    assert len(file_sha256(folder)) == 64

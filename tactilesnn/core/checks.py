@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -79,6 +80,21 @@ def check_allocation(nbytes: int, what: str, fraction: float = 0.5) -> None:
             f"{what} would need {nbytes / 2**30:.2f} GiB, more than {limit / 2**30:.2f} GiB "
             f"({fraction:.0%} of the memory available); use fewer windows, channels or bands"
         )
+
+
+#: sampling rates taken (Hz): one sample in ~17 minutes up to 1 GHz; beyond, the timestamps are in
+#: other units than they say, or corrupt (steps of 1e300 s gave a rate of 1e-300 Hz)
+MIN_RATE_HZ, MAX_RATE_HZ = 1e-3, 1e9
+
+
+def check_rate(fs_hz: float, where: str) -> float:
+    """``fs_hz`` as a float within [:data:`MIN_RATE_HZ`, :data:`MAX_RATE_HZ`], else a
+    ValueError naming ``where`` (a file, a flag) and the rate."""
+    fs = float(fs_hz)
+    if not (math.isfinite(fs) and MIN_RATE_HZ <= fs <= MAX_RATE_HZ):
+        raise ValueError(f"{where}: a sampling rate of {fs:g} Hz is outside {MIN_RATE_HZ:g} .. "
+                         f"{MAX_RATE_HZ:g} Hz (timestamps in other units than they say?)")  # fmt: skip
+    return fs
 
 
 def check_positive(value: float, name: str) -> float:
