@@ -29,7 +29,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple
 
-from .core.checks import check_int
+from .core.checks import check_choice, check_int
 from .core.device import check_device_name
 from .core.registry import Registry
 from .encoders import ENCODERS
@@ -47,6 +47,10 @@ DEFAULT_MODEL_MAX_AFFERENTS = 512
 WIDE_INPUT_MODEL = "readout"
 
 
+#: how Adam's learning rate runs over the epochs (:class:`TrainConfig`)
+LR_SCHEDULES = ("constant", "cosine")
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """The training loop: epochs, mini-batches, early stopping, seed."""
@@ -57,6 +61,7 @@ class TrainConfig:
     keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
     seed: int = 0  # split, generation and initialisation
     device: str = "auto"  # where encoding and gradient training run: auto, cpu, cuda[:N]
+    lr_schedule: str = "constant"  # Adam's learning rate over the epochs: constant or cosine
 
     FLAGS: ClassVar[dict[str, str]] = {
         "epochs": "epochs",
@@ -65,13 +70,17 @@ class TrainConfig:
         "keep_best": "keep_best",
         "seed": "seed",
         "device": "device",
+        "lr_schedule": "lr_schedule",
     }
+    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"lr_schedule": LR_SCHEDULES}
     HELP: ClassVar[dict[str, str]] = {
         "epochs": "training epochs (upper bound with early stopping)",
         "batch_size": "mini-batch size",
         "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
         "keep_best": "keep the weights with the best validation (else training) accuracy",
         "seed": "dataset split, generation and initialisation seed",
+        "lr_schedule": "the gradient models' learning rate over the epochs: constant, or cosine "
+        "(from the model's rate down to 0 at the last epoch's last step)",
         "device": "where encoding and the model's gradient training run: auto (a CUDA GPU when "
         "torch sees one, else the CPU), cpu, cuda or cuda:N; rule learning, the readout's exact "
         "solve and inference stay on the CPU",
@@ -85,6 +94,7 @@ class TrainConfig:
         if not isinstance(self.keep_best, bool):
             raise ValueError(f"keep_best must be true or false, got {self.keep_best!r}")
         check_device_name(self.device)
+        check_choice(self.lr_schedule, "lr_schedule", LR_SCHEDULES)
 
 
 #: flat names of the pipeline's own fields
@@ -248,11 +258,18 @@ def data_file_defaults(
     if events:  # counts: the rank pair alone (see DATA_LEVEL_SCALE)
         out.update(encoder="events", level_scale="rank", level_share=False)
     if events and grid is not None:  # the conv model maps every afferent onto the grid
-        out.update(model="csnn", csnn_grid=grid, level_neurons=0)
+        out.update(model="csnn", csnn_grid=grid, level_neurons=0, epochs=CSNN_DATA_EPOCHS,
+                   lr_schedule="cosine")  # fmt: skip
         if cells:
             out["csnn_cells"] = tuple(cells)
     return out
 
+
+#: the csnn's epochs for ``train --data`` (with the cosine learning-rate schedule). ST-MNIST,
+#: seed 0, source split, on a 2-core machine (2026-11-28): 40 epochs at a constant rate 95.73 %
+#: in 7 min 31 s of fit; 12 with the cosine schedule 95.37 % in 2 min 26 s; 10: 94.14 % in 2 min
+#: 6 s, below the random forest on summary statistics (94.28 %) in the same run
+CSNN_DATA_EPOCHS = 12
 
 #: the level code's neurons per statistic for ``train --data``: its ON / OFF rank-latency pair
 #: (why the pair: :mod:`tactilesnn.encoders.level`). LIF + readout, seed 0, without -> with it:
