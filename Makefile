@@ -24,7 +24,7 @@ train: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check tactilesnn tests train.py
 	$(BIN)/ruff format --check tactilesnn tests train.py
-	$(BIN)/pytest -n $(WORKERS) --dist worksteal
+	$(BIN)/pytest -n $(WORKERS) --dist worksteal --durations=15
 
 # the suite without the slow, browser, real-data and GPU tests (4 min 47 s on 2 CPUs, 2026-11-28)
 test-quick: $(STAMP)
