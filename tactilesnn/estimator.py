@@ -33,7 +33,7 @@ from .config import (
     PipelineConfig,
     data_file_defaults,
 )
-from .core.checks import check_float32_range
+from .core.checks import check_float32_range, check_rate
 from .core.data import WindowDataset
 from .models.base import seeded
 from .selection import fit_encoder_to_data, select_encoder
@@ -284,7 +284,7 @@ def _rate(fs: Any) -> float:
         or fs <= 0
     ):
         raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
-    return float(fs)
+    return check_rate(fs, "fs_hz")
 
 
 def _windows(X: Any, min_samples: int = 2) -> np.ndarray:

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_allocation, check_int
+from ..core.data import evenly_spaced
 from .base import register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
@@ -208,8 +209,7 @@ def stream_gains(X: np.ndarray, n_max: int = 4096) -> np.ndarray:
     twice because the gain data near 1e-40 needs, 2 ** 133, is beyond float32's largest value;
     each factor a power of two, so both products are exact."""
     arr = np.asarray(X)
-    idx = np.unique(np.linspace(0, len(arr) - 1, min(len(arr), n_max)).astype(int))
-    x = np.asarray(arr[idx], np.float64)
+    x = np.asarray(arr[evenly_spaced(len(arr), n_max)], np.float64)
     r = np.median(x.max(-1) - x.min(-1), axis=0)  # [C]
     ok = np.isfinite(r) & (r > 0)
     e = np.where(ok, -np.round(np.log2(np.where(ok, r, 1.0)) / 2), 0.0)
