@@ -5,7 +5,7 @@ ones (that is how the lying-header case of ``test_fuzz_hostile.py`` was found).
 The CLI fits torch's threads to the CPUs other processes leave (``core/perf.py``); tests that
 compare two in-process runs bit for bit need one count throughout, so the suite fixes it. Under
 pytest-xdist (``make test`` runs a worker per CPU, up to 4, idle workers steal queued tests) each worker
-gets its share of the CPUs.
+gets its share of the CPUs and starts on its share of the slow tests.
 
 Graphs are exported with the TorchScript-based exporter here (``TACTILESNN_ONNX_EXPORTER``): the
 suite exports ~170 component graphs, which the supported ``torch.export``-based exporter (the
@@ -30,6 +30,23 @@ if os.environ.get("CI"):
 
 
 def pytest_collection_modifyitems(config, items):
-    """The slow tests first: under pytest-xdist the workers then start on the long ones and
-    share the short ones at the end, instead of one worker finishing a long test alone."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+    """The slow tests first on every worker. pytest-xdist's worksteal scheduler hands worker
+    ``i`` a contiguous share of the collection (``len(pending) // workers left``) and idle
+    workers steal from the end of the longest queue; sorting every slow test to the front put
+    them all in worker 0's share (one worker ran 10 minutes of slow tests in a row while the
+    other stole the quick ones and waited). Each share now starts with its round-robin part of
+    the slow tests, then quick ones; the order is the same in every worker (they collect it)."""
+    slow = [i for i in items if i.get_closest_marker("slow") is not None]
+    quick = [i for i in items if i.get_closest_marker("slow") is None]
+    workers = max(1, _workers)
+    sizes, left = [], len(items)
+    for w in range(workers):  # the scheduler's shares, in its order
+        sizes.append(left // (workers - w))
+        left -= sizes[-1]
+    ordered = []
+    for w, size in enumerate(sizes):
+        mine = slow[w::workers]
+        take = max(0, size - len(mine))
+        ordered += mine + quick[:take]
+        quick = quick[take:]
+    items[:] = ordered + quick
