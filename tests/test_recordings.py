@@ -4,6 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tactilesnn.recordings import load_data_file
 
@@ -384,3 +386,18 @@ def test_folders_named_in_another_encoding_train_and_stay_distinct(tmp_path):
     train, _ = load_data_file(folder, seed=0, fs_hz=100.0)
     assert sorted(train.class_names) == ["caf\\xe8", "caf\\xe9"]
     assert len(file_sha256(folder)) == 64
+
+
+@settings(max_examples=50, deadline=None)
+@given(labels=st.lists(st.integers(-1000, 1000), min_size=2, max_size=40).filter(
+    lambda v: len(set(v)) >= 2), text=st.booleans())  # fmt: skip
+def test_labels_alone_name_their_classes_consistently(labels, text):
+    """Without ``class_names`` every window keeps its own label: the name of its new index is
+    its old label, whatever the values (integers or text)."""
+    from tactilesnn.recordings import _classes_from_labels
+
+    y = np.array([f"c{v}" for v in labels]) if text else np.array(labels)
+    out = _classes_from_labels(y, "f.npz")
+    names = out["class_names"]
+    assert [names[i] for i in out["y"]] == [str(v) for v in y]
+    assert len(names) == len(set(y.tolist()))

@@ -6,6 +6,8 @@ run's last step) passes: a run never ends with a model it cannot export."""
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tactilesnn.config import DATA_ENCODER_CANDIDATES, PipelineConfig
 from tactilesnn.export import export_pipeline
@@ -97,3 +99,23 @@ def test_the_cgwt_stream_graph_holds_at_any_scale(scale, tmp_path):
     assert np.all((ranges >= 0.5) & (ranges <= 2.0)), ranges
     rep = export_stream(pipe, tmp_path / "s.onnx", x.astype(np.float32))
     assert rep["prediction_agreement"] == 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(exponent=st.integers(-45, 37), channels=st.integers(1, 4), seed=st.integers(0, 2**16))
+def test_stream_gains_bring_any_scale_near_one_exactly(exponent, channels, seed):
+    """For data at any float32 scale (subnormal to near the largest), each channel's gain is a
+    power of two whose square brings the median window range within a factor 2 of 1; channels
+    without a range keep gain 1."""
+    from tactilesnn.encoders.causal_gwt import stream_gains
+
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((8, channels, 32)) * 10.0**exponent
+    x = x.astype(np.float32)
+    x[:, 0] = 5.0  # a constant channel
+    g = stream_gains(x).astype(np.float64)
+    assert g[0] == 1.0 and np.all(np.log2(g) == np.round(np.log2(g)))
+    x64 = x.astype(np.float64)
+    r = np.median(x64.max(-1) - x64.min(-1), axis=0)[1:]
+    ok = r > 0  # (a scale below float32's smallest subnormal is all zeros)
+    assert np.all((g[1:][ok] ** 2 * r[ok] >= 0.5) & (g[1:][ok] ** 2 * r[ok] <= 2.0))
