@@ -303,10 +303,8 @@ def datasets_from_arrays(
                 f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets"
             )
 
-    X = X.astype(np.float32, copy=False)
-
     def take(m: np.ndarray) -> WindowDataset:
-        return WindowDataset(X[m], y[m], groups[m], fs, names, ch)
+        return WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch)
 
     return take(split == 0), take(split == 1)
 
@@ -314,6 +312,24 @@ def datasets_from_arrays(
 #: recordings at least this long (and of ``AUTO_CUT_MIN_SAMPLES``) are cut by default
 AUTO_CUT_MIN_S = 2.0
 AUTO_CUT_MIN_SAMPLES = 256
+
+
+#: rows converted to float32 at a time when a split is taken from another dtype
+CONVERT_ROWS_BYTES = 32 << 20
+
+
+def rows_as_float32(X: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``X[mask]`` as float32, converted a block of rows at a time: the split of a file of
+    another dtype (ST-MNIST's uint8 counts, float64 recordings) without a float32 copy of the
+    whole file first (that copy was 556 MB of ST-MNIST's 2.33 GB peak)."""
+    idx = np.flatnonzero(mask)
+    if X.dtype == np.float32:
+        return X[idx]
+    out = np.empty((idx.size, *X.shape[1:]), np.float32)
+    step = max(1, CONVERT_ROWS_BYTES // max(1, int(np.prod(X.shape[1:])) * 4))
+    for i in range(0, idx.size, step):
+        out[i : i + step] = X[idx[i : i + step]]
+    return out
 
 
 def auto_cut(samples: int, fs_hz: float, has_recording_ids: bool) -> tuple[float, float] | None:

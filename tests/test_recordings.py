@@ -401,3 +401,18 @@ def test_labels_alone_name_their_classes_consistently(labels, text):
     names = out["class_names"]
     assert [names[i] for i in out["y"]] == [str(v) for v in y]
     assert len(names) == len(set(y.tolist()))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int16, np.float64, np.float32])
+def test_a_split_is_converted_to_float32_block_by_block(monkeypatch, dtype):
+    """The same windows as converting the whole file first, at any block size (one row per
+    block here), for every dtype a file may hold."""
+    from tactilesnn import recordings
+
+    monkeypatch.setattr(recordings, "CONVERT_ROWS_BYTES", 1)
+    rng = np.random.default_rng(0)
+    X = (rng.uniform(0, 200, size=(13, 3, 7))).astype(dtype)
+    mask = rng.uniform(size=13) < 0.6
+    got = recordings.rows_as_float32(X, mask)
+    assert got.dtype == np.float32
+    np.testing.assert_array_equal(got, X.astype(np.float32)[mask])
