@@ -76,28 +76,13 @@ def _stalled(port: int, declared: int, sent: int, stop: float, errors: list) -> 
         errors.append(type(e).__name__)
 
 
-def _big_json(port: int, body: bytes, stop: float, errors: list) -> None:
-    """A client posting ``body`` (a large JSON document) back to back until ``stop``."""
+def _big_client(port: int, body: bytes, ctype: str, stop: float, errors: list) -> None:
+    """A client posting ``body`` (an 8 MB JSON document or ``.npy`` batch, ``ctype``) back to
+    back until ``stop``."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
     while time.perf_counter() < stop:
         try:
-            conn.request("POST", "/v1/classify", body=body,
-                         headers={"Content-Type": "application/json"})  # fmt: skip
-            conn.getresponse().read()
-        except Exception as e:
-            errors.append(type(e).__name__)
-            conn.close()
-            conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
-    conn.close()
-
-
-def _big_npy(port: int, body: bytes, stop: float, errors: list) -> None:
-    """A client posting ``body`` (an 8 MB ``.npy`` batch) back to back until ``stop``."""
-    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
-    while time.perf_counter() < stop:
-        try:
-            conn.request("POST", "/v1/classify", body=body,
-                         headers={"Content-Type": "application/x-npy"})  # fmt: skip
+            conn.request("POST", "/v1/classify", body=body, headers={"Content-Type": ctype})
             r = conn.getresponse()
             r.read()
             if r.status != 200:
@@ -161,13 +146,14 @@ def _case(port: int, session, batch: int, clients: int, seconds: float, hostile:
     elif hostile == "json-8MB":
         rows = int((7.5 * 2**20) / (len(session.channels) * session.window * 12))
         body = json.dumps({"windows": np.round(np.repeat(x[:1], max(1, rows), 0), 6).tolist()})
-        bad = [threading.Thread(target=_big_json, args=(port, body.encode(), stop, hostile_errors))]
+        bad = [threading.Thread(target=_big_client, args=(port, body.encode(), "application/json",
+                                                          stop, hostile_errors))]  # fmt: skip
     elif hostile == "npy-8MB":
         rows = int((7.9 * 2**20) / (len(session.channels) * session.window * 4))
         big = io.BytesIO()
         np.save(big, np.repeat(x[:1], max(1, rows), 0).astype(np.float32), allow_pickle=False)
-        bad = [threading.Thread(target=_big_npy, args=(port, big.getvalue(), stop,
-                                                       hostile_errors))]  # fmt: skip
+        bad = [threading.Thread(target=_big_client, args=(port, big.getvalue(), "application/x-npy",
+                                                          stop, hostile_errors))]  # fmt: skip
     elif hostile == "half-open-300":
         closed = [0]
         bad = [threading.Thread(target=_half_open, args=(port, 300, stop, hostile_errors,
