@@ -194,17 +194,15 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
     m = _manifest(path)
     channels, window = len(m["channel_names"]), m["window_samples"]
     check_allocation(4 * m["n_windows"] * channels * window, f"the dataset {folder}")
-    xs, ys, ids = [], [], []
+    shards = []
     for sh in m["shards"]:
         f = folder / sh["file"]
         if not f.is_file() or _sha256(f) != sh["sha256"]:
             raise ValueError(f"{f} is missing or differs from its manifest SHA-256")
-        xs_, ys_, ids_ = _read_shard(f, channels, window)
-        xs.append(xs_)
-        ys.append(ys_)
-        ids.append(ids_)
-    if not xs:
+        shards.append(_read_shard(f, channels, window))
+    if not shards:
         raise ValueError(f"{folder}: the manifest lists no shards")
+    xs, ys, ids = zip(*shards, strict=True)
     return {
         "X": np.concatenate(xs),
         "y": np.concatenate(ys),
