@@ -20,18 +20,19 @@ which components it builds. TOML form::
 
 The flat form of earlier versions (``encoder = "lif"``, ``lif_neurons = 8``, ``snn_hidden = 64``,
 ``epochs = 40`` in one table; also the command-line flag names) is still read: each component's
-config class lists its flat names in ``FLAGS`` (flat name -> field).
+config field declares its flat name (:func:`~tactilesnn.core.settings.setting`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, NamedTuple
 
 from .core.checks import check_choice, check_int
 from .core.device import check_device_name
 from .core.registry import Registry
+from .core.settings import choices_of, flag_fields, help_texts, legacy_values, setting
 from .encoders import ENCODERS
 from .encoders.level import SCALES as LEVEL_SCALES
 from .models import MODELS
@@ -55,36 +56,27 @@ LR_SCHEDULES = ("constant", "cosine")
 class TrainConfig:
     """The training loop: epochs, mini-batches, early stopping, seed."""
 
-    epochs: int = 40
-    batch_size: int = 32
-    patience: int = 0  # epochs without validation improvement before stopping (0 = off)
-    keep_best: bool = True  # keep the weights with the best validation (else training) accuracy
-    seed: int = 0  # split, generation and initialisation
-    device: str = "auto"  # where encoding and gradient training run: auto, cpu, cuda[:N]
-    lr_schedule: str = "constant"  # Adam's learning rate over the epochs: constant or cosine
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "epochs": "epochs",
-        "batch_size": "batch_size",
-        "patience": "patience",
-        "keep_best": "keep_best",
-        "seed": "seed",
-        "device": "device",
-        "lr_schedule": "lr_schedule",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"lr_schedule": LR_SCHEDULES}
-    HELP: ClassVar[dict[str, str]] = {
-        "epochs": "training epochs (upper bound with early stopping)",
-        "batch_size": "mini-batch size",
-        "patience": "early stopping: epochs without validation improvement (needs --val-fraction)",
-        "keep_best": "keep the weights with the best validation (else training) accuracy",
-        "seed": "dataset split, generation and initialisation seed",
-        "lr_schedule": "the gradient models' learning rate over the epochs: constant, or cosine "
-        "(from the model's rate down to 0 at the last epoch's last step)",
-        "device": "where encoding and the model's gradient training run: auto (a CUDA GPU when "
-        "torch sees one, else the CPU), cpu, cuda or cuda:N; rule learning, the readout's exact "
-        "solve and inference stay on the CPU",
-    }
+    epochs: int = setting(40, help="training epochs (upper bound with early stopping)")
+    batch_size: int = setting(32, help="mini-batch size")
+    patience: int = setting(
+        0, help="early stopping: epochs without validation improvement (needs --val-fraction)"
+    )
+    keep_best: bool = setting(
+        True, help="keep the weights with the best validation (else training) accuracy"
+    )
+    seed: int = setting(0, help="dataset split, generation and initialisation seed")
+    device: str = setting(
+        "auto",
+        help="where encoding and the model's gradient training run: auto (a CUDA GPU when torch "
+        "sees one, else the CPU), cpu, cuda or cuda:N; rule learning, the readout's exact solve "
+        "and inference stay on the CPU",
+    )
+    lr_schedule: str = setting(
+        "constant",
+        choices=LR_SCHEDULES,
+        help="the gradient models' learning rate over the epochs: constant, or cosine (from the "
+        "model's rate down to 0 at the last epoch's last step)",
+    )
 
     def __post_init__(self) -> None:
         check_int(self.epochs, "epochs", 1)
@@ -97,27 +89,6 @@ class TrainConfig:
         check_choice(self.lr_schedule, "lr_schedule", LR_SCHEDULES)
 
 
-#: flat names of the pipeline's own fields
-TOP_FLAGS = {
-    "channels": "channels",
-    "clock_afferents": "clock_afferents",
-    "level_neurons": "level_neurons",
-    "level_scale": "level_scale",
-    "level_share": "level_share",
-}
-TOP_HELP = {
-    "channels": "input channels by name ('all' = every channel of the data, in its order)",
-    "clock_afferents": "afferents firing at fixed times in every window (a time reference)",
-    "level_neurons": "neurons per channel statistic of the calibrated level code appended to the "
-    "encoder's spikes (window mean and log sd ranked on the training windows: an ON/OFF latency "
-    "pair, then Gaussian fields; 0 = off)",
-    "level_scale": "what the level code's ON/OFF pair codes: 'rank' (the value's rank among the "
-    "training windows), 'linear' (its position in the training range) or 'rank+linear' (a pair "
-    "of each; the model weighs them)",
-    "level_share": "add a third level statistic: the channel's share of the window's total level "
-    "across channels (a scale-free spatial pattern: where a press is, whatever its force)",
-}
-TOP_CHOICES = {"level_scale": LEVEL_SCALES}
 #: level-code neurons per statistic: more only splits the same rank finer
 MAX_LEVEL_NEURONS = 64
 
@@ -127,12 +98,32 @@ class PipelineConfig:
     """Everything that defines a trained pipeline except its weights (saved in the run folder)."""
 
     # seed 001 encodes the dynamic (piezo) output; ("all",) = every channel of the data
-    channels: tuple[str, ...] = ("dynamic",)
-    clock_afferents: int = 5
-    level_neurons: int = 0
+    channels: tuple[str, ...] = setting(
+        ("dynamic",),
+        help="input channels by name ('all' = every channel of the data, in its order)",
+    )
+    clock_afferents: int = setting(
+        5, help="afferents firing at fixed times in every window (a time reference)"
+    )
+    level_neurons: int = setting(
+        0,
+        help="neurons per channel statistic of the calibrated level code appended to the "
+        "encoder's spikes (window mean and log sd ranked on the training windows: an ON/OFF "
+        "latency pair, then Gaussian fields; 0 = off)",
+    )
     #: runs saved before the setting existed read as "rank" (the default)
-    level_scale: str = "rank"
-    level_share: bool = False
+    level_scale: str = setting(
+        "rank",
+        choices=LEVEL_SCALES,
+        help="what the level code's ON/OFF pair codes: 'rank' (the value's rank among the "
+        "training windows), 'linear' (its position in the training range) or 'rank+linear' (a "
+        "pair of each; the model weighs them)",
+    )
+    level_share: bool = setting(
+        False,
+        help="add a third level statistic: the channel's share of the window's total level "
+        "across channels (a scale-free spatial pattern: where a press is, whatever its force)",
+    )
     encoder: Any = field(default_factory=lambda: ENCODERS.config_class(DEFAULT_ENCODER)())
     model: Any = field(default_factory=lambda: MODELS.config_class(DEFAULT_MODEL)())
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -178,11 +169,7 @@ class PipelineConfig:
     def to_dict(self) -> dict[str, Any]:
         """Nested, JSON-ready: components carry their ``type`` tag."""
         return {
-            "channels": list(self.channels),
-            "clock_afferents": self.clock_afferents,
-            "level_neurons": self.level_neurons,
-            "level_scale": self.level_scale,
-            "level_share": self.level_share,
+            **_plain({k: getattr(self, k) for k in TOP_FLAGS}),
             "encoder": _plain(ENCODERS.config_to_dict(self.encoder)),
             "model": _plain(MODELS.config_to_dict(self.model)),
             "train": dataclasses.asdict(self.train),
@@ -193,21 +180,9 @@ class PipelineConfig:
         """Nested form (as written by :meth:`to_dict`) or the flat form of earlier versions."""
         if not is_nested(d):  # a run folder written before the component layer
             cfg = cls.from_flat(d, strict=False)
-            legacy = getattr(type(cfg.model), "LEGACY", {})
+            legacy = legacy_values(type(cfg.model))
             return cfg.replace(model=dataclasses.replace(cfg.model, **legacy)) if legacy else cfg
-        unknown = sorted(
-            set(d)
-            - {
-                "channels",
-                "clock_afferents",
-                "level_neurons",
-                "level_scale",
-                "level_share",
-                "encoder",
-                "model",
-                "train",
-            }
-        )
+        unknown = sorted(set(d) - {*TOP_FLAGS, "encoder", "model", "train"})
         if unknown:
             raise ValueError(f"unknown pipeline settings: {', '.join(unknown)}")
         train = d.get("train", {})
@@ -215,7 +190,7 @@ class PipelineConfig:
         if set(train) - tknown:
             raise ValueError(f"[train] has no setting(s) {sorted(set(train) - tknown)}")
         kw: dict[str, Any] = {"train": TrainConfig(**train)}
-        for key in ("channels", "clock_afferents", "level_neurons", "level_scale", "level_share"):
+        for key in TOP_FLAGS:
             if key in d:
                 kw[key] = d[key]
         kw["encoder"] = ENCODERS.config_from_dict(d.get("encoder", {"type": DEFAULT_ENCODER}))
@@ -239,6 +214,10 @@ class PipelineConfig:
             train=TrainConfig(**parts["train"]),
             **parts["top"],
         )
+
+
+#: flat names of the pipeline's own fields (-> field)
+TOP_FLAGS: dict[str, str] = flag_fields(PipelineConfig)
 
 
 def data_file_defaults(
@@ -315,12 +294,12 @@ def place_flat(
 
     ``strict``: a setting of a component that is not selected is an error; otherwise ignored.
     """
-    enc_flags = ENCODERS.config_class(encoder).FLAGS
-    model_flags = MODELS.config_class(model).FLAGS
+    enc_flags = flag_fields(ENCODERS.config_class(encoder))
+    model_flags = flag_fields(MODELS.config_class(model))
     parts: dict[str, dict[str, Any]] = {"top": {}, "train": {}, "encoder": {}, "model": {}}
     for key, value in flat.items():
         value = tuple(value) if isinstance(value, list) else value
-        for part, flags in (("top", TOP_FLAGS), ("train", TrainConfig.FLAGS),
+        for part, flags in (("top", TOP_FLAGS), ("train", flag_fields(TrainConfig)),
                             ("encoder", enc_flags), ("model", model_flags)):  # fmt: skip
             if key in flags:
                 parts[part][flags[key]] = value
@@ -371,7 +350,7 @@ def is_nested(d: dict[str, Any]) -> bool:
 def owner_of_flag(flag: str) -> tuple[str, tuple[str, ...]] | None:
     """``("encoder" | "model", registered names)`` whose config has the flat name ``flag``."""
     for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
-        names = tuple(n for n in reg.names() if flag in reg.config_class(n).FLAGS)
+        names = tuple(n for n in reg.names() if flag in flag_fields(reg.config_class(n)))
         if names:
             return kind, names
     return None
@@ -397,20 +376,18 @@ class FlatSetting(NamedTuple):
 def flat_settings() -> dict[str, FlatSetting]:
     """Every flat setting name -> its :class:`FlatSetting` (for the CLI and settings files)."""
     out: dict[str, FlatSetting] = {}
-    defaults = PipelineConfig()
-    for name, fld in TOP_FLAGS.items():
-        out[name] = FlatSetting("pipeline", (), getattr(defaults, fld), TOP_HELP[name],
-                                TOP_CHOICES.get(name))  # fmt: skip
-    for name, fld in TrainConfig.FLAGS.items():
-        out[name] = FlatSetting("train", (), getattr(defaults.train, fld), TrainConfig.HELP[name],
-                                None)  # fmt: skip
+    for part, cls in (("pipeline", PipelineConfig), ("train", TrainConfig)):
+        texts, choices = help_texts(cls), choices_of(cls)
+        for name, fld in flag_fields(cls).items():
+            out[name] = FlatSetting(part, (), _field_default(cls, fld), texts[fld],
+                                    choices.get(fld))  # fmt: skip
     for kind, reg in (("encoder", ENCODERS), ("model", MODELS)):
         for comp in reg.names():
             cfg_cls = reg.config_class(comp)
-            choices = getattr(cfg_cls, "CHOICES", {})
+            texts, choices = help_texts(cfg_cls), choices_of(cfg_cls)
             first: dict[str, str] = {}  # field -> its first (primary) flat name
-            for flag, fld in cfg_cls.FLAGS.items():
-                text = cfg_cls.HELP.get(fld, "")
+            for flag, fld in flag_fields(cfg_cls).items():
+                text = texts[fld]
                 if fld in first:  # a later name of the same field: an alias
                     text = f"alias of --{first[fld].replace('_', '-')}"
                 first.setdefault(fld, flag)

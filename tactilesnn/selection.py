@@ -15,6 +15,7 @@ import numpy as np
 from .config import PipelineConfig
 from .core.data import WindowDataset, evenly_spaced
 from .core.memory import release_memory
+from .core.settings import while_selecting
 from .encoders import ENCODERS
 from .pipeline import SpikePipeline
 from .training import fit_and_evaluate, split_validation
@@ -103,12 +104,11 @@ def fit_encoder_to_data(config: PipelineConfig, train: WindowDataset, keep: Iter
     one place a data file's facts set an encoder: ``tactilesnn train --data``, the encoder
     selection and :class:`~tactilesnn.estimator.SpikeClassifier` all come here."""
     cls = type(config.encoder)
-    defaults = getattr(cls, "data_defaults", None)
-    if defaults is None or train.X.ndim != 3:
+    if not cls.follows_data or train.X.ndim != 3:
         return config
     if median_hz is None:
         median_hz = median_power_frequency(train.X, train.fs_hz)
-    fitted = defaults(train.fs_hz, train.X.shape[-1], median_hz)
+    fitted = cls.data_defaults(train.fs_hz, train.X.shape[-1], median_hz)
     fields = {f.name: getattr(config.encoder, f.name) for f in dataclasses.fields(config.encoder)}
     kept = {k: fields[k] for k in keep if k in fields}
     return config.replace(encoder=cls(**{**fields, **fitted, **kept}))
@@ -267,7 +267,7 @@ def select_encoder(
     configs = configs or candidate_configs(config, train, candidates)
     # the model as a component asks to be fitted while encoders are compared (e.g. without its
     # own cross-validation); the chosen config keeps the model as configured
-    quick = replace(config.model, **getattr(type(config.model), "WHILE_SELECTING", {}))
+    quick = replace(config.model, **while_selecting(type(config.model)))
 
     def scored(name: str, fit: WindowDataset, val: WindowDataset) -> tuple[float, float | None]:
         m = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False,

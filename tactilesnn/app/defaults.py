@@ -30,6 +30,7 @@ from ..config import (
     encoder_settings_given,
     flat_settings,
 )
+from ..core.settings import flag_fields
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
@@ -179,7 +180,7 @@ def _encoder_fields_given(config: PipelineConfig, given: set[str],
                           toml: dict[str, Any] | None) -> tuple[str, ...]:  # fmt: skip
     """The fields of ``config``'s encoder the user set (flags, flat TOML keys, or the keys of a
     TOML ``[encoder]`` section)."""
-    flags = ENCODERS.config_class(config.encoder_type).FLAGS
+    flags = flag_fields(ENCODERS.config_class(config.encoder_type))
     fields = {flags[k] for k in given if k in flags}
     section = (toml or {}).get("encoder")
     if isinstance(section, dict):

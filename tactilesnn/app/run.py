@@ -28,6 +28,7 @@ from ..baselines import linear_amplitude_baseline
 from ..config import PipelineConfig, is_nested
 from ..core.data import WindowDataset
 from ..core.files import file_sha256, load_arrays, read_json, write_json_atomic
+from ..core.settings import saved_before
 from ..core.stages import StagePlan
 from ..core.version import __version__
 from ..datasets_synth import get_task
@@ -426,11 +427,11 @@ def export_into_run(
 
 def saved_pipeline_config(d: dict) -> PipelineConfig:
     """A saved run's settings: a component field added after the run was written takes the
-    value it had then (the component's ``SAVED_BEFORE``), not today's default."""
+    value it had then (its ``saved_before`` in the settings schema), not today's default."""
     cfg = PipelineConfig.from_dict(d)
     for part in ("model", "encoder"):
         settings = getattr(cfg, part)
-        before = getattr(type(settings), "SAVED_BEFORE", {})
+        before = saved_before(type(settings))
         saved = d.get(part, {}) if is_nested(d) else d
         missing = {k: v for k, v in before.items() if k not in saved}
         if missing:

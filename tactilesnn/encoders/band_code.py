@@ -40,6 +40,7 @@ from torch import Tensor, nn
 from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
 from ..core.registry import Registry
+from ..core.settings import ComponentSettings, setting
 from . import delta, lif_population  # noqa: F401  (codes registered before CHOICES is built)
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .causal_gabor import CausalGaborScalogram
@@ -82,33 +83,27 @@ def envelope_codes() -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class BandCodeConfig:
-    transform: str = "gwt"
-    code: str = "lif"
-    f_lo_hz: float = 3.0
-    f_hi_hz: float = 90.0  # capped at 0.45 fs
-    n_bands: int = 8
-    frames: int = 100
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "bands_transform": "transform",
-        "bands_code": "code",
-        "f_lo_hz": "f_lo_hz",
-        "f_hi_hz": "f_hi_hz",
-        "n_bands": "n_bands",
-        "bands_frames": "frames",
-    }
+class BandCodeConfig(ComponentSettings):
     # (the codes registered when this module is imported)
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"transform": TRANSFORMS.names(),
-                                                    "code": envelope_codes()}  # fmt: skip
-    HELP: ClassVar[dict[str, str]] = {
-        "transform": "filter bank whose band envelopes are coded (gwt, cgwt, stft)",
-        "code": "encoder of analog channels that codes the envelopes (lif, delta)",
-        "f_lo_hz": "lowest band centre (Hz)",
-        "f_hi_hz": "highest band centre (Hz; capped at 0.45 x the sampling rate)",
-        "n_bands": "number of log-spaced bands",
-        "frames": "envelope frames per window (the code's samples; at most one per sample)",
-    }
+    transform: str = setting(
+        "gwt", flag="bands_transform", choices=TRANSFORMS.names(),
+        help="filter bank whose band envelopes are coded (gwt, cgwt, stft)",
+    )  # fmt: skip
+    code: str = setting(
+        "lif", flag="bands_code", choices=envelope_codes(),
+        help="encoder of analog channels that codes the envelopes (lif, delta)",
+    )  # fmt: skip
+    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
+    f_hi_hz: float = setting(  # capped at 0.45 fs
+        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
+    )
+    n_bands: int = setting(8, help="number of log-spaced bands")
+    frames: int = setting(
+        100, flag="bands_frames",
+        help="envelope frames per window (the code's samples; at most one per sample)",
+    )  # fmt: skip
+
+    follows_data: ClassVar[bool] = True
 
     @classmethod
     def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:

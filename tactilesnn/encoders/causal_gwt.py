@@ -22,6 +22,7 @@ from torch import Tensor, nn
 
 from ..core.checks import check_allocation, check_int
 from ..core.data import evenly_spaced
+from ..core.settings import setting
 from .base import register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
@@ -53,21 +54,18 @@ class CausalGWTConfig(ScalogramLatencySettings):
     """Causal recursive Gabor bank -> latency code. ``hop``: a frame every ``hop`` samples
     (0 = :func:`auto_hop`: from the highest band's envelope bandwidth); ``order``: poles per band."""
 
-    hop: int = 0
-    order: int = 4
-    level_off: bool = True
-
-    #: runs saved before the level was taken off load with it on (their spikes as they were)
-    SAVED_BEFORE: ClassVar[dict[str, object]] = {"level_off": False}
-
-    FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "cgwt_hop": "hop",
-                                       "cgwt_order": "order"}  # fmt: skip
-    HELP: ClassVar[dict[str, str]] = {
-        **ScalogramLatencySettings.HELP,
-        "hop": "frame every hop samples (0 = from the highest band's envelope bandwidth)",
-        "order": "poles per band of the causal Gabor bank (4: gammatone-like)",
-        "level_off": "each window less its first sample before the bank (see level_off)",
-    }
+    hop: int = setting(
+        0, flag="cgwt_hop",
+        help="frame every hop samples (0 = from the highest band's envelope bandwidth)",
+    )  # fmt: skip
+    order: int = setting(
+        4, flag="cgwt_order", help="poles per band of the causal Gabor bank (4: gammatone-like)"
+    )
+    level_off: bool = setting(
+        True, flat=False, saved_before=False,
+        help="each window less its first sample before the bank (runs saved before the level "
+        "was taken off load with it on: their spikes as they were)",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -12,30 +12,26 @@ the reference level and emits nothing, so a constant offset costs no spikes. ``d
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_int, check_positive
+from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
 
 
 @dataclass(frozen=True)
-class DeltaConfig:
-    threshold: float = 1.0
-    max_spikes: int = 16
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "delta_threshold": "threshold",
-        "delta_max_spikes": "max_spikes",
-    }
-    HELP: ClassVar[dict[str, str]] = {
-        "threshold": "level step in multiples of the channel's RMS sample-to-sample change",
-        "max_spikes": "spike times kept per ON / OFF afferent",
-    }
+class DeltaConfig(ComponentSettings):
+    threshold: float = setting(
+        1.0, flag="delta_threshold",
+        help="level step in multiples of the channel's RMS sample-to-sample change",
+    )  # fmt: skip
+    max_spikes: int = setting(
+        16, flag="delta_max_spikes", help="spike times kept per ON / OFF afferent"
+    )
 
     def __post_init__(self) -> None:
         check_positive(self.threshold, "threshold")

@@ -29,6 +29,7 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int
 from ..core.data import evenly_spaced
+from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times, keep_every
 from .base import SpikeEncoder, register_encoder
 
@@ -36,17 +37,15 @@ KEEPS = ("spread", "first")
 
 
 @dataclass(frozen=True)
-class EventsConfig:
-    max_spikes: int = 16
-    keep: str = "spread"
-
-    FLAGS: ClassVar[dict[str, str]] = {"events_max_spikes": "max_spikes", "events_keep": "keep"}
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"keep": KEEPS}
-    HELP: ClassVar[dict[str, str]] = {
-        "max_spikes": "spike times kept per afferent (channel)",
-        "keep": "spread (default): every m-th event (m fitted per afferent) so the slots span the "
+class EventsConfig(ComponentSettings):
+    max_spikes: int = setting(
+        16, flag="events_max_spikes", help="spike times kept per afferent (channel)"
+    )
+    keep: str = setting(
+        "spread", flag="events_keep", choices=KEEPS,
+        help="spread (default): every m-th event (m fitted per afferent) so the slots span the "
         "trial; first: the first max_spikes",
-    }
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_int(self.max_spikes, "max_spikes", 1)

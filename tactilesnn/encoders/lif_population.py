@@ -34,6 +34,7 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
+from ..core.settings import ComponentSettings, setting
 from ..core.spikes import keep_every
 from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes, lif_first_spikes_op
@@ -44,35 +45,27 @@ log = logging.getLogger("tactilesnn")
 
 
 @dataclass(frozen=True)
-class LIFPopulationConfig:
-    neurons: int = 8
-    lo: float = 0.25
-    hi: float = 4.0
-    tau_ms: float = 10.0
-    max_spikes: int = 8
-    norm: str = "train"
-    keep: str = "spread"
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "lif_neurons": "neurons",
-        "lif_lo": "lo",
-        "lif_hi": "hi",
-        "lif_tau_ms": "tau_ms",
-        "lif_max_spikes": "max_spikes",
-        "lif_norm": "norm",
-        "lif_keep": "keep",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"norm": NORMS, "keep": KEEPS}
-    HELP: ClassVar[dict[str, str]] = {
-        "neurons": "LIF converters per channel (thresholds graded from lo to hi)",
-        "lo": "lowest threshold, in multiples of the reference level",
-        "hi": "highest threshold, in multiples of the reference level",
-        "tau_ms": "converter membrane time constant (ms)",
-        "max_spikes": "spike times kept per converter",
-        "norm": "reference level: train (channel RMS on training data) or window (peak |x|)",
-        "keep": "spread (default): every m-th spike (m fitted) so the slots span the window; first: the "
-        "first max_spikes",
-    }
+class LIFPopulationConfig(ComponentSettings):
+    neurons: int = setting(
+        8, flag="lif_neurons", help="LIF converters per channel (thresholds graded from lo to hi)"
+    )
+    lo: float = setting(
+        0.25, flag="lif_lo", help="lowest threshold, in multiples of the reference level"
+    )
+    hi: float = setting(
+        4.0, flag="lif_hi", help="highest threshold, in multiples of the reference level"
+    )
+    tau_ms: float = setting(10.0, flag="lif_tau_ms", help="converter membrane time constant (ms)")
+    max_spikes: int = setting(8, flag="lif_max_spikes", help="spike times kept per converter")
+    norm: str = setting(
+        "train", flag="lif_norm", choices=NORMS,
+        help="reference level: train (channel RMS on training data) or window (peak |x|)",
+    )  # fmt: skip
+    keep: str = setting(
+        "spread", flag="lif_keep", choices=KEEPS,
+        help="spread (default): every m-th spike (m fitted) so the slots span the window; first: "
+        "the first max_spikes",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_int(self.neurons, "neurons", 1)

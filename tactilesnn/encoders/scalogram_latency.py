@@ -19,6 +19,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
+from ..core.settings import ComponentSettings, setting
 from .base import SpikeEncoder, register_encoder
 from .export import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
@@ -28,45 +29,42 @@ from .stream import passband_mask
 
 
 @dataclass(frozen=True)
-class ScalogramLatencySettings:
+class ScalogramLatencySettings(ComponentSettings):
     """Bands (Hz) and the latency code; shared by the GWT and STFT encoders."""
 
-    f_lo_hz: float = 3.0
-    f_hi_hz: float = 90.0  # capped at 0.45 fs (the Gabor bands' unit-sinusoid convention)
-    n_bands: int = 20
-    stats: tuple[str, ...] = ("mean", "std")
-    mapping: str = "log"
-    dynamic_range_db: float = 30.0
-    gate: float = 0.0
-    passband_lo_hz: float = 0.0
-    passband_hi_hz: float = 0.0
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "f_lo_hz": "f_lo_hz",
-        "f_hi_hz": "f_hi_hz",
-        "n_bands": "n_bands",
-        "stats": "stats",
-        "mapping": "mapping",
-        "dynamic_range_db": "dynamic_range_db",
-        "gate": "gate",
-        "passband_lo_hz": "passband_lo_hz",
-        "passband_hi_hz": "passband_hi_hz",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"stats": STATS, "mapping": MAPPINGS}
-    HELP: ClassVar[dict[str, str]] = {
-        "f_lo_hz": "lowest band centre (Hz)",
-        "f_hi_hz": "highest band centre (Hz; capped at 0.45 x the sampling rate)",
-        "n_bands": "number of log-spaced bands",
-        "stats": f"per-band statistics, each one afferent ({', '.join(STATS)})",
-        "mapping": f"amplitude -> latency mapping ({', '.join(MAPPINGS)})",
-        "dynamic_range_db": "log mapping: dB below the strongest band that still spike",
-        "gate": "activity gate: a window's channel whose RMS about its mean is below gate x the "
+    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
+    # capped at 0.45 fs (the Gabor bands' unit-sinusoid convention)
+    f_hi_hz: float = setting(
+        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
+    )
+    n_bands: int = setting(20, help="number of log-spaced bands")
+    stats: tuple[str, ...] = setting(
+        ("mean", "std"), choices=STATS,
+        help=f"per-band statistics, each one afferent ({', '.join(STATS)})",
+    )  # fmt: skip
+    mapping: str = setting(
+        "log", choices=MAPPINGS, help=f"amplitude -> latency mapping ({', '.join(MAPPINGS)})"
+    )
+    dynamic_range_db: float = setting(
+        30.0, help="log mapping: dB below the strongest band that still spike"
+    )
+    gate: float = setting(
+        0.0,
+        help="activity gate: a window's channel whose RMS about its mean is below gate x the "
         "channel's median training RMS is not transformed and stays silent (0 = off)",
-        "passband_lo_hz": "band restriction: bands centred below the sensor's lower passband "
-        "edge (Hz) are not transformed and stay silent (0 = none)",
-        "passband_hi_hz": "band restriction: bands centred above the sensor's upper passband "
-        "edge (Hz) are not transformed and stay silent (0 = none)",
-    }
+    )
+    passband_lo_hz: float = setting(
+        0.0,
+        help="band restriction: bands centred below the sensor's lower passband edge (Hz) are "
+        "not transformed and stay silent (0 = none)",
+    )
+    passband_hi_hz: float = setting(
+        0.0,
+        help="band restriction: bands centred above the sensor's upper passband edge (Hz) are "
+        "not transformed and stay silent (0 = none)",
+    )
+
+    follows_data: ClassVar[bool] = True
 
     @classmethod
     def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
@@ -130,13 +128,11 @@ class GWTConfig(ScalogramLatencySettings):
     1,000-sample windows of 12 taxels: 5.2 ms per window at hop 1, 0.58 ms at hop 10); the torch
     training path still transforms at full rate and decimates."""
 
-    hop: int = 1
-
-    FLAGS: ClassVar[dict[str, str]] = {**ScalogramLatencySettings.FLAGS, "gwt_hop": "hop"}
-    HELP: ClassVar[dict[str, str]] = {
-        **ScalogramLatencySettings.HELP,
-        "hop": "scalogram frame every hop samples (1 = every sample); the exported graph shrinks h times",
-    }
+    hop: int = setting(
+        1, flag="gwt_hop",
+        help="scalogram frame every hop samples (1 = every sample); the exported graph shrinks h "
+        "times",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -147,21 +143,15 @@ class GWTConfig(ScalogramLatencySettings):
 class STFTConfig(ScalogramLatencySettings):
     """Hann STFT (frames of ``frame_samples``, 0 = the whole window) -> latency code."""
 
-    frame_samples: int = 0
-    level_off: bool = True
-
-    #: runs saved before the level was taken off load with it on (their spikes as they were)
-    SAVED_BEFORE: ClassVar[dict[str, object]] = {"level_off": False}
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        **ScalogramLatencySettings.FLAGS,
-        "stft_frame_samples": "frame_samples",
-    }
-    HELP: ClassVar[dict[str, str]] = {
-        **ScalogramLatencySettings.HELP,
-        "frame_samples": "STFT frame length in samples (0 = the whole window, seed 001)",
-        "level_off": "each window less its first sample before the STFT (see level_off)",
-    }
+    frame_samples: int = setting(
+        0, flag="stft_frame_samples",
+        help="STFT frame length in samples (0 = the whole window, seed 001)",
+    )  # fmt: skip
+    level_off: bool = setting(
+        True, flat=False, saved_before=False,
+        help="each window less its first sample before the STFT (runs saved before the level "
+        "was taken off load with it on: their spikes as they were)",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         super().__post_init__()

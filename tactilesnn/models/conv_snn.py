@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
+from ..core.settings import ComponentSettings, setting
 from ..core.spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model, seeded
 from .functional import decay_factor, li_scan, li_scan_op, lif_scan, lif_scan_op, reduce_readout
@@ -38,41 +38,38 @@ MAX_EXTRA = 16
 
 
 @dataclass(frozen=True)
-class ConvSNNConfig:
-    grid: str = "auto"
-    channels: int = 32
-    dt_ms: float = 5.0
-    tau_ms: float = 50.0
-    readout: str = "mean"
-    lr: float = 0.003
-    shift: int = 1
-    dropout: float = 0.2
-    cells: tuple[int, ...] = ()
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "csnn_grid": "grid",
-        "csnn_cells": "cells",
-        "csnn_shift": "shift",
-        "csnn_dropout": "dropout",
-        "csnn_channels": "channels",
-        "csnn_dt_ms": "dt_ms",
-        "csnn_tau_ms": "tau_ms",
-        "csnn_readout": "readout",
-        "csnn_lr": "lr",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"readout": READOUTS}
-    HELP: ClassVar[dict[str, str]] = {
-        "grid": "taxel grid ROWSxCOLS (row-major taxels, polarities interleaved) or auto (square)",
-        "channels": "feature maps of the first convolution (the second has twice as many)",
-        "dt_ms": "time step (ms); the window is rasterised at this step",
-        "tau_ms": "membrane time constant of every layer (ms)",
-        "readout": "class score: max or mean over time of the leaky-integrator output",
-        "lr": "Adam learning rate",
-        "shift": "training only: each sample's grid moved by up to this many taxels (0 = off)",
-        "dropout": "training only: dropout on the second layer's spikes",
-        "cells": "row-major grid cell of each taxel, in taxel order (empty: the taxels fill the grid "
+class ConvSNNConfig(ComponentSettings):
+    grid: str = setting(
+        "auto", flag="csnn_grid",
+        help="taxel grid ROWSxCOLS (row-major taxels, polarities interleaved) or auto (square)",
+    )  # fmt: skip
+    channels: int = setting(
+        32, flag="csnn_channels",
+        help="feature maps of the first convolution (the second has twice as many)",
+    )  # fmt: skip
+    dt_ms: float = setting(
+        5.0, flag="csnn_dt_ms", help="time step (ms); the window is rasterised at this step"
+    )
+    tau_ms: float = setting(
+        50.0, flag="csnn_tau_ms", help="membrane time constant of every layer (ms)"
+    )
+    readout: str = setting(
+        "mean", flag="csnn_readout", choices=READOUTS,
+        help="class score: max or mean over time of the leaky-integrator output",
+    )  # fmt: skip
+    lr: float = setting(0.003, flag="csnn_lr", help="Adam learning rate")
+    shift: int = setting(
+        1, flag="csnn_shift",
+        help="training only: each sample's grid moved by up to this many taxels (0 = off)",
+    )  # fmt: skip
+    dropout: float = setting(
+        0.2, flag="csnn_dropout", help="training only: dropout on the second layer's spikes"
+    )
+    cells: tuple[int, ...] = setting(
+        (), flag="csnn_cells",
+        help="row-major grid cell of each taxel, in taxel order (empty: the taxels fill the grid "
         "row by row)",
-    }
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cells", tuple(int(c) for c in self.cells))

@@ -48,6 +48,7 @@ from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
 from ..core.memory import release_memory
+from ..core.settings import ComponentSettings, setting
 from .base import SpikeModel, register_model, seeded
 from .softmax_fit import (
     CV_WINDOWS,
@@ -78,39 +79,33 @@ EXACT_MIN_SHARE = 0.6
 
 
 @dataclass(frozen=True)
-class ReadoutConfig:
-    tau_ms: float = 0.0  # 0: the window's duration
-    n_times: int = 16
-    lr: float = 0.003
-    weight_decay: float = 0.03
-    solver: str = "exact"
-    choose: bool = True
-
-    #: what a saved configuration without these fields meant (runs written before them)
-    SAVED_BEFORE: ClassVar[dict[str, object]] = {"solver": "adam", "choose": False}
-    #: while encoders are compared (:func:`~tactilesnn.selection.select_encoder`): one exact fit
-    #: at the configured penalty, every instant (the ranking of encoders, at a third of the cost)
-    WHILE_SELECTING: ClassVar[dict[str, object]] = {"choose": False}
-    FLAGS: ClassVar[dict[str, str]] = {
-        "readout_tau_ms": "tau_ms",
-        "readout_times": "n_times",
-        "readout_lr": "lr",
-        "readout_weight_decay": "weight_decay",
-        "readout_solver": "solver",
-        "readout_choose": "choose",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"solver": SOLVERS}
-    HELP: ClassVar[dict[str, str]] = {
-        "tau_ms": "leaky-integrator time constant of the readout traces (ms; 0 = the window)",
-        "n_times": "instants across the window at which the traces are read",
-        "lr": "Adam learning rate of the readout",
-        "weight_decay": "L2 penalty on the readout weights (their inputs are standardised) at 256 "
-        "training windows, scaled by 256 / N for N",
-        "solver": "exact: the convex loss minimised to its optimum (full-batch L-BFGS); adam: "
-        "the trainer's epochs of mini-batch Adam",
-        "choose": "exact solver: the penalty (x 1/3 to 30) and the read-out instants used (all, "
-        "or the last) chosen by 3-fold cross-validation over recordings",
-    }
+class ReadoutConfig(ComponentSettings):
+    tau_ms: float = setting(  # 0: the window's duration
+        0.0, flag="readout_tau_ms",
+        help="leaky-integrator time constant of the readout traces (ms; 0 = the window)",
+    )  # fmt: skip
+    n_times: int = setting(
+        16, flag="readout_times", help="instants across the window at which the traces are read"
+    )
+    lr: float = setting(0.003, flag="readout_lr", help="Adam learning rate of the readout")
+    weight_decay: float = setting(
+        0.03, flag="readout_weight_decay",
+        help="L2 penalty on the readout weights (their inputs are standardised) at 256 training "
+        "windows, scaled by 256 / N for N",
+    )  # fmt: skip
+    # saved_before: what a saved configuration without these fields meant (runs written before
+    # them); while_selecting (:func:`~tactilesnn.selection.select_encoder`): one exact fit at the
+    # configured penalty, every instant (the ranking of encoders, at a third of the cost)
+    solver: str = setting(
+        "exact", flag="readout_solver", choices=SOLVERS, saved_before="adam",
+        help="exact: the convex loss minimised to its optimum (full-batch L-BFGS); adam: the "
+        "trainer's epochs of mini-batch Adam",
+    )  # fmt: skip
+    choose: bool = setting(
+        True, flag="readout_choose", saved_before=False, while_selecting=False,
+        help="exact solver: the penalty (x 1/3 to 30) and the read-out instants used (all, or "
+        "the last) chosen by 3-fold cross-validation over recordings",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         if self.tau_ms != 0:

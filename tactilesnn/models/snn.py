@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
+from ..core.settings import ComponentSettings, setting
 from ..core.spikes import raster_steps, spike_raster
 from .base import SpikeModel, register_model, seeded
 from .functional import (
@@ -297,45 +297,41 @@ class SNNClassifier(nn.Module):
 
 # ---------------------------------------------------------------------------------- component
 @dataclass(frozen=True)
-class SNNConfig:
+class SNNConfig(ComponentSettings):
     """Two-layer surrogate-gradient SNN on the spike raster, trained with Adam on cross-entropy."""
 
-    hidden: int = 64
-    dt_ms: float = 5.0
-    tau_ms: float = 50.0
-    readout: str = "max"
-    recurrent: bool = False
-    lr: float = 0.003
+    hidden: int = setting(64, flag="snn_hidden", help="hidden LIF units")
+    dt_ms: float = setting(
+        5.0, flag="snn_dt_ms", help="SNN time step (ms); the window is rasterised at this step"
+    )
+    tau_ms: float = setting(
+        50.0, flag="snn_tau_ms", help="membrane time constant of every SNN layer (ms)"
+    )
+    readout: str = setting(
+        "max", flag="snn_readout", choices=READOUTS,
+        help=f"class score from the output layer ({', '.join(READOUTS)})",
+    )  # fmt: skip
+    recurrent: bool = setting(
+        False, flag="snn_recurrent",
+        help="recurrent hidden layer (W_rec s_{t-1} added to the input current)",
+    )  # fmt: skip
+    lr: float = setting(0.003, flag="snn_lr", help="Adam learning rate")
     #: early decision: the margin is the smallest at which the early class is the full-window
     #: class on at least this fraction of the training windows (1 = never earlier than needed
     #: on any training window)
-    early_agreement: float = 0.99
-    # steps simulated after the window ends; runs written before the component layer used
-    # ceil(D / dt) + 1 steps, so they load with 1 (LEGACY) and score exactly as they were trained
-    extra_steps: int = 0
-
-    LEGACY: ClassVar[dict[str, object]] = {"extra_steps": 1}
-    FLAGS: ClassVar[dict[str, str]] = {
-        "snn_hidden": "hidden",
-        "snn_dt_ms": "dt_ms",
-        "snn_tau_ms": "tau_ms",
-        "snn_readout": "readout",
-        "snn_recurrent": "recurrent",
-        "snn_lr": "lr",
-        "snn_early_agreement": "early_agreement",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"readout": READOUTS}
-    HELP: ClassVar[dict[str, str]] = {
-        "hidden": "hidden LIF units",
-        "dt_ms": "SNN time step (ms); the window is rasterised at this step",
-        "tau_ms": "membrane time constant of every SNN layer (ms)",
-        "readout": f"class score from the output layer ({', '.join(READOUTS)})",
-        "recurrent": "recurrent hidden layer (W_rec s_{t-1} added to the input current)",
-        "lr": "Adam learning rate",
-        "early_agreement": "early decision: fraction of training windows on which it must name "
-        "the full-window class (higher: later, safer decisions)",
-        "extra_steps": "time steps simulated after the window end (1 in pre-0.2 runs)",
-    }
+    early_agreement: float = setting(
+        0.99, flag="snn_early_agreement",
+        help="early decision: fraction of training windows on which it must name the "
+        "full-window class (higher: later, safer decisions)",
+    )  # fmt: skip
+    # runs written before the component layer simulated ceil(D / dt) + 1 steps, so they load
+    # with 1 (legacy) and score exactly as they were trained
+    extra_steps: int = setting(
+        0,
+        flat=False,
+        legacy=1,
+        help="time steps simulated after the window end (1 in pre-0.2 runs)",
+    )
 
     def __post_init__(self) -> None:
         check_int(self.hidden, "hidden", 1)

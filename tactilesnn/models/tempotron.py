@@ -30,12 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_positive, check_range
+from ..core.settings import ComponentSettings, setting
 from .base import SpikeModel, register_model
 
 
@@ -327,58 +327,56 @@ def maximum_bytes(slots: int) -> int:
 
 
 # ---------------------------------------------------------------------------------- component
+#: how the tempotron learns: seed 001's rule, or Adam on a V_max hinge
+LEARNING = ("rule", "gradient")
+
+
 @dataclass(frozen=True)
-class TempotronConfig:
+class TempotronConfig(ComponentSettings):
     """One exact tempotron per class, trained by seed 001's rule (or Adam on a V_max hinge)."""
 
-    tau_ms: float = 2000.0  # long membrane memory: integrates the whole 500 ms window
-    tau_s_ms: float = 50.0
-    theta: float = 1.0
-    learning: str = "rule"  # "rule" (seed 001) or "gradient" (Adam on a V_max hinge)
-    lr: float = 0.005  # rule: seed 001 lambda
-    adam_lr: float = 0.003  # gradient learning
-    momentum: float = 0.0
-    margin: float = 0.2
-    lr_decay: float = 0.05  # lr_epoch = lr / (1 + lr_decay * epoch)
-
-    FLAGS: ClassVar[dict[str, str]] = {
-        "tempotron_tau_ms": "tau_ms",
-        "tempotron_tau_s_ms": "tau_s_ms",
-        "tempotron_theta": "theta",
-        "tempotron_train": "learning",
-        "tempotron_lr": "lr",
-        "tempotron_adam_lr": "adam_lr",
-        "tempotron_momentum": "momentum",
-        "tempotron_margin": "margin",
-        "tempotron_lr_decay": "lr_decay",
-        # the names of earlier versions, kept as aliases
-        "tau_ms": "tau_ms",
-        "tau_s_ms": "tau_s_ms",
-        "theta": "theta",
-        "lr": "lr",
-        "momentum": "momentum",
-        "margin": "margin",
-        "lr_decay": "lr_decay",
-    }
-    CHOICES: ClassVar[dict[str, tuple[str, ...]]] = {"learning": ("rule", "gradient")}
-    HELP: ClassVar[dict[str, str]] = {
-        "tau_ms": "tempotron membrane time constant (ms)",
-        "tau_s_ms": "tempotron synaptic time constant (ms, < tau)",
-        "theta": "tempotron firing threshold",
-        "learning": "rule (seed 001) or gradient (Adam on a V_max hinge)",
-        "lr": "tempotron rule learning rate lambda (seed 001: 0.005)",
-        "adam_lr": "Adam learning rate when learning = gradient",
-        "momentum": "tempotron rule momentum (0 = seed 001)",
-        "margin": "rule margin kappa: also learn from near misses (0 = seed 001)",
-        "lr_decay": "rule learning rate / (1 + lr_decay * epoch)",
-    }
+    # the flags of earlier versions (tau_ms, theta, lr, ...) are kept as aliases
+    tau_ms: float = setting(  # long membrane memory: integrates the whole 500 ms window
+        2000.0, flag="tempotron_tau_ms", aliases=("tau_ms",),
+        help="tempotron membrane time constant (ms)",
+    )  # fmt: skip
+    tau_s_ms: float = setting(
+        50.0, flag="tempotron_tau_s_ms", aliases=("tau_s_ms",),
+        help="tempotron synaptic time constant (ms, < tau)",
+    )  # fmt: skip
+    theta: float = setting(
+        1.0, flag="tempotron_theta", aliases=("theta",), help="tempotron firing threshold"
+    )
+    learning: str = setting(
+        "rule", flag="tempotron_train", choices=LEARNING,
+        help="rule (seed 001) or gradient (Adam on a V_max hinge)",
+    )  # fmt: skip
+    lr: float = setting(
+        0.005, flag="tempotron_lr", aliases=("lr",),
+        help="tempotron rule learning rate lambda (seed 001: 0.005)",
+    )  # fmt: skip
+    adam_lr: float = setting(
+        0.003, flag="tempotron_adam_lr", help="Adam learning rate when learning = gradient"
+    )
+    momentum: float = setting(
+        0.0, flag="tempotron_momentum", aliases=("momentum",),
+        help="tempotron rule momentum (0 = seed 001)",
+    )  # fmt: skip
+    margin: float = setting(
+        0.2, flag="tempotron_margin", aliases=("margin",),
+        help="rule margin kappa: also learn from near misses (0 = seed 001)",
+    )  # fmt: skip
+    lr_decay: float = setting(
+        0.05, flag="tempotron_lr_decay", aliases=("lr_decay",),
+        help="rule learning rate / (1 + lr_decay * epoch)",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         check_positive(self.tau_s_ms, "tau_s_ms")
         if not self.tau_ms > self.tau_s_ms:
             raise ValueError(f"need tau_ms > tau_s_ms, got {self.tau_ms}, {self.tau_s_ms}")
         check_positive(self.theta, "theta")
-        check_choice(self.learning, "learning", ("rule", "gradient"))
+        check_choice(self.learning, "learning", LEARNING)
         check_positive(self.lr, "lr")
         check_positive(self.adam_lr, "adam_lr")
         check_range(self.momentum, "momentum", 0.0, 0.999)

@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from ...config import PipelineConfig
+from ...core.settings import flag_fields
 from ...core.spikes import clock_times
 from ...datasets_synth import TASKS, get_task
 from ...encoders import ENCODERS
@@ -258,7 +259,7 @@ def realtime_session(
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
     enc = form.split()[0]
-    hop_key = {f: k for k, f in ENCODERS.config_class(enc).FLAGS.items()}["hop"]  # its hop flag
+    hop_key = {f: k for k, f in flag_fields(ENCODERS.config_class(enc)).items()}["hop"]
     cfg = PipelineConfig.from_flat(encoder=enc, model="snn", channels=("all",), f_hi_hz=800.0,
                                    f_lo_hz=5.0, gate=0.0 if touched is None else 0.5,
                                    snn_hidden=snn[0], snn_dt_ms=snn[1], **{hop_key: hop})  # fmt: skip
