@@ -145,7 +145,7 @@ class SpikePipeline:
         """Whether the encoder codes a window with its recording's past (its stream form
         carries state across windows: the encoder's ``codes_with_past``), so that a window
         served in a stream differs from the same window alone."""
-        return bool(getattr(self.encoder, "codes_with_past", False))
+        return self.encoder.codes_with_past
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray
@@ -167,7 +167,7 @@ class SpikePipeline:
         for members, shift in runs:
             rec = join_run(x, members, shift)
             starts = shift * np.arange(1, len(members))
-            parts.append(self.encoder.encode_recording(rec, starts))  # type: ignore[attr-defined]
+            parts.append(self.encoder.encode_recording(rec, starts))
             idx.append(members[1:])
         at = np.concatenate(idx)
         return at, self._with_extra(torch.cat(parts), x[at])
@@ -228,7 +228,7 @@ class SpikePipeline:
                 state = module.upgrade_state(state)
             current = module.state_dict()
             # buffers added in later versions keep their neutral constructed value
-            for k in getattr(module, "optional_state", ()):
+            for k in module.optional_state:
                 state.setdefault(k, current[k].numpy())
             new = {}
             for k, v in current.items():

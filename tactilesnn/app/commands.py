@@ -52,7 +52,7 @@ def parity_line(rep: dict) -> str:
 
 def stream_hint(encoder: str, path: Path) -> str | None:
     """How to export a run's stream graph, where its encoder has a stream form."""
-    if not hasattr(ENCODERS.get(encoder), "stream_module"):
+    if not ENCODERS.get(encoder).has_stream_form:
         return None
     return (f"for streams (each sample transformed once): tactilesnn export {path} --stream "
             f"--out {path / 'stream.onnx'} (a window every half window; --stream-step SAMPLES "

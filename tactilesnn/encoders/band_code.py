@@ -79,7 +79,7 @@ def stft_envelopes(fs_hz: float, freqs_hz: np.ndarray, hop: int, window: int) ->
 
 def envelope_codes() -> tuple[str, ...]:
     """Registered encoders that code analog channels (``codes_envelopes``)."""
-    return tuple(n for n in ENCODERS.names() if getattr(ENCODERS.get(n), "codes_envelopes", False))
+    return tuple(n for n in ENCODERS.names() if ENCODERS.get(n).codes_envelopes)
 
 
 @dataclass(frozen=True)

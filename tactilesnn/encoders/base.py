@@ -23,7 +23,7 @@ from __future__ import annotations
 import contextlib
 import math
 from abc import abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import ClassVar
 
 import numpy as np
@@ -56,6 +56,8 @@ class SpikeEncoder(nn.Module):
     optional_state: ClassVar[tuple[str, ...]] = ()
     #: codes any analog channels (so it can code a transform's band envelopes: ``bands``)
     codes_envelopes: ClassVar[bool] = False
+    #: has a stream form (:meth:`stream_module`: each sample transformed once, state carried)
+    has_stream_form: ClassVar[bool] = False
 
     def __init__(self, config: object, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__()
@@ -135,6 +137,26 @@ class SpikeEncoder(nn.Module):
         if arr.ndim == 2:
             return self.encode(arr[None])[0]
         return self.encode(arr)
+
+    @property
+    def codes_with_past(self) -> bool:
+        """Whether :meth:`encode_recording` codes a recording's windows with their past, as the
+        stream form serves them (a window then differs from the same window alone)."""
+        return False
+
+    def stream_module(self, step: int | None = None) -> nn.Module:
+        """The stream step: ``step`` new samples + state -> the completed window's spikes + the
+        next state (default: half a window); only where :attr:`has_stream_form`."""
+        raise ValueError(
+            f"the {self.registry_name} encoder has no stream form (the cgwt encoder has): serve "
+            "its window graph, which the service feeds a window every half window"
+        )
+
+    def encode_recording(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
+        """Spike times ``[len(starts), afferents, max_spikes]`` of the windows of one recording
+        ``x [channels, samples]`` starting at ``starts``, each coded with the recording's past;
+        only where :attr:`codes_with_past`."""
+        raise ValueError(f"the {self.registry_name} encoder codes windows alone")
 
     def skip_stats(self) -> dict | None:
         """What the encoder skips, per mechanism (e.g. ``{"activity_gate": {...}}``: the fraction

@@ -81,6 +81,7 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
 
     #: runs saved before the stream's input gain load with gain 1 (as they were exported)
     optional_state: ClassVar[tuple[str, ...]] = ("gate_rms", "stream_gain")
+    has_stream_form: ClassVar[bool] = True
 
     def __init__(self, config, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__(config, fs_hz, window, n_channels)

@@ -39,14 +39,10 @@ class StreamEncoderGraph(PipelineEncoderGraph):
     this graph's ``encoder``."""
 
     def __init__(self, pipe: SpikePipeline, step: int | None = None) -> None:
-        make = getattr(pipe.encoder, "stream_module", None)
-        if make is None:
-            raise ValueError(
-                f"the {pipe.config.encoder_type} encoder has no stream form (the cgwt encoder has): "
-                "serve its window graph, which the service feeds a window every half window"
-            )
+        if not pipe.encoder.has_stream_form:
+            pipe.encoder.stream_module()  # the error naming the encoder
         self.step = stream_step(pipe, step)
-        enc = make(self.step)
+        enc = pipe.encoder.stream_module(self.step)
         super().__init__(pipe, encoder=enc)
         self.state_init = dict(enc.state_init)
         self.with_prev = self.with_level

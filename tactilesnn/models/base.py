@@ -58,6 +58,8 @@ class SpikeModel(nn.Module):
     #: module's loops then as scan operators): else only the TorchScript-based exporter writes it
     onnx_exportable: ClassVar[bool] = True
     #: what the scores mean (written into the exported graph's metadata)
+    #: buffers a saved run may lack (added later); they keep their constructed, neutral value
+    optional_state: ClassVar[tuple[str, ...]] = ()
     score_units: ClassVar[str] = "class scores (larger = more likely)"
 
     def __init__(
