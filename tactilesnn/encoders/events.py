@@ -67,6 +67,20 @@ class _EventsGraph(nn.Module):
         return first_spike_times(counts, self.dt, self.k)
 
 
+#: windows checked or summed at a time (bounded temporaries whatever the file's size)
+ROWS = 256
+
+
+def _all_counts(X: np.ndarray) -> bool:
+    """True if every value of ``X`` is a non-negative whole number, checked a block of windows
+    at a time (whole-array tests made three temporaries of the file's size)."""
+    for i in range(0, len(X), ROWS):
+        block = X[i : i + ROWS]
+        if (block < 0).any() or not np.array_equal(block, np.round(block)):
+            return False
+    return True
+
+
 @register_encoder("events", EventsConfig)
 class EventsEncoder(SpikeEncoder):
     """Event counts per bin -> spike times, one afferent per channel; see the module docstring."""
@@ -89,7 +103,7 @@ class EventsEncoder(SpikeEncoder):
 
     def fit(self, X: np.ndarray) -> EventsEncoder:
         arr = np.asarray(X)
-        if arr.size and ((arr < 0).any() or not np.array_equal(arr, np.round(arr))):
+        if not _all_counts(arr):
             raise ValueError(
                 "the events encoder takes event counts per bin (non-negative integers); "
                 "use an analog encoder (gwt, stft, lif, delta) for sampled signals"
@@ -102,7 +116,9 @@ class EventsEncoder(SpikeEncoder):
         """Per afferent: median count over the (up to ``n_max``) training windows in which it
         fires, over the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
         idx = evenly_spaced(len(X), n_max)
-        counts = np.asarray(X[idx], dtype=np.float64).sum(-1)  # [n, C]
+        # a block of windows at a time: no float64 copy of 4,096 windows (655 MB on ST-MNIST)
+        counts = np.concatenate([X[idx[i : i + ROWS]].sum(-1, dtype=np.float64)
+                                 for i in range(0, len(idx), ROWS)])  # fmt: skip  [n, C]
         active = np.where(counts > 0, counts, np.nan)
         with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -110,7 +126,9 @@ class EventsEncoder(SpikeEncoder):
         return keep_every(med, self.config.max_spikes)
 
     def bytes_per_window(self) -> int:
-        return 4 * self.n_channels * self.window * 4
+        # counts, their running sum, the prescaled counts, each slot's hit mask and its float
+        # copy, the gathered times: ~12 float32 temporaries per (channel, bin) (measured peak)
+        return 48 * self.n_channels * self.window
 
     def encode_batch(self, x: Tensor) -> Tensor:
         return self.onnx_module()(x)
