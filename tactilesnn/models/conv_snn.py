@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
@@ -139,8 +140,19 @@ def random_shift(g: Tensor, shift: int) -> Tensor:
     return out
 
 
+def halves_pool(x: Tensor) -> Tensor:
+    """``avg_pool2d(x, 2)`` of ``x [N, C, H, W]`` with even ``H``, ``W``, as two sums of strided
+    halves (the pooling op took a sixth of a csnn training step on CPU; these 10 % less)."""
+    n, c, h, w = x.shape
+    y = x.reshape(n, c, h // 2, 2, w)
+    y = (y[:, :, :, 0] + y[:, :, :, 1]).reshape(n, c, h // 2, w // 2, 2)
+    return (y[..., 0] + y[..., 1]) * 0.25
+
+
 class _ConvSNNCore(nn.Module):
     """The network on a raster ``[steps, B, A]``; ``scan`` is the membrane recurrence."""
+
+    __constants__: ClassVar[list[str]] = ["halves"]  # a constant of the scripted graph, not a branch in it
 
     def __init__(self, layout: tuple[int, int, int, int], channels: int, n_classes: int,
                  beta: float, cells: tuple[int, ...] = ()) -> None:  # fmt: skip
@@ -156,6 +168,7 @@ class _ConvSNNCore(nn.Module):
         self.conv1 = nn.Conv2d(self.pol, channels, 3, padding=1)
         self.conv2 = nn.Conv2d(channels, 2 * channels, 3, padding=1)
         self.pool = (min(2, self.rows), min(2, self.cols))
+        self.halves = self.pool == (2, 2) and self.rows % 2 == 0 and self.cols % 2 == 0
         r2, c2 = -(-self.rows // self.pool[0]), -(-self.cols // self.pool[1])
         self.n1 = channels * self.rows * self.cols
         self.n2 = 2 * channels * r2 * c2
@@ -177,7 +190,10 @@ class _ConvSNNCore(nn.Module):
     def layer2_input(self, s1: Tensor) -> Tensor:
         steps, batch = s1.shape[0], s1.shape[1]
         x = s1.reshape(steps * batch, self.conv1.out_channels, self.rows, self.cols)
-        x = nn.functional.avg_pool2d(x, self.pool, ceil_mode=True)
+        if self.halves:
+            x = halves_pool(x)
+        else:
+            x = nn.functional.avg_pool2d(x, self.pool, ceil_mode=True)
         return self.conv2(x).reshape(steps, batch, self.n2)
 
     def readout_input(self, s2: Tensor, raster: Tensor) -> Tensor:

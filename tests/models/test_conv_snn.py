@@ -141,3 +141,12 @@ def test_event_files_with_a_taxel_grid_default_to_the_conv_snn(tmp_path, capsys)
     out = tmp_path / "r_user"
     assert main(["train", "--data", str(declared), "--model", "readout", "--epochs", "1",
                  "--out", str(out), "--quiet", "--no-export"]) == 0  # fmt: skip
+
+
+@pytest.mark.parametrize("shape", [(3, 4, 10, 10), (2, 3, 2, 6), (1, 2, 4, 4)])
+def test_the_halves_pool_is_the_op_s(shape):
+    from tactilesnn.models.conv_snn import halves_pool
+
+    x = torch.randn(*shape, dtype=torch.float64)
+    ref = torch.nn.functional.avg_pool2d(x, 2, ceil_mode=True)
+    torch.testing.assert_close(halves_pool(x), ref, rtol=0, atol=1e-12)
