@@ -76,9 +76,15 @@ class DeltaEncoder(SpikeEncoder):
         return self.config.max_spikes
 
     def fit(self, X: np.ndarray) -> DeltaEncoder:
-        arr = np.asarray(X, dtype=np.float64)
-        rms = np.median(np.sqrt((np.diff(arr, axis=-1) ** 2).mean(-1)), axis=0)  # [C]
-        scale = np.abs(arr).max(axis=(0, 2))
+        arr = np.asarray(X)
+        # a block of windows at a time in float64 (no float64 copy of the whole training set)
+        change, peak = [], []
+        for i in range(0, len(arr), 256):
+            block = np.asarray(arr[i : i + 256], dtype=np.float64)
+            change.append(np.sqrt((np.diff(block, axis=-1) ** 2).mean(-1)))  # [n, C]
+            peak.append(np.abs(block).max(axis=(0, 2)))
+        rms = np.median(np.concatenate(change), axis=0)  # [C]
+        scale = np.max(peak, axis=0)
         # a channel that never changes keeps a level step that cannot be crossed by its noise
         floor = np.maximum(1e-6 * scale, np.finfo(np.float64).tiny)
         self.delta.copy_(torch.from_numpy(self.config.threshold * np.maximum(rms, floor)))

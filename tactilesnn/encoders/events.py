@@ -117,8 +117,9 @@ class EventsEncoder(SpikeEncoder):
         fires, over the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
         idx = evenly_spaced(len(X), n_max)
         # a block of windows at a time: no float64 copy of 4,096 windows (655 MB on ST-MNIST)
-        counts = np.concatenate([X[idx[i : i + ROWS]].sum(-1, dtype=np.float64)
-                                 for i in range(0, len(idx), ROWS)])  # fmt: skip  [n, C]
+        counts = np.concatenate(
+            [X[idx[i : i + ROWS]].sum(-1, dtype=np.float64) for i in range(0, len(idx), ROWS)]
+        )  # fmt: skip  [n, C]
         active = np.where(counts > 0, counts, np.nan)
         with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1
             warnings.simplefilter("ignore", RuntimeWarning)

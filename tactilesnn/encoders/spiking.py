@@ -280,56 +280,6 @@ def lif_convert(
     )
 
 
-def _updown(arr: np.ndarray, fs: float, step, kind: str) -> SpikeEvents:
-    b, c, n = arr.shape
-    dt = 1000.0 / fs
-    flat = arr.reshape(b * c, n)
-    ref = flat[:, 0].copy() if kind == "delta" else np.zeros(b * c)
-    rows, times, pol = [], [], []
-    for i in range(n):
-        if kind == "delta":
-            diff = flat[:, i] - ref
-        else:  # sigma-delta: integrate the input, emit a quantum of +-step
-            ref += flat[:, i]
-            diff = ref
-        k = np.trunc(diff / step).astype(np.int64)  # whole quanta crossed this sample
-        nz = np.flatnonzero(k)
-        if nz.size:
-            cnt = np.abs(k[nz])
-            rows.append(np.repeat(nz, cnt))
-            pol.append(np.repeat(np.sign(k[nz]), cnt).astype(np.int8))
-            times.append(np.full(cnt.sum(), i * dt))
-            if kind == "delta":
-                ref[nz] += k[nz] * step
-            else:
-                ref[nz] -= k[nz] * step
-    row = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-    p = np.concatenate(pol) if pol else np.zeros(0, np.int8)
-    t = np.concatenate(times) if times else np.zeros(0)
-    return SpikeEvents(
-        batch=row // c,
-        neuron=2 * (row % c) + (p < 0),
-        time_ms=t,
-        polarity=p,
-        shape=(b, 2 * c),
-        duration_ms=n * dt,
-    )
-
-
-def delta_encode(x: np.ndarray, fs_hz: float, step: float) -> SpikeEvents:
-    """Send-on-delta: an up (down) spike each time the input rises (falls) by ``step`` since the
-    last spike. ``x[0] + step * (ups - downs)`` tracks the input within ``step``."""
-    arr, fs = _validate(x, fs_hz)
-    return _updown(arr, fs, check_positive(step, "step"), "delta")
-
-
-def sigma_delta_encode(x: np.ndarray, fs_hz: float, step: float) -> SpikeEvents:
-    """First-order sigma-delta: integrate the input, emit +-``step`` quanta. ``step * (ups -
-    downs)`` up to sample n tracks ``sum(x[:n+1])`` within ``step``."""
-    arr, fs = _validate(x, fs_hz)
-    return _updown(arr, fs, check_positive(step, "step"), "sigma")
-
-
 def spike_rate(events: SpikeEvents, bin_ms: float, step_ms: float) -> tuple[np.ndarray, np.ndarray]:
     """Sliding-bin firing rate (SPEC 2.2): counts in ``[t - bin, t)`` / bin, in Hz.
 

@@ -152,7 +152,9 @@ def halves_pool(x: Tensor) -> Tensor:
 class _ConvSNNCore(nn.Module):
     """The network on a raster ``[steps, B, A]``; ``scan`` is the membrane recurrence."""
 
-    __constants__: ClassVar[list[str]] = ["halves"]  # a constant of the scripted graph, not a branch in it
+    __constants__: ClassVar[list[str]] = [
+        "halves"
+    ]  # a constant of the scripted graph, not a branch in it
 
     def __init__(self, layout: tuple[int, int, int, int], channels: int, n_classes: int,
                  beta: float, cells: tuple[int, ...] = ()) -> None:  # fmt: skip
