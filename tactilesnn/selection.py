@@ -11,13 +11,16 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
+import torch
 
 from .config import PipelineConfig
 from .core.data import WindowDataset, evenly_spaced
 from .core.memory import release_memory
 from .core.settings import while_selecting
 from .encoders import ENCODERS
+from .models.base import to_tensor_labels
 from .pipeline import SpikePipeline
+from .trainer import TRAIN_ERROR_WINDOWS
 from .training import fit_and_evaluate, split_validation
 
 log = logging.getLogger("tactilesnn")
@@ -117,21 +120,31 @@ def fit_encoder_to_data(config: PipelineConfig, train: WindowDataset, keep: Iter
 @dataclass(frozen=True)
 class Probe:
     """A pipeline's measured encoding speed (seconds per window), whether its encoder also codes
-    windows with their past (the final fit encodes those too) and whether its model solves in
-    one go (a fit is then a few passes: estimable; else epochs: not estimated)."""
+    windows with their past (the final fit encodes those too), whether its model solves in one
+    go (a fit is then a few passes), and for a model trained over epochs the seconds one
+    training step takes per window (``step_seconds_per_window``) and its epochs."""
 
     seconds_per_window: float
     codes_with_past: bool
     solves: bool
+    step_seconds_per_window: float | None = None
+    epochs: int = 0
 
     def fit_seconds(
         self, n_train: int, n_test: int, overhead: float = FIT_OVERHEAD
     ) -> float | None:
-        """Estimated seconds to fit on ``n_train`` windows and score ``n_test``."""
-        if not self.solves:
-            return None
+        """Estimated seconds to fit on ``n_train`` windows and score ``n_test``: the encoding
+        (times ``overhead``), and for a model trained over epochs its epochs' steps plus each
+        epoch's scoring of up to :data:`~tactilesnn.trainer.TRAIN_ERROR_WINDOWS` training
+        windows (a forward pass: a third of a step)."""
         n = n_train * (2 if self.codes_with_past else 1) + n_test
-        return overhead * self.seconds_per_window * n
+        if self.solves:
+            return overhead * self.seconds_per_window * n
+        if self.step_seconds_per_window is None:
+            return None
+        scored = min(n_train, TRAIN_ERROR_WINDOWS) + n_test / max(1, self.epochs)
+        per_epoch = self.step_seconds_per_window * (n_train + scored / 3)
+        return self.seconds_per_window * n + self.epochs * per_epoch
 
 
 def probe(config: PipelineConfig, data: WindowDataset, n: int = PROBE_WINDOWS) -> Probe:
@@ -144,7 +157,7 @@ def probe(config: PipelineConfig, data: WindowDataset, n: int = PROBE_WINDOWS) -
     pipe = SpikePipeline(config, data.fs_hz, data.X.shape[-1], data.channel_names,
                          data.class_names)  # fmt: skip
     pipe.calibrate(big.X)
-    pipe.encode(small.X)
+    spikes = pipe.encode(small.X)
     timed = []
     for part in (small, big):
         t0 = time.perf_counter()
@@ -154,7 +167,32 @@ def probe(config: PipelineConfig, data: WindowDataset, n: int = PROBE_WINDOWS) -
     rate = (timed[1] - timed[0]) / extra if extra > 0 else 0.0
     if rate <= 0:  # too fast or too noisy to tell apart: the larger pass per window
         rate = timed[1] / max(1, big.y.size)
-    return Probe(rate, pipe.streams_recordings, type(pipe.model).solves_in_one_go(config.model))
+    solves = type(pipe.model).solves_in_one_go(config.model)
+    step = None if solves else _step_seconds(pipe.model, spikes, small.y, config.train.batch_size)
+    return Probe(rate, pipe.streams_recordings, solves, step, config.train.epochs)
+
+
+def _step_seconds(model, spikes: torch.Tensor, y: np.ndarray, batch: int) -> float:
+    """Seconds per window of one training step of ``model`` (the median of three mini-batches
+    of up to ``batch`` windows, after one that pays for caches), on a throw-away model with the
+    global random state kept."""
+    reps = -(-min(batch, 64) // spikes.shape[0])
+    xb = spikes.repeat(reps, 1, 1)[: min(batch, 64)]
+    yb = to_tensor_labels(np.resize(y, xb.shape[0]), model.n_classes, xb.shape[0])
+    times = []
+    with torch.random.fork_rng():
+        model.prepare(xb)
+        opt = None if model.learns_by_rule else torch.optim.Adam(model.parameters(), lr=1e-6)
+        for _ in range(4):
+            t0 = time.perf_counter()
+            if opt is None:
+                model.rule_update(xb, yb, 0)
+            else:
+                opt.zero_grad()
+                model.loss(xb, yb).backward()
+                opt.step()
+            times.append(time.perf_counter() - t0)
+    return float(np.median(times[1:])) / xb.shape[0]
 
 
 @dataclass

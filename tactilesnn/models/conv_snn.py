@@ -34,6 +34,8 @@ from .functional import decay_factor, li_scan, li_scan_op, lif_scan, lif_scan_op
 from .snn import _LIFScan
 
 READOUTS = ("max", "mean")
+#: time steps per window of ``dt_ms = 0``
+AUTO_STEPS = 10
 #: afferents beyond an inferred grid (clock afferents) that ``grid = "auto"`` accepts
 MAX_EXTRA = 16
 
@@ -49,11 +51,14 @@ class ConvSNNConfig(ComponentSettings):
         help="feature maps of the first convolution (the second has twice as many)",
     )  # fmt: skip
     dt_ms: float = setting(
-        5.0, flag="csnn_dt_ms", help="time step (ms); the window is rasterised at this step"
-    )
+        5.0, flag="csnn_dt_ms",
+        help=f"time step (ms); the window is rasterised at this step (0 = the window / "
+        f"{AUTO_STEPS})",
+    )  # fmt: skip
     tau_ms: float = setting(
-        50.0, flag="csnn_tau_ms", help="membrane time constant of every layer (ms)"
-    )
+        50.0, flag="csnn_tau_ms",
+        help="membrane time constant of every layer (ms; 0 = half the window)",
+    )  # fmt: skip
     readout: str = setting(
         "mean", flag="csnn_readout", choices=READOUTS,
         help="class score: max or mean over time of the leaky-integrator output",
@@ -82,8 +87,16 @@ class ConvSNNConfig(ComponentSettings):
         elif self.cells:
             raise ValueError("cells need an explicit grid (ROWSxCOLS)")
         check_int(self.channels, "channels", 1)
-        check_positive(self.dt_ms, "dt_ms")
-        check_positive(self.tau_ms, "tau_ms")
+        for name in ("dt_ms", "tau_ms"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number of ms >= 0 (0 = from the "
+                                 f"window), got {value}")  # fmt: skip
+
+    def times_ms(self, duration_ms: float) -> tuple[float, float]:
+        """``(dt_ms, tau_ms)`` for windows of ``duration_ms``: the set values, or for 0 the
+        window / :data:`AUTO_STEPS` and half the window (the same network on any time scale)."""
+        return (self.dt_ms or duration_ms / AUTO_STEPS, self.tau_ms or duration_ms / 2)
         check_choice(self.readout, "readout", READOUTS)
         check_positive(self.lr, "lr")
         check_int(self.shift, "shift", 0)
@@ -218,13 +231,14 @@ class ConvSNNModel(SpikeModel):
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
         layout = grid_layout(n_afferents, config.grid, len(config.cells))
-        beta = decay_factor(config.dt_ms, config.tau_ms)
+        self.dt_ms, tau_ms = config.times_ms(duration_ms)
+        beta = decay_factor(self.dt_ms, tau_ms)
         with seeded(seed):  # the layers draw their initial weights from the global RNG
             self.core = _ConvSNNCore(layout, config.channels, n_classes, beta, config.cells)
-        self.steps = raster_steps(duration_ms, config.dt_ms)
+        self.steps = raster_steps(duration_ms, self.dt_ms)
 
     def raster(self, spikes: Tensor) -> Tensor:
-        return spike_raster(spikes, self.config.dt_ms, self.steps)
+        return spike_raster(spikes, self.dt_ms, self.steps)
 
     def scores(self, spikes: Tensor, training: bool = False) -> Tensor:
         """Class scores; ``training`` adds the shift augmentation and dropout."""
@@ -276,7 +290,7 @@ class _ConvSNNGraph(nn.Module):
     def __init__(self, model: ConvSNNModel) -> None:
         super().__init__()
         self.core = model.core
-        self.dt, self.steps = float(model.config.dt_ms), int(model.steps)
+        self.dt, self.steps = float(model.dt_ms), int(model.steps)
         self.readout = model.config.readout
 
     def forward(self, spikes: Tensor, h1: Tensor, h2: Tensor, o: Tensor):
