@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from .gate import active_channels
+
 WINDOW_INPUT = "window"
 SCORES_OUTPUT = "scores"
 SPIKES_VALUE = "spikes"
@@ -93,12 +95,12 @@ class GraphContract:
     # ------------------------------------------------------------------ activity gate
     def silent_channels(self, window: np.ndarray) -> np.ndarray:
         """``window [channels, samples]`` -> bool ``[len(encoder_channels)]``: which encoder
-        channels the activity gate silences (all False without a gate). The same rule as the
-        encoder's (population standard deviation, float64, ``<=`` the threshold)."""
+        channels the activity gate silences (all False without a gate): the encoder's rule,
+        :func:`~tactilesnn.core.gate.active_channels` (in float64)."""
         if self.gate_rms is None or not self.encoder_channels:
             return np.zeros(len(self.encoder_channels), bool)
-        rms = np.asarray(window)[list(self.encoder_channels)].astype(np.float64).std(axis=-1)
-        return rms <= np.asarray(self.gate_rms, np.float64)
+        window = np.asarray(window, np.float64)[list(self.encoder_channels)]
+        return ~active_channels(window, np.asarray(self.gate_rms, np.float64))
 
     # ------------------------------------------------------------------ metadata
     def to_metadata(self) -> dict[str, str]:

@@ -44,10 +44,10 @@ from ..core.settings import ComponentSettings, setting
 from . import delta, lif_population  # noqa: F401  (codes registered before CHOICES is built)
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .causal_gabor import CausalGaborScalogram
-from .export import WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .scalogram_latency import GWTConfig
 from .stft import STFTScalogram
+from .window_graphs import WindowEncoder
 
 TRANSFORMS: Registry = Registry("transform")
 #: the exported envelope matrices (float32 real and imaginary parts) at most this large

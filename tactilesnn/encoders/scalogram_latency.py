@@ -19,13 +19,14 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive
+from ..core.gate import active_channels, thresholds
 from ..core.settings import ComponentSettings, setting
 from .base import SpikeEncoder, register_encoder
-from .export import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import MAPPINGS, STATS, LatencyCode
+from .passband import passband_mask
 from .stft import STFTScalogram
-from .stream import passband_mask
+from .window_graphs import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
 
 
 @dataclass(frozen=True)
@@ -194,8 +195,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
 
     def fit(self, X: np.ndarray) -> ScalogramLatencyEncoder:
         if self.config.gate > 0:
-            rms = np.asarray(X, np.float64).std(axis=-1)  # [N, C] about each window's mean
-            self.gate_rms.copy_(torch.from_numpy(self.config.gate * np.median(rms, axis=0)))
+            self.gate_rms.copy_(torch.from_numpy(thresholds(np.asarray(X), self.config.gate)))
         self.fitted.fill_(True)
         return self
 
@@ -267,7 +267,7 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         if self.config.gate <= 0 or not self.skip_enabled:
             return self._code_rows(x).unsqueeze(-1)
         n, c = x.shape[0], x.shape[1]
-        active = x.std(-1, unbiased=False) > self.gate_rms.to(x.dtype)  # [n, C]
+        active = active_channels(x, self.gate_rms.to(x.dtype))  # [n, C]
         per = len(self.config.stats) * self.config.n_bands
         out = torch.full((n, c, per), math.inf, dtype=torch.float32, device=x.device)
         b, ch = active.nonzero(as_tuple=True)
@@ -394,7 +394,7 @@ class _GateMask(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         c, n = x.shape[1:]
-        active = (x.std(-1, unbiased=False) > self.gate_rms).reshape(-1)  # [B * C]
+        active = active_channels(x, self.gate_rms).reshape(-1)  # [B * C]
         rows = torch.nonzero(active).reshape(-1)
         flat = x.reshape(-1, 1, n)
         t = self.inner(flat.index_select(0, rows))  # [rows, per, 1]

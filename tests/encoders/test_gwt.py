@@ -114,9 +114,9 @@ def test_rejects_bad_input():
 def test_fir_export_form_matches_fft_path(fs: float, n: int, hop: int) -> None:
     """The exported FIR form equals the FFT path, also when the lowest wavelet outlasts the
     window (4 kHz, 0.5 s window, 3 Hz band: the FFT's wrap-around must be reproduced)."""
-    from tactilesnn.encoders.export import GaborConvEncoder
     from tactilesnn.encoders.gwt import log_bands
     from tactilesnn.encoders.latency import LatencyCode
+    from tactilesnn.encoders.window_graphs import GaborConvEncoder
 
     sc = GaborScalogram(fs, log_bands(3.0, 90.0, 20), hop=hop)
     enc = GaborConvEncoder(sc, LatencyCode(), n).double()
@@ -203,9 +203,9 @@ def test_factored_export_form_matches_fft_path(padding: str, n: int, hop: int) -
     """Low-rank, FIR and dense bands together reproduce the FFT path in float64 (to the rank
     tolerance), with fewer multiply-adds than the dense window matrices, and code the same
     spikes in band order."""
-    from tactilesnn.encoders.export import FactoredGaborEncoder, WindowEncoder
     from tactilesnn.encoders.gwt import log_bands
     from tactilesnn.encoders.latency import LatencyCode
+    from tactilesnn.encoders.window_graphs import FactoredGaborEncoder, WindowEncoder
 
     sc = GaborScalogram(2000.0, log_bands(5.0, 800.0, 20), hop=hop, padding=padding)
     enc = FactoredGaborEncoder(sc, LatencyCode(stats=("mean", "std")), n).double()
@@ -233,7 +233,7 @@ def test_factored_export_form_matches_fft_path(padding: str, n: int, hop: int) -
 @pytest.mark.parametrize("hop", [1, 3, 10])
 @pytest.mark.parametrize("taps", [1, 7, 185])
 def test_polyphase_convolution_equals_the_strided_convolution(hop: int, taps: int) -> None:
-    from tactilesnn.encoders.export import polyphase_conv, polyphase_weight
+    from tactilesnn.encoders.window_graphs import polyphase_conv, polyphase_weight
 
     g = torch.Generator().manual_seed(hop * 1000 + taps)
     for length in (taps, taps + 1, taps + hop * 7 + 2, 1184):

@@ -18,7 +18,7 @@ import torch
 from ...datasets_synth import HookLoopTask
 from ...encoders.gwt import GaborScalogram, log_bands
 from ...encoders.latency import LatencyCode
-from ...encoders.stream import StreamEncoder
+from ...encoders.sliding import SlidingEncoder
 
 
 def taxel_streams(n_taxels: int, touched: int, seed: int = 0) -> tuple[np.ndarray, float]:
@@ -44,8 +44,8 @@ def bench_sparse(repeats: int = 5, n_taxels: int = 12) -> dict:
     rows = []
     for touched in (1, 3, 6, 12):
         x, floor = taxel_streams(n_taxels, touched)
-        ungated = StreamEncoder(g, code, window=100, hop=50)
-        gated = StreamEncoder(g, code, window=100, hop=50, noise_floor=floor)
+        ungated = SlidingEncoder(g, code, window=100, hop=50)
+        gated = SlidingEncoder(g, code, window=100, hop=50, noise_floor=floor)
         ref, out = ungated.encode(x), gated.encode(x)
         t_un = statistics.median(_time(ungated.encode, x) for _ in range(repeats))
         t_g = statistics.median(_time(gated.encode, x) for _ in range(repeats))

@@ -7,10 +7,11 @@ import pytest
 import torch
 
 from tactilesnn.config import PipelineConfig
-from tactilesnn.encoders.export import WindowEncoder, export_window_encoder
 from tactilesnn.encoders.gwt import GaborScalogram, log_bands
 from tactilesnn.encoders.latency import LatencyCode
-from tactilesnn.encoders.stream import StreamEncoder, restrict_bands
+from tactilesnn.encoders.passband import restrict_bands
+from tactilesnn.encoders.sliding import SlidingEncoder
+from tactilesnn.encoders.window_graphs import WindowEncoder, export_window_encoder
 from tactilesnn.pipeline import SpikePipeline
 
 FS = 200.0
@@ -18,7 +19,7 @@ FS = 200.0
 
 def make_stream_encoder(**kw):
     g = GaborScalogram(FS, log_bands(3, 90, 16))
-    return StreamEncoder(g, LatencyCode(stats=("mean", "std")), window=100, hop=50, **kw)
+    return SlidingEncoder(g, LatencyCode(stats=("mean", "std")), window=100, hop=50, **kw)
 
 
 def test_chunked_equals_one_shot_on_a_long_stream():

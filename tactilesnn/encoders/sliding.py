@@ -1,15 +1,15 @@
-"""Encoding long streams: sliding windows, chunked processing, and an activity gate.
+"""Encoding long streams offline: sliding windows, chunked processing, and the activity gate.
 
-Array contract of :meth:`StreamEncoder.encode`: ``x`` ``[batch, channels, samples]`` at the
+Array contract of :meth:`SlidingEncoder.encode`: ``x`` ``[batch, channels, samples]`` at the
 scalogram's rate -> spike times ``[batch, windows, channels * stats * bands]`` (ms from each
 window's start, ``+inf`` = silent); window ``k`` covers samples ``[k * hop, k * hop + window)``.
 Each window is transformed on its own (reflect edges), exactly as a trained pipeline sees it, so
 processing the stream in chunks of windows gives the one-shot result.
 
-Activity gate (skip what a scene does not need): a (batch, channel, window) whose RMS about its
-mean stays below ``noise_floor`` (in the input's units) is not transformed and emits no spikes.
-Active parts are computed exactly as without the gate. :attr:`StreamEncoder.last_stats` reports the
-fraction of work skipped.
+Activity gate (skip what a scene does not need; the rule of :mod:`tactilesnn.core.gate`, with
+``noise_floor`` in the input's units as every channel's threshold): a (batch, channel, window)
+at or below it is not transformed and emits no spikes. Active parts are computed exactly as
+without the gate. :attr:`SlidingEncoder.last_stats` reports the fraction of work skipped.
 """
 
 from __future__ import annotations
@@ -18,12 +18,13 @@ import numpy as np
 import torch
 
 from ..core.checks import as_float_array, check_finite
+from ..core.gate import active_channels
 from .gwt import GaborScalogram
 from .latency import LatencyCode
 from .stft import STFTScalogram
 
 
-class StreamEncoder:
+class SlidingEncoder:
     """Sliding-window scalogram + latency code over a long stream, optionally gated."""
 
     def __init__(
@@ -54,7 +55,7 @@ class StreamEncoder:
         """``[..., window]`` -> bool mask of windows whose RMS about the mean exceeds the floor."""
         if self.noise_floor is None:
             return np.ones(windows.shape[:-1], dtype=bool)
-        return windows.std(axis=-1) > self.noise_floor
+        return active_channels(windows, self.noise_floor)
 
     def encode(self, x: np.ndarray) -> np.ndarray:
         arr = as_float_array(x, "x", ndim=3)
@@ -82,31 +83,3 @@ class StreamEncoder:
             "skipped_fraction": 1.0 - float(mask.sum()) / total,
         }
         return out.reshape(b, nw, c * n_stats * n_bands)
-
-
-def passband_mask(
-    freqs_hz: np.ndarray, fs_hz: float, passband_hz: tuple[float, float] | None = None
-) -> np.ndarray:
-    """Which band centres lie inside the sensor's passband (Hz, inclusive) and below 0.45 fs.
-
-    Bands a sensor cannot deliver (above its Nyquist frequency or outside its bandwidth) need no
-    work. Raises ValueError if no band is left.
-    """
-    f = np.asarray(freqs_hz, dtype=np.float64)
-    keep = (f > 0) & (f <= 0.45 * fs_hz)
-    if passband_hz is not None:
-        lo, hi = passband_hz
-        keep &= (f >= lo) & (f <= hi)
-    if not keep.any():
-        raise ValueError(
-            f"no band centre of {f.min():.3g}-{f.max():.3g} Hz lies inside the passband "
-            f"{passband_hz} Hz and below 0.45 fs = {0.45 * fs_hz:.3g} Hz"
-        )
-    return keep
-
-
-def restrict_bands(
-    freqs_hz: np.ndarray, fs_hz: float, passband_hz: tuple[float, float] | None = None
-) -> np.ndarray:
-    """The band centres :func:`passband_mask` keeps."""
-    return np.asarray(freqs_hz, dtype=np.float64)[passband_mask(freqs_hz, fs_hz, passband_hz)]
