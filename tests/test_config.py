@@ -102,7 +102,7 @@ def test_registries_refuse_duplicates_and_name_choices():
 
 
 def test_task_registry_checks_unique_names_and_ids():
-    ids = [c.task_id for c in TASKS.values()]
+    ids = [c.task_id for _, c in TASKS.items()]
     assert len(set(ids)) == len(ids)
 
     @dataclass(frozen=True)

@@ -32,13 +32,13 @@ def _calibrated(cfg: PipelineConfig, windows: int, seed: int):
 
 
 @pytest.fixture(scope="module")
-def test_windows():
+def held_out_windows():
     return HookLoopTask(**SMALL).build()[1]
 
 
 @pytest.mark.parametrize("encoder", ["gwt", "stft", "lif"])
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
-def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model):
+def test_export_parity_on_the_test_split(tmp_path, held_out_windows, encoder, model):
     # the LIF population code needs a shorter tempotron tau
     kw = {"snn_hidden": 16} if model == "snn" else {"tau_ms": 200.0 if encoder == "lif" else 2000.0}
     cfg = PipelineConfig.from_flat(encoder=encoder, model=model, epochs=2, **kw)
@@ -48,15 +48,15 @@ def test_export_parity_on_the_test_split(tmp_path, test_windows, encoder, model)
     onnx.checker.check_model(str(out))
     pipe, _ = load_run(run)
     sess = PipelineSession(str(out))
-    got = sess.run(sess.validate(test_windows.X))
-    ref = pipe.scores(pipe.encode(test_windows.X)).numpy()
+    got = sess.run(sess.validate(held_out_windows.X))
+    ref = pipe.scores(pipe.encode(held_out_windows.X)).numpy()
     assert np.array_equal(got.argmax(1), ref.argmax(1))  # same predictions
     assert np.abs(got - ref).max() <= 1e-4
     meta = sess.metadata
     assert json.loads(meta["class_names"]) == ["hook", "loop"] and float(meta["fs_hz"]) == 200.0
     assert len(meta["training_data_sha256"]) == 64 and meta["encoder"] == encoder
     with pytest.raises(FileExistsError):
-        export_pipeline(pipe, out, test_windows.X[:2])
+        export_pipeline(pipe, out, held_out_windows.X[:2])
 
 
 def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
@@ -76,27 +76,27 @@ def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
     assert np.allclose(pipe.scores(pipe.encode(10 * X)).numpy(), ref, atol=1e-5)
 
 
-def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, test_windows):
+def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, held_out_windows):
     nodes = []
     for dt in (10.0, 2.5):  # 51 vs 201 time steps
         cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_dt_ms=dt)
         run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / f"r{dt}", progress=False)
         pipe, _ = load_run(run)
-        rep = export_pipeline(pipe, tmp_path / f"m{dt}.onnx", test_windows.X[:16])
+        rep = export_pipeline(pipe, tmp_path / f"m{dt}.onnx", held_out_windows.X[:16])
         nodes.append(rep["nodes"])
     # no node per step: up to 256 steps even the early decision's running maximum is one
     # max-pool (beyond, it grows by a doubling round per factor 2 of the steps)
     assert nodes[1] == nodes[0] and nodes[1] < 500
 
 
-def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
+def test_snn_state_is_carried_across_a_stream(tmp_path, held_out_windows):
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
     run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
-    export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:8])
+    export_pipeline(pipe, tmp_path / "m.onnx", held_out_windows.X[:8])
     sess = PipelineSession(str(tmp_path / "m.onnx"))
     assert sess.stateful
-    stream = np.concatenate(list(test_windows.X[:6]), axis=1)  # 6 windows back to back
+    stream = np.concatenate(list(held_out_windows.X[:6]), axis=1)  # 6 windows back to back
     st = StreamState()
     out = []
     for chunk in np.array_split(stream, 7, axis=1):  # arbitrary chunk boundaries
@@ -105,15 +105,15 @@ def test_snn_state_is_carried_across_a_stream(tmp_path, test_windows):
     assert st.h is not None and np.abs(st.h).sum() >= 0
 
 
-def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
+def test_int8_quantisation_reports_accuracy_change(tmp_path, held_out_windows):
     from tactilesnn.export import quantize_int8
 
     run, _ = run_task(
         "hook_loop", SMALL, PipelineConfig.from_flat(epochs=3), tmp_path / "r", progress=False
     )
     pipe, _ = load_run(run)
-    export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
-    q = quantize_int8(tmp_path / "m.onnx", test_windows.X, test_windows.y)
+    export_pipeline(pipe, tmp_path / "m.onnx", held_out_windows.X[:16])
+    q = quantize_int8(tmp_path / "m.onnx", held_out_windows.X, held_out_windows.y)
     # the window-side product (the bulk of the weights) is int8; the GWT's shared-basis
     # product after it stays float32 (quantised per tensor it cost accuracy)
     assert q["int8_bytes"] < 0.75 * q["float_bytes"]
@@ -126,7 +126,7 @@ def test_int8_quantisation_reports_accuracy_change(tmp_path, test_windows):
             by_rows.setdefault(weights[n.input[1]].dims[0] == window, set()).add(n.op_type)
     assert by_rows[True] == {"MatMulInteger"} and by_rows.get(False, {"MatMul"}) == {"MatMul"}
     assert abs(q["accuracy_change"]) <= 0.05
-    assert q["float_accuracy"] == pytest.approx(pipe.score(test_windows.X, test_windows.y))
+    assert q["float_accuracy"] == pytest.approx(pipe.score(held_out_windows.X, held_out_windows.y))
 
 
 def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path):
@@ -148,7 +148,7 @@ def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path
     assert "DynamicQuantizeMatMul" in ops or "MatMulInteger" in ops
 
 
-def test_verification_checks_each_component_graph(tmp_path, test_windows):
+def test_verification_checks_each_component_graph(tmp_path, held_out_windows):
     import torch
 
     from tactilesnn.core.onnx_graph import chain
@@ -157,7 +157,7 @@ def test_verification_checks_each_component_graph(tmp_path, test_windows):
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
     run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
-    X = test_windows.X[:32]
+    X = held_out_windows.X[:32]
     enc, mod = build_parts(pipe)
     whole = chain(enc, mod, [("spikes", "spikes_in")], tags=("enc/", "model/"))
     rep = verify(whole, pipe, X, parts=(enc, mod))
@@ -203,12 +203,12 @@ def test_spike_time_tolerance_grows_for_late_spikes_only():
 
 
 @pytest.mark.parametrize("readout", ["count", "mean"])
-def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, test_windows, readout):
+def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, held_out_windows, readout):
     """Spiking (count) and leaky (mean) output layers: one LSTM per LIF layer, no Loop."""
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8, snn_readout=readout)
     run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
     pipe, _ = load_run(run)
-    rep = export_pipeline(pipe, tmp_path / "m.onnx", test_windows.X[:16])
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", held_out_windows.X[:16])
     ops = [n.op_type for n in onnx.load(str(tmp_path / "m.onnx")).graph.node]
     assert "Loop" not in ops
     assert ops.count("LSTM") == (2 if readout == "count" else 1)

@@ -1,13 +1,17 @@
-"""Registries of components (encoders, models, tasks): a name, a class and its config class.
+"""Registries of components (encoders, models, sensors, tasks, benchmarks): a name, a class
+and its config class.
 
 A registry maps a name to ``(component class, config class)``. Configurations are frozen
 dataclasses; the registry gives each its ``type`` tag, so a configuration alone says which
-component it builds, and code outside the registries never branches on component names.
+component it builds, and code outside the registries never branches on component names. An
+entry may also be a module path imported when first asked for (:meth:`Registry.register_module`:
+the benchmarks, so that building the command line imports none of them).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -17,7 +21,8 @@ class Registry:
 
     def __init__(self, kind: str) -> None:
         self.kind = kind
-        self._entries: dict[str, tuple[type, type | None]] = {}
+        self._entries: dict[str, tuple[Any, type | None]] = {}
+        self._modules: dict[str, str] = {}  # name -> module path, imported on first get()
 
     def register(self, name: str, config: type | None = None) -> Callable[[type], type]:
         """Class decorator registering the class under ``name``; names must be unique."""
@@ -36,22 +41,40 @@ class Registry:
 
         return deco
 
+    def register_module(self, name: str, path: str) -> None:
+        """Register the module at ``path`` as ``name``, imported when :meth:`get` first asks."""
+        if name in self:
+            raise ValueError(f"{self.kind} {name!r} is already registered")
+        self._modules[name] = path
+
     def __contains__(self, name: object) -> bool:
-        return name in self._entries
+        return name in self._entries or name in self._modules
 
     def __iter__(self) -> Iterator[str]:
-        return iter(sorted(self._entries))
+        return iter(self.names())
+
+    def __len__(self) -> int:
+        return len(self.names())
 
     def names(self) -> tuple[str, ...]:
-        return tuple(sorted(self._entries))
+        return tuple(sorted({*self._entries, *self._modules}))
 
-    def get(self, name: str) -> type:
-        """The component class registered as ``name`` (ValueError listing the choices)."""
-        if name not in self._entries:
+    def items(self) -> Iterator[tuple[str, Any]]:
+        """``(name, class or module)`` in name order (modules imported)."""
+        return ((n, self.get(n)) for n in self.names())
+
+    def get(self, name: str) -> Any:
+        """The component class (or module) registered as ``name`` (ValueError listing the
+        choices)."""
+        if name not in self:
             raise ValueError(
                 f"unknown {self.kind} {name!r}; choose one of: {', '.join(self.names())}"
             )
+        if name not in self._entries:
+            self._entries[name] = (importlib.import_module(self._modules[name]), None)
         return self._entries[name][0]
+
+    __getitem__ = get
 
     def config_class(self, name: str) -> type:
         self.get(name)

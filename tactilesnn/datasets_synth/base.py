@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from ..core.data import WindowDataset
+from ..core.registry import Registry
 
 __all__ = ["TASKS", "Task", "WindowDataset", "get_task", "register_task"]
 
@@ -56,7 +57,7 @@ def noise_scaled(params: Any, scale: float) -> Any:
     return dataclasses.replace(params, **{f: getattr(params, f) * scale for f in fields})
 
 
-TASKS: dict[str, type] = {}
+TASKS: Registry = Registry("task")
 
 
 def register_task(cls: type) -> type:
@@ -69,14 +70,13 @@ def register_task(cls: type) -> type:
     clash = [n for n, c in TASKS.items() if c.task_id == tid]
     if clash:
         raise ValueError(f"task {name!r}: task_id {tid} is already used by {clash[0]!r}")
-    TASKS[name] = cls
-    return cls
+    return TASKS.register(name)(cls)
 
 
 def task_parameters(name: str) -> set[str]:
     """Constructor parameters of a registered task (ValueError for an unknown name)."""
     if name not in TASKS:
-        raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(sorted(TASKS))}")
+        raise ValueError(f"unknown task {name!r}; available tasks: {', '.join(TASKS)}")
     return {f.name for f in dataclasses.fields(TASKS[name])}
 
 

@@ -1,4 +1,5 @@
-"""Benchmarks (``tactilesnn bench <name>``), one module each.
+"""Benchmarks (``tactilesnn bench <name>``), one module each: the one home of the project's
+benchmarks (no product code imports one).
 
 A benchmark module defines ``HELP`` (one line), ``add_arguments(parser)`` (its own flags; ``--out``
 and ``--quiet`` are every benchmark's) and ``main(out, options) -> exit status``; its measuring
@@ -7,32 +8,24 @@ functions (``run(...)``) are the Python API. Adding one: a new module and a line
 
 from __future__ import annotations
 
-import importlib
 from types import ModuleType
 
-#: name on the command line -> module (imported when the command line is built)
-BENCHMARKS: dict[str, str] = {
-    "gwt-vs-stft": "gwt_vs_stft",
-    "encoders": "encoders",
-    "snn": "snn",
-    "serve": "serve",
-    "tasks": "tasks",
-    "real": "real",
-    "pareto": "pareto",
-    "stability": "stability",
-    "skip": "skip",
-    "busy": "busy",
-    "sim2real": "sim2real",
-    "localise": "localise",
-    "fit": "fit",
-}
+from ...core.registry import Registry
+
+#: name on the command line -> its module (imported when first asked for)
+BENCHMARKS: Registry = Registry("benchmark")
+for _name, _module in (
+    ("gwt-vs-stft", "gwt_vs_stft"), ("encoders", "encoders"), ("snn", "snn"),
+    ("serve", "serve"), ("tasks", "tasks"), ("real", "real"), ("pareto", "pareto"),
+    ("stability", "stability"), ("skip", "skip"), ("busy", "busy"), ("sim2real", "sim2real"),
+    ("localise", "localise"), ("fit", "fit"), ("gpu", "gpu"),
+):  # fmt: skip
+    BENCHMARKS.register_module(_name, f"{__name__}.{_module}")
 
 
 def benchmark(name: str) -> ModuleType:
     """The module of benchmark ``name`` (ValueError naming the known ones)."""
-    if name not in BENCHMARKS:
-        raise ValueError(f"unknown benchmark {name!r}; known: {', '.join(BENCHMARKS)}")
-    return importlib.import_module(f"{__name__}.{BENCHMARKS[name]}")
+    return BENCHMARKS.get(name)
 
 
 def write_result(out, name: str, obj: dict) -> None:
