@@ -30,9 +30,9 @@ from .core.checks import (
     check_positive,
     check_rate,
 )
+from .core.data import WindowDataset
 from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
-from .datasets_synth import WindowDataset
 
 log = logging.getLogger("tactilesnn")
 
@@ -46,7 +46,7 @@ def load_data_file(
     fs_hz: float | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:
     """Recordings in the documented format, or a folder written by ``tactilesnn generate``
-    (:func:`~tactilesnn.datasets_synth.generate.read_dataset_folder`) -> ``(train, test)``
+    (:func:`~tactilesnn.core.dataset_folder.read_dataset_folder`) -> ``(train, test)``
     window datasets.
 
     ``.npz`` with ``X`` ``[N, channels, samples]`` real numbers, ``y`` ``[N]`` integer labels,
@@ -162,7 +162,7 @@ def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.nda
             arrays, conv = read_recordings(path, fs_hz=fs_hz)
             log.info("read %s", conv.line())
             return arrays
-        from .datasets_synth.generate import read_dataset_folder
+        from .core.dataset_folder import read_dataset_folder
 
         return _check_stated_rate(read_dataset_folder(path), fs_hz, path)
     if not path.is_file():

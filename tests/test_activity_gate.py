@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import WindowDataset
@@ -54,6 +55,7 @@ def test_gate_skips_quiet_channels_and_keeps_active_ones_exact():
         assert ref.skip_stats() is None
 
 
+@pytest.mark.slow
 def test_training_reports_the_gate_and_the_service_skips_silent_windows_exactly(tmp_path):
     Xtr, ytr = _touches(400, 1)
     Xte, yte = _touches(200, 2)
@@ -82,6 +84,7 @@ def test_training_reports_the_gate_and_the_service_skips_silent_windows_exactly(
     assert sess.info()["stats"]["stream_channel_windows_skipped"] == silent > quiet * 3
 
 
+@pytest.mark.slow
 def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():
     """The encoder graph gathers the active (window, channel) rows (``NonZero`` -> ``Gather``)
     and scatters their spikes back: same spikes as the torch path for mixed, wholly silent and
@@ -118,6 +121,7 @@ def test_exported_gate_encodes_only_the_active_rows_and_matches_torch():
         assert np.isinf(sess.run(None, {"window": silent})[0][:, :n_aff]).all()
 
 
+@pytest.mark.slow
 def test_exported_gate_with_every_gwt_form_passes_zero_one_and_all_rows(tmp_path):
     """2 kHz windows whose GWT uses all three exported forms (shared-basis low rank, polyphase
     Conv, dense): the gated graph gives torch's scores with no active row, one, and all."""
@@ -140,6 +144,7 @@ def test_exported_gate_with_every_gwt_form_passes_zero_one_and_all_rows(tmp_path
         np.testing.assert_allclose(sess.run(batch), want, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_a_stateful_snn_stream_counts_gated_channels_but_never_skips_windows(tmp_path):
     """An SNN carries its state from window to window, so no window is answered from the
     silent cache; the graph still encodes only the active taxels, and the stream's scores are

@@ -19,6 +19,7 @@ def run_dir(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_train_writes_run_folder(run_dir, capsys):
     names = {p.name for p in run_dir.iterdir()}
     assert {"config.json", "weights.npz", "metrics.json", "confusion_matrix.json"} <= names
@@ -40,6 +41,7 @@ def test_refuses_to_overwrite(run_dir, capsys):
     assert (run_dir / "metrics.json").read_text() == before
 
 
+@pytest.mark.slow
 def test_evaluate_reproduces_metrics(run_dir, capsys):
     assert main(["evaluate", str(run_dir), "--quiet", "--json"]) == 0
     got = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -142,6 +144,7 @@ def test_every_flag_of_every_command_has_help_with_its_default_and_choices():
                 assert "default" in p.formatter_class(name)._get_help_string(a), f"{name} {flag}"
 
 
+@pytest.mark.slow
 def test_without_out_the_run_folder_is_named_after_what_was_trained(tmp_path, monkeypatch,
                                                                     capsys):  # fmt: skip
     import re

@@ -55,6 +55,7 @@ def test_bad_values_are_refused(bad):
         PipelineConfig.from_flat(**bad)
 
 
+@pytest.mark.slow
 def test_toml_sections_and_flag_precedence(tmp_path):
     toml = tmp_path / "exp.toml"
     toml.write_text(

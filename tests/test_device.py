@@ -68,6 +68,7 @@ def _calibrated(encoder: str):
     return pipe, X
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoder", [e for e in ENCODERS_ON_A_DEVICE if e != "events"])
 def test_every_encoder_computes_on_the_device_its_input_is_on(encoder):
     """On torch's ``meta`` device (shapes, no values) any tensor an encoder made on the CPU

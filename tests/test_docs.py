@@ -59,6 +59,7 @@ def test_every_docs_page_is_linked_from_the_readme_and_it_stays_short():
     assert len(readme.splitlines()) < 250
 
 
+@pytest.mark.slow
 def test_readme_python_quickstart_runs(tmp_path, monkeypatch):
     code = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
     assert code, "the README has a Python quickstart"

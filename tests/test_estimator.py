@@ -29,6 +29,7 @@ def fast(**kw) -> SpikeClassifier:
                               **kw})  # fmt: skip
 
 
+@pytest.mark.slow
 def test_fit_predict_proba_score_on_the_default_task(default_task):
     train, test = default_task
     clf = fast().fit(train.X, np.asarray(train.class_names)[train.y])
@@ -59,6 +60,7 @@ def test_clone_params_and_no_fitted_state_in_init():
     assert not hasattr(c, "classes_")
 
 
+@pytest.mark.slow
 def test_cross_val_score_and_grid_search_on_the_default_task(default_task):
     train, _ = default_task
     # whole scans per fold: windows of one scan never straddle a split
@@ -70,6 +72,7 @@ def test_cross_val_score_and_grid_search_on_the_default_task(default_task):
     assert search.best_estimator_.pipeline_.config.encoder_type == search.best_params_["encoder"]
 
 
+@pytest.mark.slow
 def test_in_a_sklearn_pipeline_and_with_fit_params(default_task):
     train, test = default_task
     pipe = make_pipeline(FunctionTransformer(lambda x: 1e3 * x), SpikeClassifier(
@@ -78,6 +81,7 @@ def test_in_a_sklearn_pipeline_and_with_fit_params(default_task):
     assert pipe.score(test.X, test.y) > 0.5
 
 
+@pytest.mark.slow
 def test_a_window_dataset_fits_directly_and_auto_chooses_an_encoder(default_task):
     train, test = default_task
     clf = SpikeClassifier(epochs=2).fit(train)  # rate, channel and class names from the data
@@ -104,6 +108,7 @@ def test_bad_input_gets_specific_errors(default_task, call, match):
         call(SpikeClassifier(encoder="gwt", epochs=1), train.X, train.y)
 
 
+@pytest.mark.slow
 def test_predict_checks_shape_and_fit(default_task):
     from sklearn.exceptions import NotFittedError
 
@@ -115,6 +120,7 @@ def test_predict_checks_shape_and_fit(default_task):
         clf.predict(test.X[:, :1])
 
 
+@pytest.mark.slow
 def test_window_dataset_is_a_torch_dataset_and_encoders_are_transforms(default_task):
     train, _ = default_task
     assert len(train) == len(train.y)
@@ -171,6 +177,7 @@ def test_sklearn_check_estimator():
     assert len(passed) >= 45 and "check_classifiers_train" in passed
 
 
+@pytest.mark.slow
 def test_windows_that_say_their_rate_and_channels_are_checked_at_predict():
     """A WindowDataset at another rate is refused; its channels in another order are put back
     in the fitted order by name; numpy scalars are rates like any number."""
@@ -209,6 +216,7 @@ def test_windows_that_say_their_rate_and_channels_are_checked_at_predict():
         clf.predict(X, channel_names=["ch0", "other"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoder", ["lif", "cgwt"])
 def test_the_cli_and_the_estimator_fit_the_same_weights(tmp_path, encoder):
     """One fit path: ``tactilesnn train --data F --encoder E`` and ``SpikeClassifier(encoder=E)``

@@ -36,6 +36,7 @@ def held_out_windows():
     return HookLoopTask(**SMALL).build()[1]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoder", ["gwt", "stft", "lif"])
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
 def test_export_parity_on_the_test_split(tmp_path, held_out_windows, encoder, model):
@@ -59,6 +60,7 @@ def test_export_parity_on_the_test_split(tmp_path, held_out_windows, encoder, mo
         export_pipeline(pipe, out, held_out_windows.X[:2])
 
 
+@pytest.mark.slow
 def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
     kw = {"seed": 0, "n_samples": 36}
     cfg = PipelineConfig.from_flat(encoder="lif", model="snn", epochs=1, snn_hidden=8, channels=("all",),
@@ -76,6 +78,7 @@ def test_export_window_normalised_lif_on_a_trial_task(tmp_path):
     assert np.allclose(pipe.scores(pipe.encode(10 * X)).numpy(), ref, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, held_out_windows):
     nodes = []
     for dt in (10.0, 2.5):  # 51 vs 201 time steps
@@ -89,6 +92,7 @@ def test_snn_graph_size_does_not_grow_with_time_steps(tmp_path, held_out_windows
     assert nodes[1] == nodes[0] and nodes[1] < 500
 
 
+@pytest.mark.slow
 def test_snn_state_is_carried_across_a_stream(tmp_path, held_out_windows):
     cfg = PipelineConfig.from_flat(model="snn", epochs=1, snn_hidden=8)
     run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)
@@ -105,6 +109,7 @@ def test_snn_state_is_carried_across_a_stream(tmp_path, held_out_windows):
     assert st.h is not None and np.abs(st.h).sum() >= 0
 
 
+@pytest.mark.slow
 def test_int8_quantisation_reports_accuracy_change(tmp_path, held_out_windows):
     from tactilesnn.export import quantize_int8
 
@@ -129,6 +134,7 @@ def test_int8_quantisation_reports_accuracy_change(tmp_path, held_out_windows):
     assert q["float_accuracy"] == pytest.approx(pipe.score(held_out_windows.X, held_out_windows.y))
 
 
+@pytest.mark.slow
 def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path):
     """A 2 kHz window whose high GWT bands are strided Convs: those stay float32 (onnxruntime's
     ConvInteger is slower and ~1 % of peak off); the MatMuls are quantised."""
@@ -148,6 +154,7 @@ def test_int8_quantises_the_matmuls_and_keeps_the_scalogram_convs_float(tmp_path
     assert "DynamicQuantizeMatMul" in ops or "MatMulInteger" in ops
 
 
+@pytest.mark.slow
 def test_verification_checks_each_component_graph(tmp_path, held_out_windows):
     import torch
 
@@ -202,6 +209,7 @@ def test_spike_time_tolerance_grows_for_late_spikes_only():
         compare_spike_times(np.array([[10.0, np.inf, np.inf]], np.float32), want, 500.0, 1e-2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("readout", ["count", "mean"])
 def test_snn_readouts_export_as_lstm_nodes_without_loops(tmp_path, held_out_windows, readout):
     """Spiking (count) and leaky (mean) output layers: one LSTM per LIF layer, no Loop."""
@@ -222,6 +230,7 @@ def test_export_refuses_an_empty_verification_batch(tmp_path):
     assert not (tmp_path / "m.onnx").exists()
 
 
+@pytest.mark.slow
 def test_session_runs_batches_over_its_budget_in_slices_with_the_same_results(tmp_path):
     """One call when the batch fits the memory budget, slices joined when it does not: same
     scores and SNN state either way."""
@@ -239,6 +248,7 @@ def test_session_runs_batches_over_its_budget_in_slices_with_the_same_results(tm
         np.testing.assert_allclose(sliced.values[k], v, rtol=0, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("channels", "bands"), [(("b",), 2), (("a", "b"), 20)])
 def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, bands):
     """A channel subset (a selection node) with fewer encoder afferents than clock afferents
@@ -257,6 +267,7 @@ def test_channel_selection_and_clock_afferents_in_the_graph(tmp_path, channels, 
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_session_zero_state_is_kept_per_batch_size_and_never_written(tmp_path):
     """Stateless calls on a stateful graph start from zeros: the arrays are reused while the
     batch size stays, rebuilt when it changes, and read-only (onnxruntime only reads them)."""

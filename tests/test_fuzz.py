@@ -87,6 +87,7 @@ def _check_datasets(train, test) -> None:
     assert not set(train.scan.tolist()) & set(test.scan.tolist())
 
 
+@pytest.mark.slow
 @FUZZ
 @given(npz_contents())
 def test_loader_gives_a_specific_error_or_valid_data(arrays) -> None:
@@ -164,6 +165,7 @@ def _toml_value(v) -> str | None:
     st.dictionaries(st.sampled_from(SETTING_KEYS), setting_values, max_size=5),
     st.sampled_from(["flat", "train", "nested"]),
 )
+@pytest.mark.slow
 def test_toml_files_error_or_valid(table: dict, form: str) -> None:
     """A TOML file through the CLI's reader: a one-line error (exit 2) or accepted settings."""
     from tactilesnn.app.config_file import read_train_file
@@ -199,6 +201,7 @@ ENC_NAMES = ["gwt", "stft", "lif", "delta", "bands"]
     ),
     st.floats(1e-30, 1e30),
 )
+@pytest.mark.slow
 def test_encoders_give_valid_spikes_for_any_float32(name: str, X: np.ndarray, scale: float):
     """Any finite float32 input, trained at any unit scale: spike times are finite inside the
     window or +inf (silent), ascending per afferent, never NaN."""
@@ -329,6 +332,7 @@ def _window_like(draw, test) -> object:
     return base.tolist()
 
 
+@pytest.mark.slow
 @FUZZ
 @given(st.data())
 def test_service_bodies_get_4xx_or_a_correct_answer(client, data) -> None:

@@ -84,6 +84,7 @@ TINY = ["--task-kw", "n_planar=4", "--task-kw", "n_concave=2", "--task-kw", "n_c
 STATES = ["absent", "user-dir", "user-empty-dir", "file", "link"]
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None)
 @given(st.sampled_from(STATES), st.sampled_from(["absent", "run+notes", "user-dir"]),
        st.booleans(), st.booleans())  # fmt: skip

@@ -8,6 +8,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 import tactilesnn
 
 ROOT = Path(tactilesnn.__file__).resolve().parent
@@ -84,11 +86,13 @@ def _graph() -> dict[str, set[str]]:
     return {_module(p): _imports(p) for p in ROOT.rglob("*.py")}
 
 
+@pytest.mark.slow
 def test_every_module_is_in_a_layer():
     for mod in _graph():
         _layer(mod)
 
 
+@pytest.mark.slow
 def test_no_upward_import():
     bad = []
     for mod, deps in _graph().items():
@@ -100,6 +104,7 @@ def test_no_upward_import():
     assert not bad, "upward imports:\n" + "\n".join(sorted(bad))
 
 
+@pytest.mark.slow
 def test_training_export_and_service_do_not_import_each_other():
     bad = []
     for mod, deps in _graph().items():
@@ -110,6 +115,7 @@ def test_training_export_and_service_do_not_import_each_other():
     assert not bad, bad
 
 
+@pytest.mark.slow
 def test_no_import_circle():
     graph = _graph()
     state: dict[str, int] = {}
@@ -134,6 +140,7 @@ def test_no_import_circle():
             visit(m)
 
 
+@pytest.mark.slow
 def test_the_service_never_imports_torch():
     """``tactilesnn.service`` runs with numpy + onnxruntime only (a deployment without torch)."""
     graph = _graph()
@@ -154,6 +161,7 @@ def test_the_service_never_imports_torch():
         assert "torch" not in names, f"tactilesnn.{m} imports torch"
 
 
+@pytest.mark.slow
 def test_the_command_line_imports_only_the_application_layer():
     """cli.py parses, calls ``app`` and prints: every package import it makes is of ``app``."""
     graph = _graph()

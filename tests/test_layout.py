@@ -60,6 +60,7 @@ def _irregular_event_file(path, n=90, seed=0):
     np.savez(path, X=X, y=y, bin_ms=5.0, class_names=np.array(["a", "b", "c"]), taxel_xy=xy)
 
 
+@pytest.mark.slow
 def test_an_event_file_with_positions_trains_the_conv_model_on_its_placement(tmp_path):
     _irregular_event_file(tmp_path / "ev.npz")
     out = tmp_path / "r"
@@ -83,7 +84,7 @@ def test_positions_that_do_not_match_the_taxels_are_a_clear_error(tmp_path, caps
 
 
 def test_the_sensor_models_own_layouts_place_on_distinct_cells():
-    from tactilesnn.datasets_synth.capacitive_triangle import CapacitiveTriangle
+    from tactilesnn.datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
 
     xy = CapacitiveTriangle().taxels_mm  # the iCub triangle's 12 pads
     r, c, cells = place_on_grid(xy)

@@ -18,6 +18,7 @@ from tests.helpers import run_task  # noqa: E402
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("readout", ["max", "count"])
 def test_nir_export_reproduces_scores_on_the_test_split(tmp_path, capsys, readout):
     cfg = PipelineConfig.from_flat(
@@ -61,6 +62,7 @@ def test_subtract_reset_is_not_plain_nir_reset(tmp_path):
     assert not torch.equal(plain, ref)
 
 
+@pytest.mark.slow
 def test_tempotron_is_refused_and_recurrent_snn_exports(tmp_path, capsys):
     run, _ = run_task("hook_loop", SMALL, PipelineConfig.from_flat(epochs=1), tmp_path / "t",
                        progress=False)  # fmt: skip
@@ -79,6 +81,7 @@ def test_tempotron_is_refused_and_recurrent_snn_exports(tmp_path, capsys):
         export_pipeline(pipe, run / "model.onnx", np.zeros((1, 2, 100), np.float32))
 
 
+@pytest.mark.slow
 def test_missing_nir_extra_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     import sys
 

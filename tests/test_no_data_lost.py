@@ -29,6 +29,7 @@ def test_overwrite_refuses_folders_and_files_it_did_not_write(tmp_path, capsys):
     assert (mine / "thesis.tex").read_text() == "precious"
 
 
+@pytest.mark.slow
 def test_overwrite_replaces_its_own_run(tmp_path):
     out = tmp_path / "r"
     args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
@@ -39,6 +40,7 @@ def test_overwrite_replaces_its_own_run(tmp_path):
     assert first != json.loads((out / "metrics.json").read_text())
 
 
+@pytest.mark.slow
 def test_ctrl_c_says_how_to_resume_and_a_failed_start_needs_no_resume(tmp_path, monkeypatch,
                                                                        capsys):  # fmt: skip
     out = tmp_path / "r"
@@ -67,6 +69,7 @@ def test_ctrl_c_says_how_to_resume_and_a_failed_start_needs_no_resume(tmp_path, 
     assert main(args2) == 0  # the failed start left no checkpoint, so no --resume is asked for
 
 
+@pytest.mark.slow
 def test_damaged_files_get_errors_not_tracebacks(tmp_path, capsys):
     import numpy as np
 
@@ -99,6 +102,7 @@ def test_damaged_files_get_errors_not_tracebacks(tmp_path, capsys):
     assert pipe.scores(pipe.encode(np.zeros((0, 2, 100), np.float32))).shape == (0, 2)
 
 
+@pytest.mark.slow
 def test_nan_weights_are_refused_by_evaluate_and_export(tmp_path, capsys):
     import numpy as np
 
@@ -117,6 +121,7 @@ def test_nan_weights_are_refused_by_evaluate_and_export(tmp_path, capsys):
     assert "NaN" in capsys.readouterr().err and not (tmp_path / "m.onnx").exists()
 
 
+@pytest.mark.slow
 def test_a_users_partial_folder_symlink_or_file_is_never_removed(tmp_path, capsys):
     out = tmp_path / "r"
     args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
@@ -145,6 +150,7 @@ def test_a_users_partial_folder_symlink_or_file_is_never_removed(tmp_path, capsy
     assert main(args) == 0  # and with the way clear, it trains
 
 
+@pytest.mark.slow
 def test_overwrite_keeps_the_users_files_inside_a_run_folder(tmp_path, capsys):
     out = tmp_path / "r"
     args = ["train", "--epochs", "1", *TINY, "--out", str(out), "--quiet", "--no-export"]
@@ -158,6 +164,7 @@ def test_overwrite_keeps_the_users_files_inside_a_run_folder(tmp_path, capsys):
     assert main([*args, "--overwrite"]) == 0
 
 
+@pytest.mark.slow
 def test_two_trainings_into_one_out_are_refused_up_front(tmp_path, capsys):
     import os
 
@@ -205,6 +212,7 @@ def test_temporary_folders_of_a_killed_run_are_cleaned_and_foreign_ones_kept(tmp
     assert not stale.exists() and (foreign / "data.bin").read_bytes() == b"y"
 
 
+@pytest.mark.slow
 def test_resume_refuses_changed_data_and_evaluate_uses_the_trained_file(tmp_path, capsys):
     import numpy as np
 
@@ -345,6 +353,7 @@ def test_a_damaged_run_config_is_an_error_naming_it(tmp_path, pipeline):
         load_run(run)
 
 
+@pytest.mark.slow
 def test_a_full_disk_during_an_export_leaves_the_old_file_and_no_temporary(tmp_path, monkeypatch,
                                                                            capsys):  # fmt: skip
     """The graph half-written when the disk fills: the error names it, the file already at

@@ -77,6 +77,7 @@ def _write_csv(path: Path, X: np.ndarray, t0: int, step: int) -> None:
     np.savetxt(path, rows, delimiter=",", header=", ".join(cols), comments="", fmt=fmt)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("labels_by", ["file_name", "sub_folder"])
 def test_a_folder_of_csv_recordings_of_different_lengths_trains(tmp_path, labels_by, capsys):
     rng = np.random.default_rng(2)

@@ -77,6 +77,7 @@ def _timed_folder(root: Path, rates: dict[str, float], fmt) -> Path:
     return root
 
 
+@pytest.mark.slow
 def test_a_headerless_folder_needs_fs_and_then_trains(tmp_path, capsys):
     folder = headerless_folder(tmp_path / "slides")
     with pytest.raises(ValueError, match=r"Denim_12.5_-0.02.csv: no time column .* --fs HZ"):
@@ -95,6 +96,7 @@ def test_a_headerless_folder_needs_fs_and_then_trains(tmp_path, capsys):
     assert main(["evaluate", str(out), "--json"]) == 0  # the run's rate is remembered
 
 
+@pytest.mark.slow
 def test_a_spreadsheet_export_converts_and_round_trips(tmp_path):
     folder = spreadsheet_folder(tmp_path / "sheets")
     report = convert(folder, None, dry_run=True)
@@ -177,6 +179,7 @@ def test_fs_that_contradicts_the_data_is_refused(tmp_path):
     assert len(load_data_file(path)[0]) > 0  # the README's `load_data_file("my.npz")`
 
 
+@pytest.mark.slow
 def test_a_symlinked_class_folder_is_followed_and_a_broken_link_named(tmp_path):
     folder = spreadsheet_folder(tmp_path / "store")
     data = tmp_path / "data"

@@ -236,6 +236,7 @@ def test_selection_subset_takes_whole_recordings_of_every_class_up_to_the_cap() 
     assert selection_subset(data, 500, seed=0) is data
 
 
+@pytest.mark.slow
 def test_a_generated_folder_is_data_whose_scans_never_straddle_the_split(tmp_path: Path) -> None:
     from tactilesnn.cli import main
     from tactilesnn.datasets_synth.generate import generate

@@ -66,6 +66,7 @@ def test_grid_and_random_trials_are_deterministic_and_bad_settings_refused(tmp_p
         run_sweep(_write(tmp_path, "[grid]\nencoder = ['nope']\n"), tmp_path / "o", workers=1)
 
 
+@pytest.mark.slow
 def test_local_sweep_gathers_a_table_and_resumes_without_rerunning(tmp_path, capsys):
     cfg = _write(
         tmp_path,
@@ -134,6 +135,7 @@ def test_the_shipped_sweep_files_are_valid():
             check_trial(s)
 
 
+@pytest.mark.slow
 def test_generate_on_a_dask_cluster_writes_the_same_shards(tmp_path):
     distributed = pytest.importorskip("distributed")
     from tactilesnn.datasets_synth.generate import generate

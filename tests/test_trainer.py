@@ -4,6 +4,7 @@ csnn's time-held dropout mask."""
 import logging
 
 import numpy as np
+import pytest
 import torch
 
 from tactilesnn import trainer as trainer_mod
@@ -98,6 +99,7 @@ def test_the_cosine_schedule_runs_from_the_rate_to_zero():
     assert scheduled_lr(0.01, "constant", 57, total) == 0.01
 
 
+@pytest.mark.slow
 def test_a_resumed_cosine_run_equals_an_uninterrupted_one():
     """The rate is a function of the step alone: 2 epochs, then 2 more from the saved state,
     learn the weights 4 epochs in a row learn."""

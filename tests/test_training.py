@@ -23,6 +23,7 @@ _ROOTS = [
 ICUB = next((r / _REL for r in _ROOTS if (r / _REL).is_file()), _ROOTS[1] / _REL)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["tempotron", "snn"])
 def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, model):
     cfg = PipelineConfig.from_flat(
@@ -64,6 +65,7 @@ def test_resume_after_interruption_equals_uninterrupted(tmp_path, monkeypatch, m
     assert len(m["train_error_history"]) == 4
 
 
+@pytest.mark.slow
 def test_toml_config_and_flag_override(tmp_path, capsys):
     toml = tmp_path / "exp.toml"
     toml.write_text('[train]\nencoder = "stft"\nepochs = 2\nn_bands = 12\nseed = 1\n')
@@ -145,6 +147,7 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
     assert "X must be [N, channels, samples]" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_export_failure_keeps_the_finished_run(tmp_path, monkeypatch, capsys):
     import tactilesnn.export as export
 
@@ -164,6 +167,7 @@ def test_export_failure_keeps_the_finished_run(tmp_path, monkeypatch, capsys):
     app_run.load_run(out)  # the run is usable
 
 
+@pytest.mark.slow
 def test_recordings_never_straddle_the_split_and_are_scored_whole(tmp_path):
     from tactilesnn.recordings import load_data_file
 
@@ -187,6 +191,7 @@ def test_recordings_never_straddle_the_split_and_are_scored_whole(tmp_path):
     assert 0.0 <= m["test_accuracy_per_recording"] <= 1.0
 
 
+@pytest.mark.slow
 def test_long_recordings_cut_into_windows_are_scored_per_recording(tmp_path, capsys):
     rng = np.random.default_rng(0)
     y = np.arange(24) % 3
@@ -240,6 +245,7 @@ def test_bad_recording_files_get_specific_errors(tmp_path, arrays, message):
         load_data_file(tmp_path / "trunc.npz", seed=0)
 
 
+@pytest.mark.slow
 def test_evaluate_data_with_channels_in_another_order_scores_the_same(tmp_path, capsys, caplog):
     """A user's file whose channels come in another order is reordered by name (with a warning),
     not silently scored against the wrong afferents; other channel names are refused."""

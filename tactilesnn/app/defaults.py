@@ -32,7 +32,7 @@ from ..config import (
 )
 from ..core.settings import flag_fields
 from ..datasets_synth import get_task, parse_faults
-from ..datasets_synth.base import task_parameters
+from ..datasets_synth.tasks.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
 from ..recordings import auto_window, event_layout, is_event_file
 from .options import run_options, train_options

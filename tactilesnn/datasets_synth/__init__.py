@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-from .base import TASKS, Task, WindowDataset, get_task, register_task
+from .scenes.faults import Faults, parse_faults
+from .sensors.capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from .tasks.base import TASKS, Task, WindowDataset, get_task, register_task
 
 # the registry's list of shipped tasks: importing a task module registers it
-from .braille_task import BrailleTask
-from .capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
-from .faults import Faults, parse_faults
-from .hook_loop import HookLoopTask
-from .localisation_task import ContactLocalisationTask
-from .teng_tasks import MaterialTask, StiffnessCurvatureTask
-from .texture_task import TextureTask
-from .touch_task import TouchModalityTask
+from .tasks.braille import BrailleTask
+from .tasks.hook_loop import HookLoopTask
+from .tasks.localisation import ContactLocalisationTask
+from .tasks.teng import MaterialTask, StiffnessCurvatureTask
+from .tasks.texture import TextureTask
+from .tasks.touch import TouchModalityTask
 
 __all__ = [
     "TASKS",

@@ -28,6 +28,7 @@ def test_classes_missing_from_the_test_split_are_not_drawn():
     assert classes_drawn(np.array([0, 0, 2]), 3) == ([0, 2], [0, 2])
 
 
+@pytest.mark.slow
 def test_a_readout_solve_is_drawn_as_its_cross_validation(tmp_path):
     table = [{"instants": k, "penalty": p, "cv_accuracy": a, "cv_log_loss": 0.1}
              for k in (4, 2) for p, a in ((1e-4, 0.8), (1e-3, 0.9), (1e-2, 0.85))]  # fmt: skip

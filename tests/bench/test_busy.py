@@ -19,6 +19,7 @@ def _running(pids):
     return alive
 
 
+@pytest.mark.slow
 def test_rounds_ratio_and_neighbours_stopped(tmp_path, monkeypatch):
     started = []
     real_popen = busy.subprocess.Popen
@@ -39,6 +40,7 @@ def test_rounds_ratio_and_neighbours_stopped(tmp_path, monkeypatch):
     assert not _running(started)  # every neighbour killed
 
 
+@pytest.mark.slow
 def test_a_failing_job_is_reported_and_neighbours_still_stopped(monkeypatch):
     started = []
     real_popen = busy.subprocess.Popen
@@ -66,6 +68,7 @@ def test_the_default_command_trains_the_default_pipeline(tmp_path):
     ]
 
 
+@pytest.mark.slow
 def test_side_by_side_times_each_job_and_stops_the_rest_on_failure():
     quick = [sys.executable, "-c", "import time; time.sleep(0.2)"]
     slow = [sys.executable, "-c", "import time; time.sleep(0.6)"]

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tactilesnn.app.bench import BENCHMARKS, benchmark
 
 
+@pytest.mark.slow
 def test_bench_gpu_on_the_cpu_agrees_with_itself():
     assert "gpu" in BENCHMARKS
     rows = benchmark("gpu").run("cpu", windows=8, encoders=("gwt", "delta"))

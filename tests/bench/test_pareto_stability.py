@@ -50,6 +50,7 @@ def test_quick_pareto_writes_table_plot_and_a_front(tmp_path, capsys):
     ).read_text()
 
 
+@pytest.mark.slow
 def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, monkeypatch):
     rows, ok = stability.run(tmp_path / "s", quick=True, progress=False)
     assert ok, [r for r in rows if not r["passed"]]
@@ -94,6 +95,7 @@ def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
     assert (tmp_path / "k" / "skip.json").is_file()
 
 
+@pytest.mark.slow
 def test_bench_snn_runs_and_ours_equals_the_functional_reference(monkeypatch):
     """`bench snn` imports and runs (it once broke silently when the reference moved); peers
     are measured only where the bench extra is installed."""

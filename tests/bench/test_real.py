@@ -22,6 +22,7 @@ def _braille_like(root):
              class_names=np.array(["A", "B", "C"]))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_bench_real_table_json_png_and_references(tmp_path):
     _braille_like(tmp_path / "data")
     res = real.run(tmp_path / "out", data_root=tmp_path / "data", seeds=2,
@@ -61,6 +62,7 @@ def test_bench_real_table_json_png_and_references(tmp_path):
     assert ("met" if row["meets_goal"] else "short") in md
 
 
+@pytest.mark.slow
 def test_bench_real_reports_per_recording_scores(tmp_path, monkeypatch):
     rng = np.random.default_rng(1)
     n_rec, per, w = 12, 4, 64
@@ -80,6 +82,7 @@ def test_bench_real_reports_per_recording_scores(tmp_path, monkeypatch):
         assert 0.0 <= row["accuracy_per_recording"] <= 1.0, row["method"]
 
 
+@pytest.mark.slow
 def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
     from tactilesnn.datasets_synth import HookLoopTask
 

@@ -16,6 +16,7 @@ class _Floors(nn.Module):
         return torch.cat([share, x * (1.0 + 2.0**-23) - x, x + 0.0, x * 1.0], 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("x", [np.zeros((2, 3), np.float32),
                                np.full((2, 3), 1e3, np.float32)])  # fmt: skip
 def test_tiny_scalar_constants_survive_the_optimiser(x):

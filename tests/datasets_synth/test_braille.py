@@ -5,16 +5,16 @@ import numpy as np
 import pytest
 
 from tactilesnn.datasets_synth import get_task
-from tactilesnn.datasets_synth.braille_task import (
+from tactilesnn.datasets_synth.sensors.capacitive_fingertip import (
+    CapacitiveFingertip,
+    FingertipParams,
+    icub_fingertip_layout,
+)
+from tactilesnn.datasets_synth.tasks.braille import (
     BRAILLE_DOTS,
     DOT_DIAMETER_MM,
     DOT_HEIGHT_MM,
     cell_dots_mm,
-)
-from tactilesnn.datasets_synth.capacitive_fingertip import (
-    CapacitiveFingertip,
-    FingertipParams,
-    icub_fingertip_layout,
 )
 
 
@@ -112,6 +112,7 @@ def test_a_dot_peaks_under_the_pad_it_crosses():
     assert abs(peak.mean() - tip.taxels_mm[pad, 0]) < 0.6
 
 
+@pytest.mark.slow
 def test_task_knobs_and_errors():
     t = get_task("braille", seed=1, n_samples=6)
     assert t.class_names == ("a", "b", "c") and t.window == 350 and t.fs_hz == pytest.approx(93.3)
@@ -131,6 +132,7 @@ def test_task_knobs_and_errors():
             get_task("braille", **bad)
 
 
+@pytest.mark.slow
 def test_letters_are_separable_without_noise():
     """Idealised slides: each letter's mean over taxels differs from the others (a sanity check
     that the dots reach the pads at the default force)."""

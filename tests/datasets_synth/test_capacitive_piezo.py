@@ -3,7 +3,10 @@
 import numpy as np
 import pytest
 
-from tactilesnn.datasets_synth.capacitive_piezo import CapacitivePiezoParams, CapacitivePiezoStack
+from tactilesnn.datasets_synth.sensors.capacitive_piezo import (
+    CapacitivePiezoParams,
+    CapacitivePiezoStack,
+)
 
 
 @pytest.fixture(scope="module")

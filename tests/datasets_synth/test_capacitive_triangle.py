@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tactilesnn.datasets_synth.capacitive_triangle import (
+from tactilesnn.datasets_synth.sensors.capacitive_triangle import (
     CapacitiveTriangle,
     CapacitiveTriangleParams,
     ellipse_axes,
@@ -11,7 +11,7 @@ from tactilesnn.datasets_synth.capacitive_triangle import (
     pressure_centroid,
     second_moment,
 )
-from tactilesnn.datasets_synth.pvdf import EPS0
+from tactilesnn.datasets_synth.sensors.pvdf import EPS0
 
 
 def test_parallel_plate_and_cdc_range():
@@ -112,6 +112,7 @@ def test_hysteresis_steps_only_where_strain_changes_and_equals_every_sample():
     np.testing.assert_array_equal(sensor.strain(p), sensor.strain_every_sample(p))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["12", "3", "1"])
 def test_pads_a_contact_cannot_reach_are_skipped_with_identical_codes(mode):
     """A small probe on one pad leaves the far pads at their rest code (the spread's bound is

@@ -7,8 +7,9 @@ import pytest
 
 import tactilesnn.datasets_synth.generate as gen
 from tactilesnn.cli import main
+from tactilesnn.core.dataset_folder import ShardDataset
 from tactilesnn.datasets_synth import HookLoopTask
-from tactilesnn.datasets_synth.generate import ShardDataset, generate
+from tactilesnn.datasets_synth.generate import generate
 
 
 def test_workers_do_not_change_the_data(tmp_path):

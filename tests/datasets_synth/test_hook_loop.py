@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from tactilesnn.datasets_synth import HookLoopTask, get_task
-from tactilesnn.datasets_synth.sliding_scan import SlidingScanScene
-from tactilesnn.datasets_synth.textures import ridge_comb_kernel
+from tactilesnn.datasets_synth.scenes.sliding_scan import SlidingScanScene
+from tactilesnn.datasets_synth.scenes.textures import ridge_comb_kernel
 
 
 @pytest.fixture(scope="module")

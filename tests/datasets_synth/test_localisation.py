@@ -48,6 +48,7 @@ def test_bad_settings_are_refused():
             get_task("localise", **bad)
 
 
+@pytest.mark.slow
 def test_bench_localise_rows(tmp_path):
     rows = localise.run(tmp_path, n_samples=120, epochs=3, progress=False)
     assert {r["target"] for r in rows} == {"position", "direction"}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tactilesnn.datasets_synth.piezoresistive import (
+from tactilesnn.datasets_synth.sensors.piezoresistive import (
     PI11,
     PI12,
     PI44,
@@ -113,7 +113,7 @@ def _johnson_in_plane(P, Q, d_m, z_m):
 
 
 def test_normal_and_tangential_stress_match_johnson():
-    from tactilesnn.datasets_synth.piezoresistive import contact_stress
+    from tactilesnn.datasets_synth.sensors.piezoresistive import contact_stress
 
     chips = chip_positions()
     center, P, Q = np.array([2.0, -5.0]), 6.0, np.array([1.5, -2.0])
@@ -125,7 +125,7 @@ def test_normal_and_tangential_stress_match_johnson():
 
 
 def test_least_squares_inverse_recovers_position_and_forces():
-    from tactilesnn.datasets_synth.piezoresistive import contact_stress, solve_contact
+    from tactilesnn.datasets_synth.sensors.piezoresistive import contact_stress, solve_contact
 
     chips = chip_positions()
     center, P, Q = np.array([-4.2, 6.1]), 8.0, np.array([-2.0, 1.0])

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from tactilesnn.datasets_synth.pvdf import (
+from tactilesnn.datasets_synth.sensors.pvdf import (
     PVDFParams,
     PVDFTriangle,
     boussinesq_t3,

@@ -6,14 +6,16 @@ import numpy as np
 import pytest
 
 from tactilesnn.baselines import linear_amplitude_baseline
+from tactilesnn.core.dataset_folder import ShardDataset
 from tactilesnn.datasets_synth import TASKS, get_task
-from tactilesnn.datasets_synth.generate import ShardDataset, TaskDataset, generate
-from tactilesnn.datasets_synth.pvdf import PVDFParams, PVDFTriangle
-from tactilesnn.datasets_synth.textures import TEXTURES
+from tactilesnn.datasets_synth.generate import TaskDataset, generate
+from tactilesnn.datasets_synth.scenes.textures import TEXTURES
+from tactilesnn.datasets_synth.sensors.pvdf import PVDFParams, PVDFTriangle
 
 TRIAL_TASKS = ["texture", "stiffness_curvature", "material", "touch", "braille", "localise"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", TRIAL_TASKS)
 def test_contract_and_determinism(name):
     a, b = get_task(name, seed=3), get_task(name, seed=3)
@@ -37,6 +39,7 @@ def test_class_counts():
         get_task("touch", difficulty=-1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_generate_every_task(tmp_path, name):
     out = tmp_path / name
@@ -76,6 +79,7 @@ def test_pvdf_skip_matches_full_simulation(pitch_mm):
     assert np.abs(full).max() > 0.5
 
 
+@pytest.mark.slow
 def test_touch_spans_five_decades_without_nan():
     t = get_task("touch", amplitude_spread=1.0)
     peaks = {}
@@ -86,6 +90,7 @@ def test_touch_spans_five_decades_without_nan():
     assert max(peaks["hard_poke"]) / min(peaks["caress"]) > 1e3
 
 
+@pytest.mark.slow
 def test_texture_is_not_solved_by_amplitude():
     from tactilesnn.config import PipelineConfig
     from tactilesnn.training import fit_and_evaluate
@@ -97,10 +102,10 @@ def test_texture_is_not_solved_by_amplitude():
 
 
 def test_one_noise_scaling_for_every_sensor():
-    from tactilesnn.datasets_synth.base import noise_scaled
-    from tactilesnn.datasets_synth.capacitive_piezo import CapacitivePiezoParams
-    from tactilesnn.datasets_synth.pvdf import PVDFParams
-    from tactilesnn.datasets_synth.teng import TENGParams
+    from tactilesnn.datasets_synth.sensors.base import noise_scaled
+    from tactilesnn.datasets_synth.sensors.capacitive_piezo import CapacitivePiezoParams
+    from tactilesnn.datasets_synth.sensors.pvdf import PVDFParams
+    from tactilesnn.datasets_synth.sensors.teng import TENGParams
 
     for params in (CapacitivePiezoParams(), PVDFParams(), TENGParams()):
         scaled = noise_scaled(params, 2.5)

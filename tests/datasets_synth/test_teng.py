@@ -3,17 +3,17 @@
 import numpy as np
 import pytest
 
-from tactilesnn.datasets_synth.indentation import IndentationScene
-from tactilesnn.datasets_synth.teng import (
+from tactilesnn.datasets_synth.scenes.indentation import IndentationScene
+from tactilesnn.datasets_synth.sensors.teng import (
     MATERIALS,
     MIA6,
     MIA14,
     TENGArray,
-    TENGConverter,
     TENGParams,
     layout,
     relax,
 )
+from tactilesnn.encoders.teng_converter import TENGConverter
 
 
 def single(params=None):
@@ -76,6 +76,7 @@ def test_relax_matches_continuous_highpass_for_a_ramp():
     assert np.allclose(v, 2 * tau * (1 - np.exp(-t / tau)), atol=1e-9)
 
 
+@pytest.mark.slow
 def test_far_field_cv_and_converter_suppression():
     rng = np.random.default_rng(0)
     fs = 2000.0

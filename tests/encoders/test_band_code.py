@@ -18,6 +18,7 @@ def _noise(n=12, c=2, w=400, seed=0):
     return np.random.default_rng(seed).normal(size=(n, c, w)).astype(np.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transform", ["gwt", "cgwt", "stft"])
 @pytest.mark.parametrize("code", ["lif", "delta"])
 def test_the_composition_is_the_code_of_the_transforms_envelopes(transform, code):
@@ -69,6 +70,7 @@ def test_frames_follow_short_windows_and_bands_above_nyquist_are_refused():
         build_encoder(BandCodeConfig(f_lo_hz=60.0, f_hi_hz=90.0), 100.0, 200, 1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transform, code", [("gwt", "lif"), ("stft", "delta"), ("cgwt", "delta")])
 def test_saved_reloaded_and_exported(tmp_path, transform, code):
     """Scripted (LIF) and traced (delta) code graphs after the envelope MatMuls."""

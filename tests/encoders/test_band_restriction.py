@@ -55,6 +55,7 @@ def test_bands_outside_the_passband_are_silent_and_the_rest_coded_alone(kind):
     assert st["passband_hz"] == [30.0, 400.0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("gate", [0.0, 0.5])
 def test_the_exported_graph_transforms_only_the_passband(tmp_path, gate):
     import onnxruntime as ort
@@ -90,6 +91,7 @@ def test_bad_passbands_are_refused():
         GWTLatencyEncoder(GWTConfig(f_lo_hz=5, f_hi_hz=50, passband_lo_hz=100.0), FS, W, 1)
 
 
+@pytest.mark.slow
 def test_training_reports_what_the_restriction_skipped_and_changed(tmp_path):
     from tactilesnn.datasets_synth import HookLoopTask
     from tactilesnn.export import export_pipeline

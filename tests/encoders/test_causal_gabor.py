@@ -70,6 +70,7 @@ def test_stream_any_chunking_equals_one_pass(dtype, tol):
         assert np.abs(got - ref).max() <= tol * ref.max()
 
 
+@pytest.mark.slow
 def test_long_float32_stream_does_not_drift_and_spans_five_decades():
     rng = np.random.default_rng(1)
     n = 400_000

@@ -5,6 +5,7 @@ codes."""
 import json
 
 import numpy as np
+import pytest
 import torch
 
 from tactilesnn.cli import main
@@ -55,6 +56,7 @@ def test_recording_runs_find_windows_that_tile_a_recording():
     assert np.array_equal(join_run(X, *runs[1]), b[:, : WINDOW + 40 * (len(wb) - 1)])
 
 
+@pytest.mark.slow
 def test_the_level_is_taken_off_and_a_constant_channel_is_silent():
     """A status column stuck at 65,535 is silent (it was float32 rounding coded as spikes,
     differently in torch, onnxruntime and float64), and the same ripple on a large level is
@@ -94,6 +96,7 @@ def _tmp():
     return Path(tempfile.mkdtemp())
 
 
+@pytest.mark.slow
 def test_windows_with_their_past_are_the_stream_graph_s():
     pipe = _pipe()
     rec = _recording(1400, seed=4)
@@ -115,6 +118,7 @@ def test_windows_with_their_past_are_the_stream_graph_s():
     assert (odd[0] - ref[0])[torch.isfinite(ref[0])].abs().max() < 1e-2
 
 
+@pytest.mark.slow
 def test_training_on_recordings_learns_both_codes(tmp_path, capsys):
     rng = np.random.default_rng(0)
     y = np.arange(12) % 2

@@ -33,6 +33,7 @@ def _windows(n=12, seed=0):
 DATA_LEVEL = {"level_neurons": 2, "level_scale": "rank+linear", "level_share": True}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoder", DATA_ENCODER_CANDIDATES)
 @pytest.mark.parametrize("scale", [1.0, 1e-40])  # (1e-40: float32 denormals)
 @pytest.mark.parametrize("level", [{}, DATA_LEVEL], ids=["no-level", "data-level"])
@@ -62,6 +63,7 @@ def test_runs_saved_before_the_stft_level_was_taken_off_keep_their_spikes():
     assert PipelineConfig.from_dict(cfg.to_dict()).encoder.level_off is True
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("encoder", DATA_ENCODER_CANDIDATES)
 @pytest.mark.parametrize("exporter", ["torch.export", "torchscript"])
 def test_a_wholly_constant_file_exports(encoder, exporter, tmp_path):
@@ -80,6 +82,7 @@ def test_a_wholly_constant_file_exports(encoder, exporter, tmp_path):
     assert rep["prediction_agreement"] == 1.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scale", [1e-40, 1.0, 1e30])
 def test_the_cgwt_stream_graph_holds_at_any_scale(scale, tmp_path):
     """The stream graph's recursion runs on the samples times a fitted power of two per

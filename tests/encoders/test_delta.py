@@ -44,6 +44,7 @@ def test_matches_reference_and_is_gain_invariant():
         build_encoder(DeltaConfig(), 500.0, 80, 3).encode(x)
 
 
+@pytest.mark.slow
 def test_trains_and_exports_through_the_registry_only(tmp_path):
     small = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
     cfg = PipelineConfig.from_flat(encoder="delta", model="snn", channels=("all",), epochs=3,

@@ -36,6 +36,7 @@ def test_event_file_becomes_channels_and_spikes_pass_through(tmp_path):
         build_encoder(EventsConfig(), 500.0, 50, 12).fit(x + 0.5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["snn", "readout"])
 def test_events_train_and_export(tmp_path, model):
     event_file(tmp_path / "ev.npz")
@@ -48,6 +49,7 @@ def test_events_train_and_export(tmp_path, model):
     assert m["onnx"]["model_max_score_diff"] <= 1e-4 and m["onnx"]["encoder_max_time_diff_ms"] == 0
 
 
+@pytest.mark.slow
 def test_data_defaults_follow_the_file(tmp_path):
     import json
 

@@ -111,6 +111,7 @@ def test_rejects_bad_input():
 @pytest.mark.parametrize(
     ("fs", "n", "hop"), [(4000.0, 2000, 1), (1000.0, 3000, 1), (4000.0, 2000, 4)]
 )
+@pytest.mark.slow
 def test_fir_export_form_matches_fft_path(fs: float, n: int, hop: int) -> None:
     """The exported FIR form equals the FFT path, also when the lowest wavelet outlasts the
     window (4 kHz, 0.5 s window, 3 Hz band: the FFT's wrap-around must be reproduced)."""
@@ -146,6 +147,7 @@ def test_feature_map_is_the_scalogram_the_code_reads():
     assert lif.feature_map(x) is None
 
 
+@pytest.mark.slow
 def test_gwt_hop_decimates_exactly_and_exports(tmp_path):
     """hop h: the frames are every h-th frame of the full-rate scalogram (exact), and the
     exported graph matches the torch encoder."""
@@ -199,6 +201,7 @@ def test_data_defaults_follow_the_rate_and_the_training_spectrum():
     ("padding", "n", "hop"), [("reflect", 1000, 10), ("reflect", 400, 1), ("zero", 300, 3),
                               ("periodic", 256, 4)],
 )  # fmt: skip
+@pytest.mark.slow
 def test_factored_export_form_matches_fft_path(padding: str, n: int, hop: int) -> None:
     """Low-rank, FIR and dense bands together reproduce the FFT path in float64 (to the rank
     tolerance), with fewer multiply-adds than the dense window matrices, and code the same

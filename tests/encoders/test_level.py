@@ -122,6 +122,7 @@ def test_pipeline_appends_the_level_afferents_between_encoder_and_clock():
     "encoder, scale, share",
     [("gwt", "rank", False), ("lif", "rank", False), ("gwt", "rank+linear", True)],
 )  # traced and scripted encoder graphs; the data defaults' pairs and share
+@pytest.mark.slow
 def test_level_code_is_saved_with_the_run_and_exported(tmp_path, encoder, scale, share):
     params = {"seed": 0, "n_planar": 8, "n_concave": 4, "n_convex": 4, "n_test": 3}
     cfg = PipelineConfig.from_flat(encoder=encoder, model="readout", level_neurons=4, epochs=2,

@@ -22,6 +22,7 @@ def make_stream_encoder(**kw):
     return SlidingEncoder(g, LatencyCode(stats=("mean", "std")), window=100, hop=50, **kw)
 
 
+@pytest.mark.slow
 def test_chunked_equals_one_shot_on_a_long_stream():
     x = np.random.default_rng(0).standard_normal((1, 2, 200_000)).astype(np.float32)
     one = make_stream_encoder(chunk_windows=10**9).encode(x)
@@ -132,6 +133,7 @@ def test_latency_times_to_events_and_dense_agree():
     np.testing.assert_array_equal(ev.to_dense(1.0), to_dense(t, 500.0, 1.0).numpy()[..., :500])
 
 
+@pytest.mark.slow
 def test_long_windows_export_the_gwt_within_its_budget(tmp_path):
     """A 4,000-sample window: the dense matrix form would need 1.3 GB; the per-band forms
     (low rank, short FIR, dense) stay within their 32 MB budget and match the encoder."""

@@ -125,6 +125,7 @@ def test_lif_convert_refuses_runaway_rates_before_work() -> None:
     assert len(lif_convert(x * 1e5, FS, refractory_ms=20.0)) <= 1000 / 20 + 1
 
 
+@pytest.mark.slow
 def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
     """6 s recordings: keeping the first 8 spikes put most of them in the first 130 ms; the
     fitted prescaler keeps every m-th spike so the slots span the window, and the exported graph
@@ -157,6 +158,7 @@ def test_lif_population_spreads_kept_spikes_over_a_long_window() -> None:
     assert np.abs(got[fin] - spread[:2][fin]).max() < 1e-2
 
 
+@pytest.mark.slow
 def test_exported_lif_graph_counts_spikes_as_torch_does(tmp_path) -> None:
     """With the prescaler a slot holds the m-th, 2m-th ... spike: a crossing counted differently
     in float32 moved the material task's exported spikes by a whole interval (85 ms). The graph
@@ -186,6 +188,7 @@ def test_exported_lif_graph_counts_spikes_as_torch_does(tmp_path) -> None:
     assert np.abs(got[fin] - ref[fin]).max() <= 5e-4  # ms: float32 rounding of times <= 3 s
 
 
+@pytest.mark.slow
 def test_closed_form_sample_matches_the_crossing_by_crossing_converter() -> None:
     """lif_first_spikes counts every crossing of a held sample in closed form; lif_convert
     (subtractive reset) locates them one at a time: same spike times and counts, float64, from

@@ -71,6 +71,7 @@ def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_pa
     assert np.abs(got - ref).max() <= 1e-4 * max(1.0, np.abs(ref).max())
 
 
+@pytest.mark.slow
 def test_a_part_only_the_older_exporter_writes_is_chained_at_the_newer_opset(tmp_path):
     """A component that cannot trace under torch.export (``onnx_exportable`` False) is written
     by the TorchScript-based exporter (opset 17, Loops) and chained to a torch.export part."""
@@ -116,6 +117,7 @@ class _DataDependent(torch.nn.Module):
         return x
 
 
+@pytest.mark.slow
 def test_a_component_torch_export_refuses_falls_back_to_the_older_exporter(caplog):
     x = torch.ones(2, 3)
     with caplog.at_level(logging.WARNING, logger="tactilesnn.core.onnx_graph"):

@@ -36,6 +36,7 @@ def _windows(n, seed=0):
     return (x + 0.3 * rng.standard_normal(x.shape) + 5.0).astype(np.float32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model,level", [("tempotron", 0), ("snn", 0), ("readout", 2)])
 def test_stream_graph_matches_torch_on_a_stream(tmp_path, model, level):
     pipe = _pipe(model, level_neurons=level)  # the level code reads the window: one more state
@@ -50,6 +51,7 @@ def test_stream_graph_matches_torch_on_a_stream(tmp_path, model, level):
         export_stream(pipe, tmp_path / "s.onnx", _windows(20))
 
 
+@pytest.mark.slow
 def test_runtime_classifies_and_streams_with_the_stream_graph(tmp_path):
     pipe = _pipe("snn")
     X = _windows(6, seed=3)
@@ -79,6 +81,7 @@ def test_runtime_classifies_and_streams_with_the_stream_graph(tmp_path):
         stream.feed_stream(StreamState(), joined[:, :50], hop=40)
 
 
+@pytest.mark.slow
 def test_stream_graph_refusals(tmp_path):
     with pytest.raises(ValueError, match="no stream form"):
         build_stream_graph(_pipe("tempotron", encoder="gwt"))
@@ -102,6 +105,7 @@ def test_stream_graph_refusals(tmp_path):
             build_stream_graph(pipe, step=step)
 
 
+@pytest.mark.slow
 def test_cli_exports_the_stream_graph_of_a_cgwt_run(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["train", "--encoder", "cgwt", "--epochs", "1", "--quiet", "--task-kw",
@@ -151,6 +155,7 @@ def test_stream_graph_is_built_by_the_supported_exporter_with_a_fallback(tmp_pat
     assert a["nodes"] <= b["nodes"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level", [0, 2])
 def test_any_step_matches_torch_and_the_runtime(tmp_path, level):
     """A window ending every step (one hop = one frame, or 40 samples): the exported graph
@@ -179,6 +184,7 @@ def test_any_step_matches_torch_and_the_runtime(tmp_path, level):
             assert np.array_equal(results[k]["window"], joined[:, k * step : k * step + WINDOW])
 
 
+@pytest.mark.slow
 def test_one_hop_steps_give_a_frame_s_spikes_after_its_last_sample(tmp_path):
     """Latency: with one hop per call, a burst in a frame changes the spikes of the call that
     takes that frame's samples (the window ending with it) and of no call before it."""

@@ -74,6 +74,7 @@ def test_scores_equal_a_step_by_step_float64_reference(readout):
         np.testing.assert_allclose(got[b], want, rtol=1e-4, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_learns_where_on_the_array_the_touch_is_and_exports(tmp_path, capsys):
     """Event file, 6 x 6 taxels: the class is the quadrant that fires. Trained through
     ``--data`` (events encoder by default), exported to ONNX with parity checked."""
@@ -116,6 +117,7 @@ def test_shift_augmentation_moves_each_sample_whole_and_only_in_training():
     assert torch.equal(model.scores(spikes), model.scores(spikes))  # inference is deterministic
 
 
+@pytest.mark.slow
 def test_event_files_with_a_taxel_grid_default_to_the_conv_snn(tmp_path, capsys):
     from tactilesnn.recordings import event_grid
 

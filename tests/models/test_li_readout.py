@@ -25,6 +25,7 @@ def test_traces_match_a_float64_loop():
     np.testing.assert_allclose(got.numpy(), want, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_trains_thirty_classes_from_spike_timing():
     # class c: afferents fire at class-specific times (a pattern a count code cannot see)
     rng = np.random.default_rng(1)
@@ -42,6 +43,7 @@ def test_trains_thirty_classes_from_spike_timing():
     assert acc > 0.9
 
 
+@pytest.mark.slow
 def test_readout_exports_through_the_registry_only(tmp_path):
     small = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
     cfg = PipelineConfig.from_flat(model="readout", epochs=5)
@@ -118,6 +120,7 @@ def test_the_exact_solver_finds_scikit_learns_optimum_on_the_readouts_features()
     np.testing.assert_allclose(w, ref.coef_, atol=1e-3 * np.abs(ref.coef_).max())
 
 
+@pytest.mark.slow
 def test_cross_validation_reports_every_candidate_and_zeroes_unused_instants():
     spikes, y = _timing_problem(4)
     groups = np.arange(90) // 3

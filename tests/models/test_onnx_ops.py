@@ -54,6 +54,7 @@ def _run_onnx(
     return sess.run(None, {n: a.numpy() for n, a in zip(names, args, strict=True)})
 
 
+@pytest.mark.slow
 def test_leaky_integrator_closed_form_matches_the_scan_in_float64():
     g = torch.Generator().manual_seed(0)
     cur = torch.randn(300, 3, 5, dtype=torch.float64, generator=g)
@@ -79,6 +80,7 @@ class _LIF(nn.Module):
         return lif_as_lstm(cur, u0, s0, self.w_rec, self.W, self.R, self.B, *self.cfg)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exporter", EXPORTERS)
 @pytest.mark.parametrize("subtract", [True, False])
 @pytest.mark.parametrize("recurrent", [False, True])
@@ -123,6 +125,7 @@ class _Raster(nn.Module):
         return raster_current(spikes, w, b, self.updates, self.dt, self.steps)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exporter", EXPORTERS)
 def test_raster_current_scatter_equals_the_dense_raster_product(exporter):
     torch.manual_seed(2)
@@ -151,6 +154,7 @@ class _Rows(nn.Module):
         return self.lif(cur, u0, s0, self.w_rec)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("subtract", [True, False])
 def test_feed_forward_lif_runs_as_rows_of_units_and_spikes_like_the_scan(subtract):
     """64 independent units as 4 LSTM rows of 16 (a smaller per-step product): same spikes and

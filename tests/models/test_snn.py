@@ -84,6 +84,7 @@ def test_streaming_in_chunks_equals_one_shot(recurrent):
     assert torch.equal(torch.cat([a, b]), whole)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("readout", ["count", "max", "mean"])
 def test_classifier_learns_a_rate_task(readout):
     torch.manual_seed(0)

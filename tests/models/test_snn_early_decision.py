@@ -31,6 +31,7 @@ def test_the_pooled_running_maximum_is_exact(steps):
     assert torch.equal(pooled_prefix_max(x), torch.cummax(x, 0).values)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exporter", ["torch.export", "torchscript"])
 @pytest.mark.parametrize("steps", [100, POOLED_MAX_STEPS + 1])
 def test_the_exported_running_maximum_is_one_max_pool_up_to_its_step_limit(exporter, steps):
@@ -134,6 +135,7 @@ def test_the_fitted_margin_agrees_on_the_training_windows():
     assert float(t_ms.mean()) < 100.0  # it decides before the window ends
 
 
+@pytest.mark.slow
 def test_a_stricter_agreement_decides_later_and_agrees_more():
     spikes, y = _rate_spikes(400, 3)
     times, agree = [], []

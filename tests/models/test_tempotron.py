@@ -114,6 +114,7 @@ def test_learning_rule_signs_and_magnitude():
     torch.testing.assert_close(m.weight.detach(), expected)
 
 
+@pytest.mark.slow
 def test_rule_learns_a_separable_timing_task():
     # class 0: inputs 0-4 fire together early; class 1: inputs 5-9 fire together early
     g = torch.Generator().manual_seed(0)
@@ -164,6 +165,7 @@ def test_rejects_bad_spike_input():
         Tempotron(3, 2, 100.0, tau_ms=5.0, tau_s_ms=10.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(3))
 def test_decision_time_is_the_first_dense_grid_crossing(seed):
     g = torch.Generator().manual_seed(seed)

@@ -37,6 +37,7 @@ def npy(arr):
     return buf.getvalue()
 
 
+@pytest.mark.slow
 def test_classify_json_npy_single_and_batched(served):
     client, pipe, test = served
     ref = pipe.predict(test.X[:5])
@@ -112,6 +113,7 @@ def test_inference_path_imports_no_torch(tmp_path, served):
     assert out.stdout.strip() == "False"
 
 
+@pytest.mark.slow
 def test_idle_streams_expire_and_ids_are_url_encoded(tmp_path, served):
     import time
 
@@ -177,6 +179,7 @@ def test_soak_thousands_of_abandoned_streams_never_lock_out(tmp_path, served):
     assert grown < 8 << 20  # bounded: 18 more waves of 100 streams add no lasting memory
 
 
+@pytest.mark.slow
 def test_the_service_serves_a_stream_graph(tmp_path):
     from tactilesnn.export.stream import export_stream
 

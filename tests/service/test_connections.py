@@ -77,6 +77,7 @@ def _classify(port: int, test) -> int:
     return r.status
 
 
+@pytest.mark.slow
 def test_half_open_connections_are_closed_at_the_header_deadline(model, monkeypatch):
     monkeypatch.setattr(GuardedH11Protocol, "header_timeout_s", 0.5)
     with running(create_app(model[0])) as port:
@@ -86,6 +87,7 @@ def test_half_open_connections_are_closed_at_the_header_deadline(model, monkeypa
         assert _closed_within(half, 5.0) and _closed_within(idle, 5.0)
 
 
+@pytest.mark.slow
 def test_half_open_connections_cannot_keep_normal_clients_out(model, monkeypatch):
     """More waiting connections than the eviction threshold: each new one closes the oldest
     waiting one, and normal requests are answered throughout (not 503)."""
@@ -104,6 +106,7 @@ def test_half_open_connections_cannot_keep_normal_clients_out(model, monkeypatch
             c.close()
 
 
+@pytest.mark.slow
 def test_a_client_that_hangs_up_mid_upload_is_one_log_line(model, caplog):
     with running(create_app(model[0], body_timeout_s=10)) as port, caplog.at_level(logging.INFO):
         c = socket.create_connection(("127.0.0.1", port), timeout=10)

@@ -30,6 +30,7 @@ def _export(tasks, model: str, path):
     return res.pipeline, test, report
 
 
+@pytest.mark.slow
 def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
     pipe, test, report = _export(tasks, "tempotron", tmp_path / "t.onnx")
     assert report["early_class_agreement"] == 1.0 and report["early_max_time_diff_ms"] < 1e-3
@@ -83,6 +84,7 @@ def test_the_exported_tempotron_decides_early_as_torch_does(tasks, tmp_path):
     np.testing.assert_array_equal(again.early_class, out.early_class)
 
 
+@pytest.mark.slow
 def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     _, test, report = _export(tasks, "readout", tmp_path / "r.onnx")
     assert "early_class_agreement" not in report
@@ -95,6 +97,7 @@ def test_a_model_without_early_decision_reports_none(tasks, tmp_path):
     assert got and all("early_class" not in r for r in got)
 
 
+@pytest.mark.slow
 def test_the_exported_snn_decides_early_as_torch_does_and_streams_it(tasks, tmp_path):
     """The SNN decides when its leading class leads by the margin fitted on the training
     windows; the graph's decisions equal torch's, and a stateful stream reports them."""
@@ -139,6 +142,7 @@ def test_the_exported_snn_decides_early_as_torch_does_and_streams_it(tasks, tmp_
         sess.run(x[:0])
 
 
+@pytest.mark.slow
 def test_grid_crossings_agree_with_a_fine_bisection():
     """The grid rounds (the exported form) against 60 bisection steps in float64."""
     from tactilesnn.models.tempotron import Tempotron
@@ -172,6 +176,7 @@ def test_grid_crossings_agree_with_a_fine_bisection():
     np.testing.assert_allclose(got[fin].numpy(), hi[fin].numpy(), atol=200 * 64.0**-3)
 
 
+@pytest.mark.slow
 def test_without_the_onnx_package_plain_classification_runs_the_full_graph(
     tasks, tmp_path, monkeypatch
 ):

@@ -39,6 +39,7 @@ def exported(tmp_path_factory):
     return tmp / "m.onnx", pipe, test
 
 
+@pytest.mark.slow
 def test_exposed_spikes_are_the_encoders_and_scores_unchanged(exported):
     path, pipe, test = exported
     x = test.X[:16]
@@ -186,6 +187,7 @@ def test_live_page_updates_in_a_real_browser(exported, tmp_path):
         server.wait(timeout=30)
 
 
+@pytest.mark.slow
 def test_sigterm_with_live_pages_open_stops_at_once(exported):
     """Open live pages (event streams that never end by themselves) must not hold the shutdown
     until uvicorn's 10 s grace period runs out, nor leave an ERROR in the log."""

@@ -43,6 +43,7 @@ def _body(test) -> bytes:
     [None, "text/plain", "text/plain;charset=UTF-8", "application/x-www-form-urlencoded",
      "multipart/form-data; boundary=x", "application/jsonx", "text/json"],
 )  # fmt: skip
+@pytest.mark.slow
 @pytest.mark.parametrize("route", ["/v1/classify", "/v1/stream/s"])
 def test_simple_request_content_types_are_refused(client, ctype, route):
     c, test = client
@@ -173,6 +174,7 @@ def test_bad_numbers_get_4xx(client, body, status, match):
         assert match in r.json()["error"]
 
 
+@pytest.mark.slow
 def test_a_stalled_upload_times_out_and_the_upload_budget_is_bounded(model):
     """Real sockets on a running server: uploads are counted as they arrive against a 10 MB
     budget: one that sent 6 MB and stalls holds it until the body timeout (408); a second
@@ -231,6 +233,7 @@ def test_a_stalled_upload_times_out_and_the_upload_budget_is_bounded(model):
     assert budget.held == 0
 
 
+@pytest.mark.slow
 def test_large_json_bodies_are_parsed_in_another_process(model, monkeypatch):
     """A large body is parsed in the parser process (no GIL held here); a small one inline."""
     import tactilesnn.service.app as app_module

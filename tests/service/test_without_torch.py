@@ -7,6 +7,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from tests.helpers import exported_model
 
 SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
@@ -30,6 +32,7 @@ print(main(["/no/such/model.onnx"]))
 """
 
 
+@pytest.mark.slow
 def test_the_service_classifies_without_torch_or_onnx(tmp_path):
     import numpy as np
 

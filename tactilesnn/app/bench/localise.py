@@ -6,7 +6,7 @@ For ``target=position`` (a ``cells x cells`` grid) and ``target=direction`` (8 s
 the task's training split; on its test split, the error of the predicted cell's centre against
 the true contact point (mm) and of the predicted sector's centre against the true tangential
 force direction (degrees). References on the same test samples: the seed's least-squares solve
-(:func:`~tactilesnn.datasets_synth.piezoresistive.solve_contact` on the stress read at the hold:
+(:func:`~tactilesnn.datasets_synth.sensors.piezoresistive.solve_contact` on the stress read at the hold:
 continuous, no classes), logistic regression on the hold readings (the same classes), and the
 floor a perfect classifier reaches (the true class's centre). Writes ``localise.json`` and
 ``localise.md``.
@@ -31,7 +31,7 @@ def _angle_error(a_deg: np.ndarray, b_deg: np.ndarray) -> np.ndarray:
 def least_squares(X: np.ndarray, depth_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Seed 002's inverse per sample: ``X [N, 100, frames]`` -> (centres ``[N, 2]`` mm,
     tangential force angles ``[N]`` degrees), from the mean of the last frames (the hold)."""
-    from ...datasets_synth.piezoresistive import chip_positions, solve_contact, solve_stress
+    from ...datasets_synth.sensors.piezoresistive import chip_positions, solve_contact, solve_stress
 
     chips = chip_positions()
     hold = X[..., -HOLD_FRAMES:].mean(-1).reshape(len(X), 25, 4).astype(np.float64)

@@ -117,7 +117,7 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
 def capacitive_time_skip(repeats: int = 5, quick: bool = False) -> dict:
     """Capacitive triangle, 10 s at 10 kS/s with a 1 s press and a 0.2 s hold: the foam's
     hysteresis stepped only where a pad's strain changes vs at every sample."""
-    from ...datasets_synth.capacitive_triangle import CapacitiveTriangle
+    from ...datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
 
     sensor = CapacitiveTriangle()
     fs = 10_000.0
@@ -138,7 +138,7 @@ def capacitive_taxel_skip(repeats: int = 5, quick: bool = False) -> list[dict]:
     """Capacitive triangle (12 pads, 5 kS/s contact, 16-bit CDC): a 3 mm probe presses 1, 3, 6
     or 12 pads in turn (a light 0.1 N touch, 0.4 s each); channels left out exactly (their code cannot leave
     rest) and with a 1 LSB tolerance, against simulating every pad."""
-    from ...datasets_synth.capacitive_triangle import CapacitiveTriangle
+    from ...datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
 
     sensor = CapacitiveTriangle()
     fs, press = 5000.0, 2000
@@ -168,7 +168,7 @@ def capacitive_taxel_skip(repeats: int = 5, quick: bool = False) -> list[dict]:
 def teng_time_skip(repeats: int = 5, quick: bool = False) -> dict:
     """TENG finger (8 electrodes x 9 pad points, 500 S/s), 60 s with one 2 s press: the
     induced potential evaluated only within twice the proximity range vs everywhere."""
-    from ...datasets_synth.teng import TENGArray, layout
+    from ...datasets_synth.sensors.teng import TENGArray, layout
 
     sensor = TENGArray(layout("finger8"))
     n = int((10 if quick else 60) * sensor.fs_hz)
@@ -186,7 +186,7 @@ def band_restriction(repeats: int = 5, quick: bool = False) -> dict:
     """Touch task, default GWT + tempotron, with and without the PVDF readout's passband."""
     from ...config import PipelineConfig
     from ...datasets_synth import get_task
-    from ...datasets_synth.pvdf import PVDFParams
+    from ...datasets_synth.sensors.pvdf import PVDFParams
     from ...training import fit_and_evaluate
 
     lo, hi = PVDFParams().passband_hz

@@ -89,7 +89,7 @@ def amplitude_span(quick: bool) -> tuple[float, str]:
 
 
 def pvdf_full_range(quick: bool) -> tuple[float, str]:
-    from ...datasets_synth.pvdf import PVDFTriangle
+    from ...datasets_synth.sensors.pvdf import PVDFTriangle
 
     sensor = PVDFTriangle()
     fs = sensor.fs_hz

@@ -23,7 +23,7 @@ import numpy as np
 from ...baselines import linear_amplitude_baseline
 from ...datasets_synth import TASKS, get_task
 from ...datasets_synth.generate import generate
-from ...datasets_synth.pvdf import PVDFTriangle
+from ...datasets_synth.sensors.pvdf import PVDFTriangle
 
 
 def generation_rate(name: str, n: int, workers: int, repeats: int) -> dict:

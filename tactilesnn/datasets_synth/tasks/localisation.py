@@ -1,7 +1,7 @@
 """Contact localisation on the CMOS piezoresistive chip array (seed 002, SPEC 2.3).
 
 A press with a normal force and a tangential (friction-limited) force lands somewhere on the
-5 x 5 chip array (:class:`~tactilesnn.datasets_synth.piezoresistive.ChipArray`, 7.46 mm pitch);
+5 x 5 chip array (:class:`~tactilesnn.datasets_synth.sensors.piezoresistive.ChipArray`, 7.46 mm pitch);
 the chips read the in-plane stress below it (:func:`contact_stress`: Boussinesq + Cerruti at
 Poisson ratio 0.5, 1 mm deep). ``target="position"``: the class is the cell of a ``cells x cells``
 grid over the inner region (1.5 pitches either side of the centre, 22.4 mm square) where the
@@ -27,9 +27,16 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..scenes.inputs import StressSeries
+from ..sensors.piezoresistive import (
+    ANGLES_DEG,
+    ChipArray,
+    ChipArrayParams,
+    chip_positions,
+    contact_stress,
+)
 from .base import register_task
-from .piezoresistive import ANGLES_DEG, ChipArray, ChipArrayParams, chip_positions, contact_stress
-from .trial_task import TrialTask
+from .trial import TrialTask
 
 SECTORS = ("E", "NE", "N", "NW", "W", "SW", "S", "SE")
 PITCH_MM = 1.46 + 6.0
@@ -121,10 +128,8 @@ class ContactLocalisationTask(TrialTask):
         ramp = 0.15 + 0.05 * min(d, 1.0) * rng.uniform(-1, 1)
         phase = np.clip((t - onset) / ramp, 0.0, 1.0)
         env = 0.5 * (1 - np.cos(np.pi * phase))
-        out = self.sensor.read(
-            env[:, None] * sigma[None], np.broadcast_to(lam, (n, 25)), SIM_HZ, rng
-        )
-        x = out.reshape(100, -1).astype(np.float64)
+        stress = StressSeries(env[:, None] * sigma[None], np.broadcast_to(lam, (n, 25)), SIM_HZ)
+        x = self.sensor.read_scene(stress, rng).astype(np.float64)  # [100 chip-resistors, frames]
         info = {"center_mm": center.tolist(), "angle_deg": float(angle), "force_N": float(force),
                 "shear_N": shear.tolist()}  # fmt: skip
         return x, info

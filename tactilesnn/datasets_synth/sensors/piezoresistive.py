@@ -28,10 +28,13 @@ the contact; :func:`solve_contact` inverts it (position, normal and tangential f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from ..core.checks import as_float_array, check_finite, check_positive
+from ...core.checks import as_float_array, check_finite, check_positive
+from ..scenes.inputs import StressSeries
+from .base import SensorParams, check_scene, register_sensor
 
 PI11, PI12, PI44 = -98.9456e-11, 49.4729e-11, -12.4675e-11  # 1/Pa, seed 002
 ANGLES_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -130,7 +133,7 @@ def locate_contact(
 
 
 @dataclass(frozen=True)
-class ChipArrayParams:
+class ChipArrayParams(SensorParams):
     """Seed 002's readout values."""
 
     v_sense: float = 0.9
@@ -158,8 +161,27 @@ class ChipArrayParams:
         return lsb / (self.sensitivity_mV_per_MPa * 1e-3) * 1e3
 
 
+@register_sensor("piezoresistive")
 class ChipArray:
     """5 x 5 piezoresistive chips polled at 60 Hz with one frame of latency."""
+
+    units: ClassVar[str] = "drho / rho"
+    scene_type: ClassVar[type] = StressSeries
+
+    @property
+    def channel_names(self) -> tuple[str, ...]:
+        """Chip-major: ``chip<k>:<angle>deg`` for each resistor orientation."""
+        return tuple(f"chip{k}:{a:g}deg" for k in range(len(self.chips_mm)) for a in ANGLES_DEG)
+
+    def output_rate_hz(self, scene: StressSeries) -> float:
+        return float(self.params.frame_hz)
+
+    def read_scene(self, scene: StressSeries, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read`. Channels: chip-major,
+        its four resistor orientations."""
+        check_scene(self, scene)
+        out = self.read(scene.sigma_Pa, scene.lambda_rad, scene.fs_in_hz, rng)  # [chips, 4, frames]
+        return out.reshape(-1, out.shape[-1])
 
     def __init__(self, params: ChipArrayParams | None = None) -> None:
         self.params = params or ChipArrayParams()

@@ -22,10 +22,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..core.stages import bar_disabled
+from ...core.stages import bar_disabled
+from ..scenes.inputs import PressureSeries
+from ..scenes.sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
+from ..sensors.capacitive_piezo import CapacitivePiezoStack
 from .base import WindowDataset, register_task
-from .capacitive_piezo import CapacitivePiezoStack
-from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
 
 TASK_ID = 1  # mixed into every seed so different tasks never share random streams
 
@@ -114,7 +115,7 @@ class HookLoopTask:
         scene = self.scene(index)
         order = tuple(rng.permutation(len(self.class_names)).tolist())
         pressure, labels_sim, info = scene.render(rng, order)
-        stream = self.sensor.read(pressure, self.protocol.fs_sim_hz, rng)
+        stream = self.sensor.read_scene(PressureSeries(pressure, self.protocol.fs_sim_hz), rng)
         decim = round(self.protocol.fs_sim_hz / self.fs_hz)
         labels = labels_sim[::decim][: stream.shape[1]]
         info["order"] = [self.class_names[i] for i in order]

@@ -37,10 +37,13 @@ fingertip is curved about both axes, which the height ``h(u)`` models.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from ..core.checks import as_float_array, check_finite, check_positive
+from ...core.checks import as_float_array, check_finite, check_positive
+from ..scenes.inputs import FingertipPress
+from .base import check_scene, register_sensor
 from .capacitive_triangle import CapacitiveTriangle, CapacitiveTriangleParams
 from .pvdf import disc_points
 
@@ -102,8 +105,24 @@ class FingertipParams:
         )  # fmt: skip
 
 
+@register_sensor("capacitive_fingertip")
 class CapacitiveFingertip:
     """Twelve capacitive pads on a curved fingertip under a soft foam, read as iCub counts."""
+
+    units: ClassVar[str] = "iCub counts (0..255)"
+    scene_type: ClassVar[type] = FingertipPress
+
+    def output_rate_hz(self, scene: FingertipPress) -> float:
+        return float(scene.fs_frames_hz)
+
+    def read_scene(
+        self, scene: FingertipPress, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read`."""
+        check_scene(self, scene)
+        return self.read(scene.force_N, scene.bumps_mm, scene.bump_height_mm, scene.bump_diameter_mm,
+                         scene.contact_mm, scene.gain, scene.offset_counts, rng,
+                         scene.position_control)  # fmt: skip
 
     n_channels = 12
 

@@ -6,7 +6,7 @@ same on any machine and in any worker. Classes are balanced by construction (sam
 class ``i % n_classes``); the train/test split is a seeded permutation of the sample indices.
 
 Every subclass exposes the same array contract as the hook-vs-loop task (see
-:class:`~tactilesnn.datasets_synth.hook_loop.WindowDataset`), which is what ``tactilesnn train``,
+:class:`~tactilesnn.datasets_synth.tasks.hook_loop.WindowDataset`), which is what ``tactilesnn train``,
 ``generate`` and the trivial baseline consume, and documents a ``difficulty`` knob (0 = idealised,
 1 = default) and an ``amplitude_spread`` knob (scales the amplitude nuisances).
 """
@@ -19,9 +19,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..core.stages import bar_disabled
+from ...core.stages import bar_disabled
+from ..scenes.faults import Faults, parse_faults
 from .base import WindowDataset
-from .faults import Faults, parse_faults
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.checks import check_positive
+from ...core.checks import check_positive
 
 
 @dataclass(frozen=True)

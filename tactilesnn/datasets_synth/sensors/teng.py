@@ -4,7 +4,7 @@ Array contract of :meth:`TENGArray.read`: per-electrode gap ``gap_mm [channels, 
 the object's surface and the skin (> 0 = proximity, < 0 = overlap) at ``fs_hz``, the contacting
 ``material`` and its contact count -> triboelectric gate potential ``V_T [channels, samples]``
 float64 in volts at the same rate (default 500 S/s; V_T is slow, the converter's spikes are
-events and are produced by :meth:`TENGConverter.convert`).
+events and are produced by :class:`~tactilesnn.encoders.teng_converter.TENGConverter`).
 
 Transduction ``Tr: P(t) -> V(t)``, built from the seed's single-sensor characterisation:
 - proximity phase: the induced potential starts ~2 mm before contact and rises 0.8 mV/um
@@ -21,8 +21,9 @@ Transduction ``Tr: P(t) -> V(t)``, built from the seed's single-sensor character
 - residual charges from earlier contacts add a long-range term of random sign and amplitude per
   contact: far from the skin V_T has a coefficient of variation ~3.5 over repeated contacts.
 
-Converter ``G: V(t) -> ST(t)`` (:class:`TENGConverter`): the transistor conducts once V_T exceeds
-its turn-on voltage; the drain current charges a leaky membrane
+Converter ``G: V(t) -> ST(t)`` (the encoding stage after this model:
+:class:`~tactilesnn.encoders.teng_converter.TENGConverter`): the transistor conducts once V_T
+exceeds its turn-on voltage; the drain current charges a leaky membrane
 ``tau_mem dV/dt = -(V - V_rest) + R I(t)`` that fires at ``theta`` and resets. Far-proximity
 potentials stay below turn-on, so the rate starts ~1 mm before contact.
 """
@@ -35,7 +36,9 @@ from typing import ClassVar
 import numpy as np
 from scipy import signal
 
-from ..core.checks import as_float_array, check_choice, check_finite, check_positive
+from ...core.checks import as_float_array, check_choice, check_finite, check_positive
+from ..scenes.inputs import GapSeries
+from .base import SensorParams, check_scene, register_sensor
 
 
 @dataclass(frozen=True)
@@ -64,10 +67,10 @@ MATERIALS: dict[str, TriboMaterial] = {
 
 
 @dataclass(frozen=True)
-class TENGParams:
+class TENGParams(SensorParams):
     """Seed 000's single-sensor figures; every field can be overridden."""
 
-    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    #: electronic-noise fields, scaled together by :func:`~.base.noise_scaled`
     NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("noise_V",)
 
     fs_hz: float = 500.0
@@ -92,8 +95,22 @@ class TENGParams:
             check_positive(getattr(self, name), name)
 
 
+@register_sensor("teng")
 class TENGArray:
     """TENG electrodes under a PDMS skin: gap time courses -> gate potentials V_T (V)."""
+
+    units: ClassVar[str] = "V"
+    scene_type: ClassVar[type] = GapSeries
+
+    def output_rate_hz(self, scene: GapSeries) -> float:
+        return self.fs_hz
+
+    def read_scene(self, scene: GapSeries, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read`."""
+        check_scene(self, scene)
+        return self.read(
+            scene.gap_mm, scene.material, scene.contacts, rng, skin_share=scene.skin_share
+        )
 
     def __init__(self, positions_mm: np.ndarray, params: TENGParams | None = None) -> None:
         self.positions_mm = np.asarray(positions_mm, dtype=np.float64).reshape(-1, 2)
@@ -200,34 +217,6 @@ def relax(u: np.ndarray, fs_hz: float, tau_s: float) -> np.ndarray:
     # linear input over a step: the step's increment enters with the mean decay over the step
     b = tau_s * fs_hz * (1 - a)
     return signal.lfilter([b], [1.0, -a], du, axis=-1)
-
-
-@dataclass(frozen=True)
-class TENGConverter:
-    """Seed 000's LIF analog-to-spike converter (transistor + leaky integrate-and-fire).
-
-    ``v_on_V``: transistor turn-on; the drain current ``g (V_T - v_on)`` (``gain`` = R g, V/V)
-    drives ``tau_mem dV/dt = -(V - V_rest) + R I``; a spike (2 V, 1.2 ms on the scope) at
-    ``threshold_V``, then reset to rest.
-    """
-
-    v_on_V: float = 0.15
-    gain: float = 5.0
-    tau_mem_ms: float = 20.0
-    threshold_V: float = 1.0
-    refractory_ms: float = 1.2
-
-    def convert(self, v_t: np.ndarray, fs_hz: float):
-        """``V_T [..., channels, samples]`` (V) -> :class:`~tactilesnn.encoders.SpikeEvents`."""
-        from ..encoders.spiking import lif_convert
-
-        drive = np.maximum(np.asarray(v_t, dtype=np.float64) - self.v_on_V, 0.0)
-        if drive.ndim == 2:
-            drive = drive[None]
-        return lif_convert(
-            drive, fs_hz, tau_ms=self.tau_mem_ms, threshold=self.threshold_V, gain=self.gain,
-            reset="rest", refractory_ms=self.refractory_ms,
-        )  # fmt: skip
 
 
 # ------------------------------------------------------------------------------ layouts (mm)

@@ -2,7 +2,7 @@
 
 Scene: a plate carrying one Braille cell (standard dot geometry: spherical-cap dots of 1.44 mm
 base diameter and 0.48 mm height, 2.34 mm apart within the cell) slides under the fingertip
-(:class:`~tactilesnn.datasets_synth.capacitive_fingertip.CapacitiveFingertip`) along the
+(:class:`~tactilesnn.datasets_synth.sensors.capacitive_fingertip.CapacitiveFingertip`) along the
 fingertip's long axis, as the robot arm of ``../shared/data/braille_icub_abc`` does: 38 mm at
 about 10 mm/s (3.75 s, the cell under the fingertip mid-slide), pressed with about 1.5 N at a
 set height (position control: the force rises as the dots pass), the fingertip's centre running
@@ -32,9 +32,10 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..scenes.inputs import FingertipPress
+from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 from .base import register_task
-from .capacitive_fingertip import CapacitiveFingertip, FingertipParams
-from .trial_task import TrialTask
+from .trial import TrialTask
 
 #: the raised dots (1..6) of each letter of the Braille alphabet (grade 1)
 BRAILLE_DOTS: dict[str, tuple[int, ...]] = {
@@ -146,8 +147,9 @@ class BrailleTask(TrialTask):
         gain = np.exp(self.gain_spread * d * rng.standard_normal(12))
         offset = self.offset_counts * d * rng.standard_normal(12)
         drift = np.cumsum(rng.standard_normal((12, n)), 1) * (self.drift_counts * d / np.sqrt(n))
-        counts = sensor.read(force * ripple, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
-                             offset[:, None] + drift, rng)  # fmt: skip
+        press = FingertipPress(force * ripple, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
+                               offset[:, None] + drift, self.fs_hz)  # fmt: skip
+        counts = sensor.read_scene(press, rng)
         load = sensor.last_force_N
         info = {"speed_mm_s": float(speed), "force_N": float(force), "cell_offset_mm": place.tolist(),
                 "contact_mm": contact.tolist(),

@@ -32,7 +32,9 @@ from typing import ClassVar
 import numpy as np
 from scipy import optimize, signal
 
-from ..core.checks import as_float_array, check_decimation, check_finite, check_positive
+from ...core.checks import as_float_array, check_decimation, check_finite, check_positive
+from ..scenes.inputs import ContactSeries
+from .base import SensorParams, check_scene, register_sensor
 
 EPS0 = 8.8541878128e-12
 
@@ -85,10 +87,10 @@ def disc_points(diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.nda
 
 
 @dataclass(frozen=True)
-class PVDFParams:
+class PVDFParams(SensorParams):
     """Seed 004's values; every field can be overridden."""
 
-    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    #: electronic-noise fields, scaled together by :func:`~.base.noise_scaled`
     NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("noise_uV",)
 
     d33_pC_per_N: float = -20.0
@@ -133,8 +135,23 @@ class PVDFParams:
         return (self.highpass_hz, self.lowpass_hz)
 
 
+@register_sensor("pvdf")
 class PVDFTriangle:
     """Twelve PVDF taxels under a PDMS cover with a dual-range charge-amplifier readout."""
+
+    units: ClassVar[str] = "pC"
+    scene_type: ClassVar[type] = ContactSeries
+
+    def output_rate_hz(self, scene: ContactSeries) -> float:
+        return self.fs_hz
+
+    def read_scene(
+        self, scene: ContactSeries, rng: np.random.Generator | None = None, *, skip: bool = True
+    ) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read` (``skip`` as there)."""
+        check_scene(self, scene)
+        return self.read(scene.force_N, scene.center_mm, scene.diameter_mm, scene.fs_in_hz, rng,
+                         skip=skip)  # fmt: skip
 
     n_channels = 12
     # charge below which a taxel is not simulated (read(skip=True)); 1/5 of the noise rms

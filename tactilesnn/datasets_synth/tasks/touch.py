@@ -20,9 +20,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import noise_scaled, register_task
-from .pvdf import PVDFParams, PVDFTriangle
-from .trial_task import TrialTask
+from ..scenes.inputs import ContactSeries
+from ..sensors.base import noise_scaled
+from ..sensors.pvdf import PVDFParams, PVDFTriangle
+from .base import register_task
+from .trial import TrialTask
 
 MODALITIES = {  # force range (N), contact diameter (mm)
     "light_poke": ((0.2, 1.4), 4.0),
@@ -81,5 +83,5 @@ class TouchModalityTask(TrialTask):
             path = speed * (t - onset - dur / 2)
             center = centroid + np.stack([np.cos(ang) * path, np.sin(ang) * path], 1)
             center = np.round(center / 0.5) * 0.5  # 0.5 mm steps: far below the 6 mm pitch
-        q = sensor.read(f, center, diam, fs, rng, skip=self.skip)
+        q = sensor.read_scene(ContactSeries(f, center, diam, fs), rng, skip=self.skip)
         return q.astype(np.float64), {"force_N": force, "soft_site": soft, "duration_s": dur}

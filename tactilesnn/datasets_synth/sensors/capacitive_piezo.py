@@ -33,16 +33,18 @@ from typing import ClassVar
 import numpy as np
 from scipy import signal
 
-from ..core.checks import as_float_array, check_decimation, check_finite, check_positive
+from ...core.checks import as_float_array, check_decimation, check_finite, check_positive
+from ..scenes.inputs import PressureSeries
+from .base import SensorParams, check_scene, register_sensor
 
 EPS0_F_PER_M = 8.8541878128e-12
 
 
 @dataclass(frozen=True)
-class CapacitivePiezoParams:
+class CapacitivePiezoParams(SensorParams):
     """Parameters of the stack and its readout chain; defaults are seed 001's values."""
 
-    #: electronic-noise fields, scaled together by :func:`~tactilesnn.datasets_synth.base.noise_scaled`
+    #: electronic-noise fields, scaled together by :func:`~.base.noise_scaled`
     NOISE_FIELDS: ClassVar[tuple[str, ...]] = ("static_noise_rel", "dynamic_noise_rel")
 
     # --- dual-elastomer capacitive channel ---
@@ -98,8 +100,22 @@ class CapacitivePiezoParams:
             raise ValueError(f"lme_max_strain must be in (0, 1), got {self.lme_max_strain}")
 
 
+@register_sensor("capacitive_piezo")
 class CapacitivePiezoStack:
     """One tandem stack (one taxel) -> two channels (static capacitive, dynamic piezo)."""
+
+    units: ClassVar[str] = "relative units ((V - bias) / bias)"
+    scene_type: ClassVar[type] = PressureSeries
+
+    def output_rate_hz(self, scene: PressureSeries) -> float:
+        return self.fs_hz
+
+    def read_scene(
+        self, scene: PressureSeries, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read`."""
+        check_scene(self, scene)
+        return self.read(scene.pressure_Pa, scene.fs_in_hz, rng)
 
     n_channels = 2
 

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.checks import check_finite
+from ...core.checks import check_finite
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Texture task: sliding scans over 12 textures read by the capacitive-piezo stack (seed 001).
 
-Textures (:data:`~tactilesnn.datasets_synth.textures.TEXTURES`): hook, loop; gratings of 1, 2 and
+Textures (:data:`~tactilesnn.datasets_synth.scenes.textures.TEXTURES`): hook, loop; gratings of 1, 2 and
 4 mm period and a shallow 2 mm one (narrow ridges, 35 % depth); random-rough surfaces with a
 self-affine spectrum (correlation 0.3 and 2 mm); fabrics (denim twill, corduroy wales, knit with
 stick-slip, felt). One sample = one 1 s window (200 samples at 200 S/s, channels ``static``,
@@ -19,11 +19,12 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..scenes.inputs import PressureSeries
+from ..scenes.sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
+from ..scenes.textures import TEXTURES
+from ..sensors.capacitive_piezo import CapacitivePiezoStack
 from .base import register_task
-from .capacitive_piezo import CapacitivePiezoStack
-from .sliding_scan import ScanProtocol, ScanVariability, SlidingScanScene
-from .textures import TEXTURES
-from .trial_task import TrialTask
+from .trial import TrialTask
 
 
 @register_task
@@ -61,7 +62,7 @@ class TextureTask(TrialTask):
         )
         pressure, labels_sim, info = scene.render(rng, (0,))
         sensor = self.sensor
-        stream = sensor.read(pressure, protocol.fs_sim_hz, rng)
+        stream = sensor.read_scene(PressureSeries(pressure, protocol.fs_sim_hz), rng)
         labels = labels_sim[:: round(protocol.fs_sim_hz / self.fs_hz)][: stream.shape[1]]
         inside = np.flatnonzero(labels == 0)
         first, last = inside[0], inside[-1] - self.window + 1

@@ -10,12 +10,12 @@ one window; ``n_samples`` can grow) are siblings behind the same protocol.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from ..core.data import WindowDataset
-from ..core.registry import Registry
+from ...core.data import WindowDataset
+from ...core.registry import Registry
 
 __all__ = ["TASKS", "Task", "WindowDataset", "get_task", "register_task"]
 
@@ -44,17 +44,6 @@ class Task(Protocol):
 
     def split(self) -> tuple[np.ndarray, np.ndarray]: ...
     def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]: ...
-
-
-def noise_scaled(params: Any, scale: float) -> Any:
-    """Sensor parameters with every electronic-noise field (the params class lists them in
-    ``NOISE_FIELDS``) multiplied by ``scale``: the one way tasks turn ``difficulty`` into noise."""
-    if not np.isfinite(scale) or scale < 0:
-        raise ValueError(f"noise scale must be a finite number >= 0, got {scale}")
-    fields = getattr(type(params), "NOISE_FIELDS", None)
-    if not fields:
-        raise TypeError(f"{type(params).__name__} declares no NOISE_FIELDS")
-    return dataclasses.replace(params, **{f: getattr(params, f) * scale for f in fields})
 
 
 TASKS: Registry = Registry("task")

@@ -22,10 +22,13 @@ with longer conversions and growing with the number of modules on the bus.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
-from ..core.checks import as_float_array, check_choice, check_finite, check_positive
+from ...core.checks import as_float_array, check_choice, check_finite, check_positive
+from ..scenes.inputs import ContactSeries
+from .base import SensorParams, check_scene, register_sensor
 from .pvdf import EPS0, boussinesq_t3, contact_positions, disc_points
 
 STAGE_MS = (0.768, 1.536, 3.072)
@@ -56,7 +59,7 @@ def macro_groups(mode: str) -> list[np.ndarray]:
 
 
 @dataclass(frozen=True)
-class CapacitiveTriangleParams:
+class CapacitiveTriangleParams(SensorParams):
     """Seed 003's values; every field can be overridden (lengths mm, pressures Pa)."""
 
     pad_diameter_mm: float = 4.0
@@ -88,8 +91,22 @@ class CapacitiveTriangleParams:
             raise ValueError("cdc_lo_pF must be below cdc_hi_pF")
 
 
+@register_sensor("capacitive_triangle")
 class CapacitiveTriangle:
     """Twelve parallel-plate taxels under silicone foam, read by a 16-bit CDC."""
+
+    units: ClassVar[str] = "CDC counts"
+    scene_type: ClassVar[type] = ContactSeries
+
+    def output_rate_hz(self, scene: ContactSeries) -> float:
+        return 1000.0 / self.frame_ms
+
+    def read_scene(
+        self, scene: ContactSeries, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
+        """The :class:`~..sensors.base.SensorModel` form of :meth:`read`."""
+        check_scene(self, scene)
+        return self.read(scene.force_N, scene.center_mm, scene.diameter_mm, scene.fs_in_hz, rng)[1]
 
     def __init__(self, params: CapacitiveTriangleParams | None = None, mode: str = "12") -> None:
         self.params = params or CapacitiveTriangleParams()

@@ -27,10 +27,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from .base import noise_scaled, register_task
-from .indentation import IndentationScene
-from .teng import MATERIALS, TENGArray, TENGParams, layout
-from .trial_task import TrialTask
+from ..scenes.indentation import IndentationScene
+from ..scenes.inputs import GapSeries
+from ..sensors.base import noise_scaled
+from ..sensors.teng import MATERIALS, TENGArray, TENGParams, layout
+from .base import register_task
+from .trial import TrialTask
 
 
 def teng_sensor(layout_name: str, difficulty: float) -> TENGArray:
@@ -81,7 +83,9 @@ class StiffnessCurvatureTask(TrialTask):
         gap, t_contact = scene.render(sensor.pad_points(), self.fs_hz, self.window)
         contacts = int(rng.integers(0, 1 + round(60 * a)))
         charge = np.exp(0.6 * a * rng.standard_normal())  # humidity, charge history (CV ~0.7)
-        v = charge * sensor.read(gap, self.material, contacts, rng, skin_share=STIFFNESS[stiff])
+        v = charge * sensor.read_scene(
+            GapSeries(gap, self.material, contacts, STIFFNESS[stiff]), rng
+        )
         return v, {"t_contact_s": t_contact, "contacts": contacts, "charge": charge}
 
 
@@ -134,5 +138,5 @@ class MaterialTask(TrialTask):
             start = 0.0
         gap = np.concatenate(pieces, axis=-1)
         charge = np.exp(0.6 * a * rng.standard_normal())  # humidity, charge history (CV ~0.7)
-        v = charge * sensor.read(gap, material, contacts, rng)
+        v = charge * sensor.read_scene(GapSeries(gap, material, contacts), rng)
         return v, {"speeds_mm_s": speeds, "force_N": force, "contacts": contacts}

@@ -1,0 +1,1 @@
+"""Scenes: what touches a sensor, and when (scans, indentations, presses, faults)."""

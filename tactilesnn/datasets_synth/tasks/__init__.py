@@ -1,0 +1,1 @@
+"""Tasks: a scene, a sensor model and labels -> windows (each registered in TASKS)."""
