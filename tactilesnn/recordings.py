@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -413,6 +414,30 @@ def event_grid(path: Path) -> str | None:
         return f"{int(g[0])}x{int(g[1])}"
     side = math.isqrt(taxels)
     return f"{side}x{side}" if side >= 2 and side * side == taxels else None
+
+
+@dataclass(frozen=True)
+class DataFacts:
+    """What the defaults of ``train --data`` follow, read from a file's headers once per run:
+    whether it holds events (``X [N, taxels, polarity, bins]``), their taxels' ``grid`` and
+    ``cells`` (:func:`event_layout`), and the window its recordings are cut into when none is
+    set (``auto_cut``: ``(window_s, hop_s)`` or None)."""
+
+    events: bool
+    grid: str | None = None
+    cells: tuple[int, ...] = ()
+    auto_cut: tuple[float, float] | None = None
+
+
+def data_facts(path: Path) -> DataFacts:
+    """The :class:`DataFacts` of the file or folder at ``path`` (headers only; a file the
+    loader will refuse has no facts, and the loader says why)."""
+    path = Path(path)
+    if not is_event_file(path):
+        return DataFacts(False, auto_cut=auto_window(path))
+    layout = event_layout(path)
+    grid, cells = layout if layout is not None else (None, ())
+    return DataFacts(True, grid, cells)
 
 
 def is_event_file(path: Path) -> bool:

@@ -34,7 +34,7 @@ from ..core.settings import flag_fields
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.tasks.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
-from ..recordings import auto_window, event_layout, is_event_file
+from ..recordings import DataFacts, data_facts
 from .options import run_options, train_options
 from .run import FileSource, RunSpec, TaskSource
 
@@ -63,10 +63,11 @@ def task_params(task: str, settings: dict[str, Any]) -> dict[str, Any]:
     return kw
 
 
-def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None) -> PipelineConfig:
+def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None,
+                    facts: DataFacts | None = None) -> PipelineConfig:  # fmt: skip
     """The pipeline settings given (``settings``' pipeline keys) over ``base`` (a TOML
     ``--config``'s pipeline settings), with the defaults of the data source for what neither
-    gives (see the module docstring)."""
+    gives (see the module docstring); ``facts``: the ``--data`` file's (read when not given)."""
     options = train_options()
     flat = {k: v for k, v in settings.items() if k in options and options[k].pipeline}
     base = base or {}
@@ -81,11 +82,9 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
             if "model" not in given and not _model_settings_given(given):
                 _wide_input_model(flat, base, task, given)
     if data:
-        events = is_event_file(Path(data))
+        facts = facts or data_facts(Path(data))
         owners = flat_settings()
-        layout = event_layout(Path(data)) if events else None
-        grid, cells = layout if layout is not None else (None, ())
-        for key, value in data_file_defaults(events, grid, cells).items():
+        for key, value in data_file_defaults(facts.events, facts.grid, facts.cells).items():
             # a default setting of the default model (or encoder) only goes with that component
             part = owners[key].part if key in owners else None
             if key not in given and part not in given:
@@ -121,11 +120,14 @@ def _wide_input_model(
                  "insists)", events, WIDE_INPUT_MODEL, DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip
 
 
-def data_window(settings: dict[str, Any]) -> tuple[float | None, float | None]:
+def data_window(
+    settings: dict[str, Any], facts: DataFacts | None = None
+) -> tuple[float | None, float | None]:
     """``(window_s, hop_s)`` to cut a data file's recordings with (None: keep them whole)."""
     window_s, hop_s = settings.get("data_window_s"), settings.get("data_hop_s")
     if window_s is None and hop_s is None:
-        window_s, hop_s = auto_window(Path(settings["data"])) or (None, None)
+        facts = facts or data_facts(Path(settings["data"]))
+        window_s, hop_s = facts.auto_cut or (None, None)
         if window_s is not None:
             log.info("recordings of %s cut into %.3g s windows every %.3g s (--data-window-s 0 "
                      "keeps them whole)", settings["data"], window_s, hop_s)  # fmt: skip
@@ -148,8 +150,9 @@ def run_spec(
     ``--config`` file's pipeline settings; ``run``: ``overwrite``, ``resume``, ``progress``,
     ``config_text`` of the RunSpec."""
     settings = {**{o.name: o.default for o in run_options()}, **settings}
-    config = pipeline_config(settings, toml)
     data = settings.get("data")
+    facts = data_facts(Path(data)) if data else None  # the file's facts, read once per run
+    config = pipeline_config(settings, toml, facts)
     if (settings.get("data_window_s") or settings.get("data_hop_s")) and not data:
         raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
     if settings.get("fs") is not None and not data:
@@ -157,9 +160,11 @@ def run_spec(
     select: tuple[str, ...] = ()
     keep: tuple[str, ...] | None = None
     if data:
-        source: Any = FileSource(Path(data), *data_window(settings), fs_hz=settings.get("fs"))
+        source: Any = FileSource(Path(data), *data_window(settings, facts),
+                                 fs_hz=settings.get("fs"))  # fmt: skip
         given = _given(settings, toml)
-        if not is_event_file(Path(data)):
+        assert facts is not None
+        if not facts.events:
             if not encoder_settings_given(given):
                 select = DATA_ENCODER_CANDIDATES
             else:  # the encoder named: its settings the user did not give follow the data
