@@ -182,7 +182,7 @@ def describe_tasks() -> list[str]:
         lines.append(f"{name}: {doc}\n  {len(classes)} classes ({shown}); "
                      f"{len(task.channel_names)} channels at {task.fs_hz:g} Hz, {task.window}-sample "
                      f"windows; {task.n_samples} samples by default; units: "
-                     f"{getattr(task, 'units', '-')}")  # fmt: skip
+                     f"{task.units or '-'}")  # fmt: skip
     return lines
 
 

@@ -22,9 +22,11 @@ log = logging.getLogger("tactilesnn")
 
 def task_stream(task, start: int = 0) -> Iterator[tuple[np.ndarray, str]]:
     """Endless ``([channels, samples] float32, description)`` pieces of ``task``."""
+    from ..datasets_synth.tasks.base import ScanTask
+
     i = start
     while True:
-        if hasattr(task, "scan"):  # tasks with continuous scans: the readout stream itself
+        if isinstance(task, ScanTask):  # tasks with continuous scans: the readout stream itself
             x, _, info = task.scan(i % task.n_scans)
             yield np.asarray(x, np.float32), f"scan {i}: {' / '.join(info['order'])}"
         else:

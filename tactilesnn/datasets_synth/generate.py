@@ -180,7 +180,7 @@ class TaskDataset:
 
     def __init__(self, task_name: str, **task_kwargs: object) -> None:
         self.task = get_task(task_name, **task_kwargs)
-        if not hasattr(self.task, "sample"):
+        if not self.task.resizable:
             raise ValueError(f"{task_name} is scan-based: generate it and use ShardDataset")
         self.class_names = tuple(self.task.class_names)
         self.fs_hz = float(self.task.fs_hz)

@@ -17,7 +17,7 @@ import numpy as np
 from ...core.data import WindowDataset
 from ...core.registry import Registry
 
-__all__ = ["TASKS", "Task", "WindowDataset", "get_task", "register_task"]
+__all__ = ["TASKS", "ScanTask", "Task", "WindowDataset", "get_task", "register_task"]
 
 
 @runtime_checkable
@@ -28,6 +28,8 @@ class Task(Protocol):
     task_id: ClassVar[int]
     #: True if ``n_samples`` can be raised to render more samples (trial tasks)
     resizable: ClassVar[bool]
+    #: the windows' units (the sensor's output, as the task scales it)
+    units: ClassVar[str]
     seed: int
 
     @property
@@ -44,6 +46,17 @@ class Task(Protocol):
 
     def split(self) -> tuple[np.ndarray, np.ndarray]: ...
     def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]: ...
+
+
+@runtime_checkable
+class ScanTask(Task, Protocol):
+    """A task whose samples are long continuous scans (cut into windows by ``render``)."""
+
+    @property
+    def n_scans(self) -> int: ...
+    def scan(self, index: int) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Scan ``index`` -> ``(x [channels, samples], labels per sample, description)``."""
+        ...
 
 
 TASKS: Registry = Registry("task")
