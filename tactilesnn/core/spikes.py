@@ -53,8 +53,12 @@ def first_spike_times(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) 
 
     Sample ``i`` is at ``t0_ms + i dt_ms``; a count of ``n`` is ``n`` spikes at that time;
     ``+inf`` fills slots with no spike. Traceable (cumulative sums and ``argmax``), so encoders use
-    it in their exported graphs too.
+    it in their exported graphs too; run eagerly, the same times come from one ``searchsorted``
+    on the running count (:func:`_first_spike_times_sorted`: one pass, not one per slot).
     """
+    exporting = torch.jit.is_tracing() or torch.jit.is_scripting() or torch.compiler.is_exporting()
+    if not exporting:
+        return _first_spike_times_sorted(counts, dt_ms, k, t0_ms)
     cum = torch.cumsum(counts, dim=-1)
     t = torch.arange(cum.shape[-1], dtype=counts.dtype, device=counts.device)
     t = (t0_ms + t * dt_ms).view(1, 1, -1)
@@ -65,6 +69,17 @@ def first_spike_times(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) 
         time = torch.gather(t.expand_as(cum), -1, first)
         slots.append(torch.where(hit[..., -1:], time, torch.full_like(time, math.inf)))
     return torch.cat(slots, dim=-1)
+
+
+def _first_spike_times_sorted(counts: Tensor, dt_ms: float, k: int, t0_ms: float = 0.0) -> Tensor:
+    """:func:`first_spike_times` eagerly: slot ``j``'s spike is at the first sample whose running
+    count reaches ``j + 1`` (``searchsorted`` on the non-decreasing running count of the
+    non-negative counts), ``+inf`` past the last sample."""
+    cum = torch.cumsum(counts, dim=-1).contiguous()
+    targets = torch.arange(1, int(k) + 1, dtype=cum.dtype, device=cum.device)
+    idx = torch.searchsorted(cum, targets.expand(*cum.shape[:-1], int(k)).contiguous())
+    time = t0_ms + idx.to(counts.dtype) * dt_ms
+    return torch.where(idx < cum.shape[-1], time, torch.full_like(time, math.inf))
 
 
 #: spike counts stay exact in float32 (and the exported graphs) while every x slots <= 2^24
