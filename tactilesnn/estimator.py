@@ -26,16 +26,12 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 
-from .config import (
-    DATA_ENCODER_CANDIDATES,
-    DATA_LEVEL_NEURONS,
-    DEFAULT_ENCODER,
-    PipelineConfig,
-    data_file_defaults,
-)
+from .config import DEFAULT_ENCODER, PipelineConfig
 from .core.checks import check_float32_range, check_rate
 from .core.data import WindowDataset
+from .data_policy import DATA_ENCODER_CANDIDATES, DATA_LEVEL_NEURONS, data_file_defaults
 from .models.base import seeded
+from .recordings import DataFacts
 from .selection import fit_encoder_to_data, select_encoder
 from .training import fit_pipeline
 
@@ -173,7 +169,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
 
     def _config(self, data: WindowDataset) -> PipelineConfig:
         """The pipeline settings: ``train --data``'s defaults, then this estimator's."""
-        defaults = data_file_defaults(events=data.X.ndim == 4)
+        defaults = data_file_defaults(DataFacts(events=data.X.ndim == 4))
         flat = {k: v for k, v in defaults.items() if k not in ("encoder", "model")}
         encoder = self.encoder if self.encoder != AUTO else defaults.get("encoder", DEFAULT_ENCODER)
         d = PipelineConfig.from_flat(encoder=encoder, model=self.model, **flat).to_dict()

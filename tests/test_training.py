@@ -9,8 +9,9 @@ import pytest
 
 import tactilesnn.app.run as app_run
 from tactilesnn.cli import main
-from tactilesnn.config import DATA_ENCODER_CANDIDATES, PipelineConfig
+from tactilesnn.config import PipelineConfig
 from tactilesnn.core.files import load_arrays
+from tactilesnn.data_policy import DATA_ENCODER_CANDIDATES
 from tests.helpers import run_task
 
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}

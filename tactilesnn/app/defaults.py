@@ -5,7 +5,7 @@
 every channel, the ``readout`` model, the ``events`` encoder for event files (the ``csnn`` model
 when their taxels form a grid or have positions, ``taxel_xy``), long recordings cut into windows,
 and the encoder chosen among
-:data:`~tactilesnn.config.DATA_ENCODER_CANDIDATES` on held-out training recordings
+:data:`~tactilesnn.data_policy.DATA_ENCODER_CANDIDATES` on held-out training recordings
 (:func:`~tactilesnn.app.select.select_encoder`) unless the settings name one.
 """
 
@@ -17,20 +17,22 @@ from pathlib import Path
 from typing import Any
 
 from ..config import (
-    DATA_ENCODER_CANDIDATES,
-    DATA_LEVEL_NEURONS,
-    DATA_LEVEL_SCALE,
-    DATA_LEVEL_SHARE,
     DEFAULT_MODEL,
     DEFAULT_MODEL_MAX_AFFERENTS,
     WIDE_INPUT_MODEL,
     PipelineConfig,
     apply_flat,
-    data_file_defaults,
     encoder_settings_given,
     flat_settings,
 )
 from ..core.settings import flag_fields
+from ..data_policy import (
+    DATA_ENCODER_CANDIDATES,
+    DATA_LEVEL_NEURONS,
+    DATA_LEVEL_SCALE,
+    DATA_LEVEL_SHARE,
+    data_file_defaults,
+)
 from ..datasets_synth import get_task, parse_faults
 from ..datasets_synth.tasks.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
@@ -84,7 +86,7 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
     if data:
         facts = facts or data_facts(Path(data))
         owners = flat_settings()
-        for key, value in data_file_defaults(facts.events, facts.grid, facts.cells).items():
+        for key, value in data_file_defaults(facts).items():
             # a default setting of the default model (or encoder) only goes with that component
             part = owners[key].part if key in owners else None
             if key not in given and part not in given:

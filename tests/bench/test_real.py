@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from tactilesnn.app.bench import real
-from tactilesnn.config import DATA_ENCODER_CANDIDATES
+from tactilesnn.data_policy import DATA_ENCODER_CANDIDATES
 from tactilesnn.recordings import load_data_file
 
 

@@ -9,7 +9,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tactilesnn.config import DATA_ENCODER_CANDIDATES, PipelineConfig
+from tactilesnn.config import PipelineConfig
+from tactilesnn.data_policy import DATA_ENCODER_CANDIDATES
 from tactilesnn.export import export_pipeline
 from tactilesnn.pipeline import SpikePipeline
 

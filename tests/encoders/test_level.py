@@ -224,8 +224,9 @@ def test_a_run_saved_before_the_linear_pair_and_share_reads_as_it_was_written():
 
 
 def test_data_defaults_both_pairs_and_the_share_for_analog_the_rank_pair_for_event_counts():
-    from tactilesnn.config import data_file_defaults
+    from tactilesnn.data_policy import data_file_defaults
+    from tactilesnn.recordings import DataFacts
 
-    analog, events = data_file_defaults(False), data_file_defaults(True)
+    analog, events = data_file_defaults(DataFacts(False)), data_file_defaults(DataFacts(True))
     assert (analog["level_scale"], analog["level_share"]) == ("rank+linear", True)
     assert (events["level_scale"], events["level_share"]) == ("rank", False)

@@ -64,7 +64,7 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     from sklearn.preprocessing import StandardScaler
 
     from ...baselines import amplitude_stats, fit_amplitude_baseline
-    from ...config import DATA_ENCODER_CANDIDATES
+    from ...data_policy import DATA_ENCODER_CANDIDATES
     from ...datasets_synth import get_task
     from ...selection import select_encoder
     from ...training import fit_and_evaluate

@@ -36,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import DATA_ENCODER_CANDIDATES, PipelineConfig, data_file_defaults
+from ...config import PipelineConfig
+from ...data_policy import DATA_ENCODER_CANDIDATES, data_file_defaults
 from ...datasets_synth import WindowDataset
-from ...recordings import auto_window, load_data_file
+from ...recordings import DataFacts, auto_window, load_data_file
 
 log = logging.getLogger("tactilesnn")
 
@@ -111,7 +112,12 @@ def default_config(events: bool, encoder: str | None, model: str, seed: int,
                    settings: dict | None = None) -> PipelineConfig:  # fmt: skip
     """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S [settings]`` would
     use."""
-    flat = {**data_file_defaults(events), "model": model, "seed": seed, **(settings or {})}
+    flat = {
+        **data_file_defaults(DataFacts(events)),
+        "model": model,
+        "seed": seed,
+        **(settings or {}),
+    }
     if encoder is not None:
         flat["encoder"] = encoder
     return PipelineConfig.from_flat(flat, strict=True)

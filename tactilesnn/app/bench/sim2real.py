@@ -165,7 +165,7 @@ def fit_score(
 
 def base_config(synth_windows: WindowDataset, seed: int, epochs: int | None):
     """The ``train --data`` defaults, the encoder chosen on the synthetic training windows."""
-    from ...config import DATA_ENCODER_CANDIDATES
+    from ...data_policy import DATA_ENCODER_CANDIDATES
     from ...selection import select_encoder
     from .real import default_config
 
