@@ -33,7 +33,7 @@ from ..data_policy import (
     DATA_LEVEL_SHARE,
     data_file_defaults,
 )
-from ..datasets_synth import get_task, parse_faults
+from ..datasets_synth import Task, get_task, parse_faults
 from ..datasets_synth.tasks.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
 from ..recordings import DataFacts, data_facts
@@ -66,23 +66,26 @@ def task_params(task: str, settings: dict[str, Any]) -> dict[str, Any]:
 
 
 def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None,
-                    facts: DataFacts | None = None) -> PipelineConfig:  # fmt: skip
+                    facts: DataFacts | None = None,
+                    task: Task | None = None) -> tuple[PipelineConfig, bool]:  # fmt: skip
     """The pipeline settings given (``settings``' pipeline keys) over ``base`` (a TOML
     ``--config``'s pipeline settings), with the defaults of the data source for what neither
-    gives (see the module docstring); ``facts``: the ``--data`` file's (read when not given)."""
+    gives (see the module docstring), and whether a wide task took the data-file defaults (so
+    the encoder is chosen as for a file). ``facts``: the ``--data`` file's; ``task``: the
+    synthetic task's instance (each built here when not given)."""
     options = train_options()
     flat = {k: v for k, v in settings.items() if k in options and options[k].pipeline}
     base = base or {}
     given = _given(settings, base)
     data = settings.get("data")
+    wide = False
     if not data and "channels" not in given:
         # the default channel ('dynamic', hook_loop's) where the task has it, else all of them
-        task = get_task(settings["task"], **task_params(settings["task"], settings))
-        names = task.channel_names
-        if not set(PipelineConfig().channels) <= set(names):
+        task = task or get_task(settings["task"], **task_params(settings["task"], settings))
+        if not set(PipelineConfig().channels) <= set(task.channel_names):
             flat["channels"] = ("all",)
             if "model" not in given and not _model_settings_given(given):
-                _wide_input_model(flat, base, task, given)
+                wide = _wide_input_model(flat, base, task, given)
     if data:
         facts = facts or data_facts(Path(data))
         owners = flat_settings()
@@ -91,7 +94,7 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
             part = owners[key].part if key in owners else None
             if key not in given and part not in given:
                 flat[key] = value
-    return apply_flat(base, flat)
+    return apply_flat(base, flat), wide
 
 
 def _model_settings_given(given: set[str]) -> bool:
@@ -101,7 +104,7 @@ def _model_settings_given(given: set[str]) -> bool:
 
 def _wide_input_model(
     flat: dict[str, Any], base: dict[str, Any], task: Any, given: set[str]
-) -> None:
+) -> bool:
     """The default model's cost grows with the square of its input events: past
     :data:`~tactilesnn.config.DEFAULT_MODEL_MAX_AFFERENTS` a task's default run takes what
     ``train --data`` takes (the linear-cost model, the calibrated level code, and, unless an
@@ -120,6 +123,8 @@ def _wide_input_model(
         log.info("%d input events per window: the defaults of a data file (the %s model, level "
                  "code; the default %s's exact maximum costs their square per window, --model %s "
                  "insists)", events, WIDE_INPUT_MODEL, DEFAULT_MODEL, DEFAULT_MODEL)  # fmt: skip
+        return True
+    return False
 
 
 def data_window(
@@ -153,8 +158,11 @@ def run_spec(
     ``config_text`` of the RunSpec."""
     settings = {**{o.name: o.default for o in run_options()}, **settings}
     data = settings.get("data")
-    facts = data_facts(Path(data)) if data else None  # the file's facts, read once per run
-    config = pipeline_config(settings, toml, facts)
+    # the source's facts, resolved once: a file's headers, or the task's parameters and instance
+    facts = data_facts(Path(data)) if data else None
+    params = None if data else task_params(settings["task"], settings)
+    task = None if params is None else get_task(settings["task"], **params)
+    config, wide = pipeline_config(settings, toml, facts, task)
     if (settings.get("data_window_s") or settings.get("data_hop_s")) and not data:
         raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
     if settings.get("fs") is not None and not data:
@@ -172,11 +180,9 @@ def run_spec(
             else:  # the encoder named: its settings the user did not give follow the data
                 keep = _encoder_fields_given(config, given, toml)
     else:
-        task = settings["task"]
-        source = TaskSource(task, {**task_params(task, settings), "seed": config.seed})
-        given = _given(settings, toml)
-        if ("model" not in given and config.model_type == WIDE_INPUT_MODEL
-                and not encoder_settings_given(given)):  # fmt: skip
+        assert params is not None
+        source = TaskSource(settings["task"], {**params, "seed": config.seed})
+        if wide and not encoder_settings_given(_given(settings, toml)):
             select = DATA_ENCODER_CANDIDATES  # a wide task took the data-file defaults
     return RunSpec(source, config, None if out is None else Path(out), export=bool(settings["export"]),
                    val_fraction=float(settings["val_fraction"]), select_encoders=select,

@@ -54,3 +54,22 @@ def test_a_file_the_loader_refuses_has_no_facts_but_no_traceback(tmp_path):
     bad.write_bytes(b"not a zip")
     facts = recordings.data_facts(bad)
     assert not facts.events and facts.auto_cut is None
+
+
+def test_a_task_is_built_once_and_its_parameters_resolved_once(monkeypatch):
+    built, resolved = [], []
+    real_get, real_params = defaults.get_task, defaults.task_params
+
+    def get(name, **kw):
+        built.append(name)
+        return real_get(name, **kw)
+
+    def params(name, settings):
+        resolved.append(name)
+        return real_params(name, settings)
+
+    monkeypatch.setattr(defaults, "get_task", get)
+    monkeypatch.setattr(defaults, "task_params", params)
+    spec = run_spec({"task": "localise"}, None)
+    assert built == ["localise"] and resolved == ["localise"]
+    assert spec.select_encoders  # the wide task's decision, taken once where it was made
