@@ -67,6 +67,8 @@ def setting(
     meta = {KEY: info}
     if default_factory is not _UNSET:
         return dataclasses.field(default_factory=default_factory, metadata=meta)
+    if default is _UNSET:  # a setting without a default: required
+        return dataclasses.field(metadata=meta)
     if isinstance(default, (list, dict, set)):
         raise TypeError("a mutable default needs default_factory")
     return dataclasses.field(default=default, metadata=meta)

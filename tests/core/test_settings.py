@@ -74,6 +74,16 @@ def test_a_flat_name_declared_twice_is_refused():
         flag_fields(Twice)
 
 
+def test_a_setting_without_a_default_is_required():
+    @dataclass(frozen=True)
+    class Needs(ComponentSettings):
+        rate_hz: float = setting(help="sampling rate (Hz)")
+
+    with pytest.raises(TypeError):
+        Needs()
+    assert Needs(rate_hz=100.0).rate_hz == 100.0
+
+
 def test_a_mutable_default_is_refused():
     with pytest.raises(TypeError, match="default_factory"):
         setting([1], help="a list")
