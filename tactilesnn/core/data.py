@@ -13,7 +13,7 @@ spike times).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -64,6 +64,18 @@ class WindowDataset:
             y=np.concatenate([self.y, other.y]),
             scan=np.concatenate([self.scan, other.scan]),
         )
+
+
+#: windows a fit statistic reads at a time (bounded temporaries, whatever the data's size)
+BLOCK_ROWS = 256
+
+
+def row_blocks(X: np.ndarray, index: np.ndarray | None = None) -> Iterator[np.ndarray]:
+    """``X``'s rows (or ``X[index]``'s) a block of :data:`BLOCK_ROWS` at a time, so a statistic
+    of a whole training set never makes a temporary (or a float64 copy) of its size."""
+    n = len(X) if index is None else len(index)
+    for i in range(0, n, BLOCK_ROWS):
+        yield X[i : i + BLOCK_ROWS] if index is None else X[index[i : i + BLOCK_ROWS]]
 
 
 def evenly_spaced(n: int, n_max: int) -> np.ndarray:

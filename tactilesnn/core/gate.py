@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from .data import row_blocks
+
 
 def channel_rms(x: Any) -> Any:
     """RMS about the mean along the last axis: float64 for a NumPy array (the served
@@ -32,6 +34,5 @@ def active_channels(x: Any, gate_rms: Any) -> Any:
 def thresholds(train_windows: np.ndarray, gate: float) -> np.ndarray:
     """Per channel: ``gate`` x the median RMS of ``train_windows [N, channels, samples]``
     (float64), computed a block of windows at a time."""
-    rms = np.concatenate([channel_rms(train_windows[i : i + 256])
-                          for i in range(0, len(train_windows), 256)])  # fmt: skip
+    rms = np.concatenate([channel_rms(block) for block in row_blocks(train_windows)])
     return gate * np.median(rms, axis=0)

@@ -18,6 +18,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_int, check_positive
+from ..core.data import row_blocks
 from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times
 from .base import SpikeEncoder, register_encoder
@@ -79,8 +80,8 @@ class DeltaEncoder(SpikeEncoder):
         arr = np.asarray(X)
         # a block of windows at a time in float64 (no float64 copy of the whole training set)
         change, peak = [], []
-        for i in range(0, len(arr), 256):
-            block = np.asarray(arr[i : i + 256], dtype=np.float64)
+        for rows in row_blocks(arr):
+            block = np.asarray(rows, dtype=np.float64)
             change.append(np.sqrt((np.diff(block, axis=-1) ** 2).mean(-1)))  # [n, C]
             peak.append(np.abs(block).max(axis=(0, 2)))
         rms = np.median(np.concatenate(change), axis=0)  # [C]

@@ -28,7 +28,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int
-from ..core.data import evenly_spaced
+from ..core.data import evenly_spaced, row_blocks
 from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times, keep_every
 from .base import SpikeEncoder, register_encoder
@@ -67,15 +67,10 @@ class _EventsGraph(nn.Module):
         return first_spike_times(counts, self.dt, self.k)
 
 
-#: windows checked or summed at a time (bounded temporaries whatever the file's size)
-ROWS = 256
-
-
 def _all_counts(X: np.ndarray) -> bool:
     """True if every value of ``X`` is a non-negative whole number, checked a block of windows
     at a time (whole-array tests made three temporaries of the file's size)."""
-    for i in range(0, len(X), ROWS):
-        block = X[i : i + ROWS]
+    for block in row_blocks(X):
         if (block < 0).any() or not np.array_equal(block, np.round(block)):
             return False
     return True
@@ -117,9 +112,7 @@ class EventsEncoder(SpikeEncoder):
         fires, over the slots, rounded up, in ``[1, 2^24 / max_spikes]``."""
         idx = evenly_spaced(len(X), n_max)
         # a block of windows at a time: no float64 copy of 4,096 windows (655 MB on ST-MNIST)
-        counts = np.concatenate(
-            [X[idx[i : i + ROWS]].sum(-1, dtype=np.float64) for i in range(0, len(idx), ROWS)]
-        )  # fmt: skip  [n, C]
+        counts = np.concatenate([b.sum(-1, dtype=np.float64) for b in row_blocks(X, idx)])  # [n, C]
         active = np.where(counts > 0, counts, np.nan)
         with warnings.catch_warnings():  # an afferent silent in every window: all-NaN, m = 1
             warnings.simplefilter("ignore", RuntimeWarning)
