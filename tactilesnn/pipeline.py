@@ -22,7 +22,7 @@ from .core.data import join_run, recording_runs
 from .core.spikes import clock_times
 from .encoders import build_encoder
 from .encoders.level import LevelCode
-from .models import build_model
+from .models import MODELS, build_model
 from .trainer import Trainer
 
 
@@ -72,11 +72,14 @@ class SpikePipeline:
         self.channel_idx = select_channels(config.channels, self.channel_names)
         self.duration_ms = 1000.0 * self.window / self.fs_hz
         self.encoder = build_encoder(config.encoder, self.fs_hz, self.window, len(self.channel_idx))
+        # a stream model reads frame after frame with no window: a window's level code and
+        # clock (a time reference from the window's start) have no meaning there
+        windows = not MODELS.get(config.model_type).has_frame_step
         self.level = (LevelCode(len(self.channel_idx), config.level_neurons, self.duration_ms,
                                 scale=config.level_scale, share=config.level_share)
-                      if config.level_neurons else None)  # fmt: skip
+                      if config.level_neurons and windows else None)  # fmt: skip
         self.n_level = self.level.n_afferents if self.level is not None else 0
-        self.n_clock = config.clock_afferents
+        self.n_clock = config.clock_afferents if windows else 0
         self.n_afferents = self.encoder.n_afferents + self.n_level + self.n_clock
         self.max_spikes = self.encoder.max_spikes
         args = (config.model, self.n_afferents, self.max_spikes, len(self.class_names),

@@ -9,6 +9,7 @@ from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .causal_gwt import CausalGWTConfig, CausalGWTLatencyEncoder
 from .delta import DeltaConfig, DeltaEncoder
 from .events import EventsConfig, EventsEncoder
+from .frame_code import FrameCodeConfig, FrameCodeEncoder
 from .gwt import GaborScalogram, log_bands
 from .latency import LatencyCode
 from .lif_population import LIFPopulationConfig, LIFPopulationEncoder
@@ -27,6 +28,8 @@ __all__ = [
     "DeltaEncoder",
     "EventsConfig",
     "EventsEncoder",
+    "FrameCodeConfig",
+    "FrameCodeEncoder",
     "GWTConfig",
     "GWTLatencyEncoder",
     "GaborScalogram",

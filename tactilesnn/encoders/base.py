@@ -58,6 +58,9 @@ class SpikeEncoder(nn.Module):
     codes_envelopes: ClassVar[bool] = False
     #: has a stream form (:meth:`stream_module`: each sample transformed once, state carried)
     has_stream_form: ClassVar[bool] = False
+    #: codes one frame at a time with state carried for ever (:meth:`frame_module`): a
+    #: continuous code, which a stream model (``--model stream``) steps frame by frame
+    has_frame_step: ClassVar[bool] = False
 
     def __init__(self, config: object, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__()
@@ -151,6 +154,26 @@ class SpikeEncoder(nn.Module):
             f"the {self.registry_name} encoder has no stream form (the cgwt encoder has): serve "
             "its window graph, which the service feeds a window every half window"
         )
+
+    @property
+    def frame_period_ms(self) -> float | None:
+        """The code's frame period (ms) where it codes frame by frame (:attr:`has_frame_step`),
+        else None."""
+        return None
+
+    def frame_module(self) -> nn.Module:
+        """The frame step: ``frame [B, channels, hop]`` + state (``state_names``: ``(name,
+        units)``, ``[B, units]`` each) -> ``(spikes [B, afferents], *next state)``; only where
+        :attr:`has_frame_step`."""
+        raise ValueError(
+            f"the {self.registry_name} encoder codes whole windows: a frame-by-frame stream "
+            "needs a continuous code (the frames encoder)"
+        )
+
+    def initial_frame_state(self, first: np.ndarray) -> dict[str, np.ndarray]:
+        """The state of fresh frame streams (:meth:`frame_module`) whose first frames are
+        ``first [B, channels, >= 1]``."""
+        raise ValueError(f"the {self.registry_name} encoder has no frame step")
 
     def encode_recording(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
         """Spike times ``[len(starts), afferents, max_spikes]`` of the windows of one recording

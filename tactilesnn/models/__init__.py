@@ -8,6 +8,7 @@ from .base import MODELS, SpikeModel, build_model, register_model
 from .conv_snn import ConvSNNConfig, ConvSNNModel
 from .li_readout import LIReadout, ReadoutConfig
 from .snn import SNNClassifier, SNNConfig, SNNModel
+from .stream_snn import StreamSNNConfig, StreamSNNModel
 from .tempotron import Tempotron, TempotronClassifier, TempotronConfig
 
 __all__ = [
@@ -20,6 +21,8 @@ __all__ = [
     "SNNConfig",
     "SNNModel",
     "SpikeModel",
+    "StreamSNNConfig",
+    "StreamSNNModel",
     "Tempotron",
     "TempotronClassifier",
     "TempotronConfig",

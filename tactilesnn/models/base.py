@@ -61,6 +61,8 @@ class SpikeModel(nn.Module):
     #: buffers a saved run may lack (added later); they keep their constructed, neutral value
     optional_state: ClassVar[tuple[str, ...]] = ()
     score_units: ClassVar[str] = "class scores (larger = more likely)"
+    #: runs on frame by frame with its state carried (:meth:`frame_module`): a stream model
+    has_frame_step: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -147,6 +149,15 @@ class SpikeModel(nn.Module):
     def state_names(self) -> tuple[tuple[str, int], ...]:
         """Streaming state carried between windows: ``(graph input name, units)`` pairs."""
         return ()
+
+    def frame_module(self, gather: bool = False) -> nn.Module:
+        """The one-frame step ``(spikes [B, A] of one frame, *state) -> (scores, decision [B]
+        int64, *next state)`` (``state_names`` on the module); only where
+        :attr:`has_frame_step`."""
+        raise ValueError(
+            f"the {self.registry_name} model classifies whole windows: a frame-by-frame stream "
+            "needs a stream model (--model stream)"
+        )
 
     def export_problem(self) -> str | None:
         """Why this configured model cannot be exported to ONNX (None: it can)."""

@@ -300,3 +300,49 @@ def decide_by_margin(
     ends = torch.arange(1, running.shape[0] + 1, dtype=running.dtype, device=running.device)
     t_ms = torch.clamp(ends * dt_ms, max=duration_ms)[first]
     return torch.where(decided, leader, final), torch.where(decided, t_ms, duration_ms)
+
+
+class StreamState(NamedTuple):
+    """A stream model's state: hidden membranes ``h [batch, H]`` (and, recurrent, its last
+    spikes ``hs``), readout membranes ``v [batch, classes]``, and ``quiet [batch, 1]``: frames
+    since the last input spike."""
+
+    h: Tensor
+    v: Tensor
+    quiet: Tensor
+    hs: Tensor | None = None
+
+
+def quiet_reset(x: Tensor, quiet: Tensor, quiet_frames: float) -> tuple[Tensor, Tensor]:
+    """Frames without an input spike counted on ``x [B, A]``: ``(keep [B, 1], quiet [B, 1])``;
+    ``keep`` is 0 once ``quiet_frames`` silent frames have passed (release: the stream's state
+    returns to rest), else 1."""
+    active = torch.clamp(x.amax(-1, keepdim=True), max=1.0)  # spike counts: 0 or 1
+    quiet = (quiet + 1.0) * (1.0 - active)
+    return (quiet < quiet_frames).to(x.dtype), quiet
+
+
+def stream_step(
+    cur: Tensor,
+    x: Tensor,
+    state: StreamState,
+    w_out: Tensor,
+    b_out: Tensor,
+    beta_h: float,
+    beta_o: float,
+    quiet_frames: float,
+    w_rec: Tensor | None = None,
+) -> tuple[Tensor, StreamState]:
+    """One frame of the stream SNN: the input spikes ``x [B, A]`` and their current ``cur
+    [B, H]`` (``x W_in^T + b_in``: dense or a gather of the rows that fired) -> the hidden LIF
+    layer (threshold 1, reset by subtraction; ``+ hs W_rec^T`` where recurrent) -> the leaky
+    readout ``v <- beta_o v + s W_out^T + b_out``. The state returns to rest after
+    ``quiet_frames`` frames with no input spike (:func:`quiet_reset`). Returns ``(hidden
+    spikes, next state)``; the scores are ``state.v``."""
+    keep, quiet = quiet_reset(x, state.quiet, quiet_frames)
+    h, v = state.h * keep, state.v * keep
+    if w_rec is not None and state.hs is not None:
+        cur = cur + torch.matmul(state.hs * keep, w_rec.t())
+    s, h, _ = lif_step(h, cur, beta_h, 1.0, True)
+    v = li_step(v, torch.matmul(s, w_out.t()) + b_out, beta_o)
+    return s, StreamState(h, v, quiet, s if w_rec is not None else None)

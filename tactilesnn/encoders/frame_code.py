@@ -1,0 +1,332 @@
+"""A continuous code: causal band envelopes, LIF-coded frame by frame (``frames``).
+
+The causal Gabor bank (:mod:`.causal_gabor`) turns each channel into ``n_bands`` magnitude
+envelopes, one frame every ``hop`` samples (``hop = round(frame_ms * fs / 1000)``, at least 1;
+frame ``i`` completes at sample ``(i + 1) hop - 1``). Each envelope row drives ``neurons`` LIF
+converters, one step per frame::
+
+    u_j <- beta u_j + (1 - beta) env / (level theta_j)        beta = exp(-1 / tau_frames)
+    s_j = [u_j >= 1];  u_j <- u_j - s_j                      (reset by subtraction)
+
+``level``: the row's median RMS envelope over the training windows (fitted, a buffer, floored at
+1e-3 of its channel's loudest row); ``theta_j`` graded geometrically from ``lo`` to ``hi``. The
+membrane low-passes the envelope in units of ``level theta_j`` and a converter fires at most once
+a frame, at a rate that grows with the band's energy: no window reference anywhere, so the code
+runs on for ever (:meth:`FrameCodeEncoder.frame_module`: one frame of samples and the state in,
+that frame's spikes and the next state out), unlike the latency codes, which rank each band
+against its window's peak.
+
+Spike-time contract: afferent ``(channel * n_bands + band) * neurons + j``; its spikes in
+ascending slots, a spike of frame ``i`` stamped ``(i + 1/2) frame_ms`` (it is known at the
+frame's last sample), ``max_spikes = frames`` per window. A window is coded from rest (the bank
+from its first sample held constant before it, converters at zero), as a fresh stream starts;
+:meth:`FrameCodeEncoder.encode_recording` codes windows with their recording's past, as the
+stream runs. The arithmetic is the functional core's LIF step (:func:`~tactilesnn.models.
+functional.lif_step`); the window graph runs the converters as one ONNX ``LSTM`` node.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ..core.checks import check_int, check_positive
+from ..core.data import evenly_spaced
+from ..core.settings import ComponentSettings, setting
+from ..models.functional import decay_factor, lif_step
+from ..models.onnx_ops import lif_as_lstm, lif_lstm_buffers
+from .base import SpikeEncoder, register_encoder
+from .causal_gabor import CausalGaborScalogram
+from .gwt import log_bands
+from .scalogram_latency import GWTConfig
+from .window_graphs import WindowEncoder
+
+log = logging.getLogger("tactilesnn")
+
+
+@dataclass(frozen=True)
+class FrameCodeConfig(ComponentSettings):
+    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
+    f_hi_hz: float = setting(  # capped at 0.45 fs
+        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
+    )
+    n_bands: int = setting(8, help="number of log-spaced bands")
+    frame_ms: float = setting(
+        5.0, flag="frame_ms",
+        help="frame period (ms): the code's step, one hop of round(frame_ms x fs / 1000) samples "
+        "(at least one sample)",
+    )  # fmt: skip
+    neurons: int = setting(
+        5, flag="frame_neurons", help="LIF converters per band envelope (thresholds lo..hi)"
+    )
+    lo: float = setting(
+        0.25, flag="frame_lo", help="lowest converter threshold, in multiples of the row's level"
+    )
+    hi: float = setting(
+        4.0, flag="frame_hi", help="highest converter threshold, in multiples of the row's level"
+    )
+    # hook_loop, frames + stream, 15 epochs, seed 0: tau 4 / 2 / 1 frames 97.3 (40 epochs) /
+    # 98.6 / 98.6 %; with 5 converters from 0.25 to 4 x the level 99.1 % (3 from 0.5 to 8: 98.8)
+    tau_frames: float = setting(
+        1.0, flag="frame_tau", help="converter membrane time constant, in frames"
+    )
+
+    follows_data: ClassVar[bool] = True
+
+    @classmethod
+    def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
+        """The scalogram encoders' band range for the data (:meth:`GWTConfig.data_defaults`) in
+        at most ``n_bands`` bands."""
+        d = GWTConfig.data_defaults(fs_hz, window, median_hz)
+        return {"f_lo_hz": d["f_lo_hz"], "f_hi_hz": d["f_hi_hz"],
+                "n_bands": min(int(d["n_bands"]), cls.n_bands)}  # fmt: skip
+
+    def __post_init__(self) -> None:
+        check_positive(self.f_lo_hz, "f_lo_hz")
+        check_positive(self.f_hi_hz, "f_hi_hz")
+        if not self.f_lo_hz < self.f_hi_hz:
+            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
+        check_int(self.n_bands, "n_bands", 1)
+        if self.n_bands > 128:
+            raise ValueError(f"n_bands must be <= 128, got {self.n_bands}")
+        check_positive(self.frame_ms, "frame_ms")
+        check_int(self.neurons, "neurons", 1)
+        check_positive(self.lo, "lo")
+        check_positive(self.hi, "hi")
+        if self.hi < self.lo:
+            raise ValueError(f"hi ({self.hi}) must be >= lo ({self.lo})")
+        check_positive(self.tau_frames, "tau_frames")
+
+
+def spike_times(spikes: Tensor, frame_ms: float) -> Tensor:
+    """Frame spikes ``[frames, B, A]`` (0/1) -> spike times ``[B, A, frames]`` (ms, ascending,
+    ``+inf`` after the last): frame ``i``'s spike at ``(i + 1/2) frame_ms``."""
+    steps = spikes.shape[0]
+    t = (torch.arange(steps, dtype=spikes.dtype, device=spikes.device) + 0.5) * frame_ms
+    times = torch.where(spikes > 0, t.view(-1, 1, 1), torch.full_like(spikes, math.inf))
+    return torch.sort(times.permute(1, 2, 0), dim=-1).values
+
+
+class _FrameStep(nn.Module):
+    """One frame: ``frame [B, C, hop]`` + state -> that frame's spikes ``[B, afferents]`` +
+    the next state (``[B, units]`` each: the bank's input tail and recursion, the converters'
+    membranes). The bank's frame is linear in (tail, frame, recursion): one MatMul by
+    :meth:`FrameCodeEncoder.step_matrix`, the same map :meth:`CausalGaborScalogram.frames_from`
+    computes, with the real and imaginary parts of each band side by side so that one L2 norm
+    gives the envelopes; the envelopes times :meth:`FrameCodeEncoder.gain` as one MatMul."""
+
+    def __init__(self, enc: FrameCodeEncoder) -> None:
+        super().__init__()
+        self.c, self.nb, self.k = enc.n_channels, enc.bank.n_bands, enc.bank.order
+        self.tail = enc.bank.n_taps - 1
+        self.register_buffer("step", enc.step_matrix().float())
+        self.register_buffer("expand", enc.gain_matrix())
+        self.beta = enc.beta
+        self.state_names = [("frame_tail", self.c * self.tail),
+                            ("frame_bank", self.c * self.nb * 2 * self.k),
+                            ("frame_code", enc.n_afferents)]  # fmt: skip
+
+    def forward(self, frame: Tensor, tail: Tensor, bank: Tensor, u: Tensor):
+        b = frame.shape[0]
+        rows = torch.cat([tail.reshape(b * self.c, self.tail), frame.reshape(b * self.c, -1),
+                          bank.reshape(b * self.c, -1)], 1)  # fmt: skip
+        out = rows @ self.step  # [B C, bands x (re, im) | recursion | tail]
+        env, state, new_tail = out.split([2 * self.nb, 2 * self.nb * self.k, self.tail], 1)
+        env = torch.linalg.vector_norm(env.reshape(b, self.c * self.nb, 2), dim=-1)
+        s, u_new, _ = lif_step(u, env @ self.expand, self.beta, 1.0, True)
+        return s, new_tail.reshape(b, -1), state.reshape(b, -1), u_new
+
+
+class _FrameCodeGraph(nn.Module):
+    """Window ``[B, C, W]`` -> envelopes (the bank's linear map: MatMuls and a modulus) ->
+    converters (one ``LSTM`` node) -> spike times ``[B, afferents, frames]``."""
+
+    def __init__(self, enc: FrameCodeEncoder) -> None:
+        super().__init__()
+        self.envelopes = WindowEncoder(enc.bank, nn.Identity(), enc.window)  # type: ignore[arg-type]
+        self.frames, self.frame_ms = enc.frames, enc.frame_ms
+        self.register_buffer("gain", enc.gain().clone())
+        self.beta, self.a = enc.beta, enc.n_afferents
+        for name, value in lif_lstm_buffers(self.a, self.beta, 1.0, True, None).items():
+            self.register_buffer(name, value)
+
+    def forward(self, x: Tensor) -> Tensor:
+        b = x.shape[0]
+        env = self.envelopes.scalogram(x)[..., : self.frames]  # [B, C, bands, frames]
+        rows = env.reshape(b, -1, 1, self.frames) * self.gain.unsqueeze(-1)
+        cur = rows.reshape(b, self.a, self.frames).permute(2, 0, 1)  # [frames, B, A]
+        u0 = torch.zeros_like(cur[0])
+        spikes, _, _ = lif_as_lstm(cur, u0, None, self.W[:0, :0], self.W, self.R, self.B,
+                                   self.beta, 1.0, True)  # fmt: skip
+        return spike_times(spikes, self.frame_ms)
+
+
+@register_encoder("frames", FrameCodeConfig)
+class FrameCodeEncoder(SpikeEncoder):
+    """Causal band envelopes LIF-coded frame by frame; see the module docstring."""
+
+    needs_fit = True
+    has_frame_step: ClassVar[bool] = True
+
+    def __init__(self, config: FrameCodeConfig, fs_hz: float, window: int, n_channels: int):
+        super().__init__(config, fs_hz, window, n_channels)
+        f_hi = min(config.f_hi_hz, 0.45 * self.fs_hz)
+        if not config.f_lo_hz < f_hi:
+            raise ValueError(f"frames: f_lo_hz ({config.f_lo_hz}) must lie below 0.45 x the "
+                             f"sampling rate ({f_hi:.4g} Hz)")  # fmt: skip
+        self.freqs_hz = log_bands(config.f_lo_hz, f_hi, config.n_bands)
+        self.hop = max(1, round(config.frame_ms * self.fs_hz / 1000.0))
+        self.frames = self.window // self.hop
+        if self.frames < 2:
+            raise ValueError(f"frames: a {window}-sample window holds {self.frames} frame of "
+                             f"{self.hop} samples; use a shorter frame_ms")  # fmt: skip
+        self.frame_ms = 1000.0 * self.hop / self.fs_hz
+        self.bank = CausalGaborScalogram(self.fs_hz, self.freqs_hz, hop=self.hop)
+        self.beta = decay_factor(1.0, config.tau_frames)
+        thr = np.geomspace(config.lo, config.hi, config.neurons)
+        self.register_buffer("inv_thr", torch.as_tensor(1.0 / thr, dtype=torch.float32))
+        rows = self.n_channels * config.n_bands
+        self.register_buffer("level", torch.ones(rows))  # per envelope row, input units
+
+    @property
+    def n_afferents(self) -> int:
+        return self.n_channels * self.config.n_bands * self.config.neurons
+
+    @property
+    def max_spikes(self) -> int:
+        return self.frames
+
+    @property
+    def frame_period_ms(self) -> float:
+        return self.frame_ms
+
+    @property
+    def codes_with_past(self) -> bool:
+        return True
+
+    def gain(self) -> Tensor:
+        """``[rows, neurons]``: a row's envelope times this is converter ``j``'s input current
+        per frame (threshold 1)."""
+        return (1.0 - self.beta) * self.inv_thr.view(1, -1) / self.level.view(-1, 1)
+
+    def gain_matrix(self) -> Tensor:
+        """``[rows, afferents]``: envelope rows -> converter currents (:meth:`gain` placed on
+        each row's converters), for a graph's single MatMul."""
+        g = self.gain()
+        rows = torch.arange(g.shape[0]).repeat_interleave(g.shape[1])
+        out = torch.zeros(g.shape[0], self.n_afferents)
+        out[rows, torch.arange(self.n_afferents)] = g.flatten()
+        return out
+
+    @torch.no_grad()
+    def step_matrix(self) -> Tensor:
+        """float64 ``[taps - 1 + hop + 2 K bands, 2 bands + 2 K bands + taps - 1]``: one
+        channel's ``[tail, frame, recursion]`` -> ``[(re, im) per band, recursion, tail]`` for
+        one frame, read off :meth:`CausalGaborScalogram.frames_from` column by column (it is
+        linear)."""
+        bank, tail = self.bank, self.bank.n_taps - 1
+        n_buf, n_state = tail + self.hop, bank.n_bands * 2 * bank.order
+        eye = torch.eye(n_buf + n_state, dtype=torch.float64)
+        re, im, state = bank.frames_from(eye[:, None, :n_buf],
+                                         eye[:, n_buf:].reshape(-1, bank.n_bands, 2 * bank.order))  # fmt: skip
+        assert state is not None
+        env = torch.stack([re[..., 0], im[..., 0]], -1).reshape(len(eye), -1)
+        return torch.cat([env, state.reshape(len(eye), -1), eye[:, self.hop : n_buf]], 1)
+
+    @torch.no_grad()
+    def envelopes(self, x: Tensor) -> Tensor:
+        """Windows ``[B, C, W]`` -> band envelopes ``[B, C * bands, frames]`` (input units)."""
+        env = self.bank(x)[..., : self.frames]
+        return env.reshape(x.shape[0], -1, self.frames)
+
+    def fit(self, X: np.ndarray, n_max: int = 1024) -> FrameCodeEncoder:
+        """Each row's level: the median over (up to ``n_max``, evenly spaced) training windows
+        of its RMS envelope, floored at 1e-3 of its channel's loudest row."""
+        arr = np.asarray(X)
+        idx = evenly_spaced(len(arr), n_max)
+        batch = max(1, (1 << 27) // max(1, self.bytes_per_window()))
+        rms = torch.cat([
+            self.envelopes(torch.from_numpy(np.ascontiguousarray(arr[idx[i : i + batch]],
+                                                                 dtype=np.float32)))
+            .double().pow(2).mean(-1).sqrt()
+            for i in range(0, len(idx), batch)
+        ])  # fmt: skip
+        level = rms.median(0).values.view(self.n_channels, -1)
+        if not (level > 0).any():
+            raise ValueError("every channel is zero in the training windows: nothing to encode")
+        loudest = level.amax(1, keepdim=True)
+        floor = torch.where(loudest > 0, 1e-3 * loudest, 1e-3 * level.max())
+        quiet = torch.nonzero(loudest[:, 0] <= 0).flatten().tolist()
+        if quiet:
+            log.warning("frames encoder: channel(s) %s silent in training; level floored at "
+                        "1e-3 of the loudest channel", quiet)  # fmt: skip
+        self.level.copy_(torch.maximum(level, floor).flatten().float())
+        self.fitted.fill_(True)
+        return self
+
+    def code(self, env: Tensor, u0: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """Envelopes ``[B, rows, frames]`` from membranes ``u0 [B, afferents]`` (None: rest)
+        -> ``(spikes [frames, B, afferents], membranes after the last frame)``."""
+        b, _, f = env.shape
+        cur = (env.unsqueeze(2) * self.gain().to(env.dtype).unsqueeze(-1)).reshape(b, -1, f)
+        u = torch.zeros(b, self.n_afferents, dtype=env.dtype) if u0 is None else u0
+        out = torch.empty(f, b, self.n_afferents, dtype=env.dtype)
+        for i in range(f):
+            out[i], u, _ = lif_step(u, cur[..., i], self.beta, 1.0, True)
+        return out, u
+
+    def encode_batch(self, x: Tensor) -> Tensor:
+        spikes, _ = self.code(self.envelopes(x))
+        return spike_times(spikes, self.frame_ms)
+
+    def encode_recording(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
+        """The windows of ``x [channels, samples]`` starting at ``starts`` (whole hops), each
+        coded with the recording's past: the bank and the converters run once over it."""
+        st = np.asarray(starts, dtype=np.int64)
+        if st.size and (np.any(st % self.hop) or st.min() < 0
+                        or st.max() + self.window > x.shape[-1]):  # fmt: skip
+            raise ValueError(f"window starts must be whole hops ({self.hop} samples) inside the "
+                             f"recording of {x.shape[-1]} samples")  # fmt: skip
+        spikes = self.frame_spikes(x)  # [frames, afferents]
+        out = [spike_times(spikes[s // self.hop : s // self.hop + self.frames, None], self.frame_ms)
+               for s in st]  # fmt: skip
+        return torch.cat(out) if out else torch.zeros(0, self.n_afferents, self.frames)
+
+    @torch.no_grad()
+    def frame_spikes(self, x: np.ndarray) -> Tensor:
+        """Every frame's spikes ``[frames, afferents]`` of one recording ``x [channels,
+        samples]`` coded from its start (the stream's view)."""
+        self.check_fitted()
+        t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
+        env = self.bank(t).reshape(1, -1, t.shape[-1] // self.hop)
+        return self.code(env)[0][:, 0]
+
+    def bytes_per_window(self) -> int:
+        # the bank's frames (complex, per band) and the converters' current and spikes
+        rows = self.n_channels * self.config.n_bands
+        return 4 * (6 * rows * self.frames + 3 * self.n_afferents * self.frames) + 8 * self.window
+
+    def frame_module(self) -> nn.Module:
+        """The code's frame step (:class:`_FrameStep`), with ``state_names``."""
+        self.check_fitted()
+        return _FrameStep(self)
+
+    def initial_frame_state(self, first: np.ndarray) -> dict[str, np.ndarray]:
+        """The state of fresh streams whose first frames are ``first [B, channels, >= 1]``:
+        the bank's tail holds each channel's first sample (constant before the stream, as a
+        window is coded), the rest zeros."""
+        x = np.asarray(first, np.float32)
+        tail = np.repeat(x[:, :, :1], self.bank.n_taps - 1, axis=2).reshape(len(x), -1)
+        names = _FrameStep(self).state_names
+        return {n: (tail if n == "frame_tail" else np.zeros((len(x), u), np.float32))
+                for n, u in names}  # fmt: skip
+
+    def onnx_module(self) -> nn.Module:
+        return _FrameCodeGraph(self)

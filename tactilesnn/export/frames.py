@@ -1,0 +1,224 @@
+"""The one-frame step graph: a frame of samples and the state in, that frame's scores out.
+
+For a pipeline of a continuous code (an encoder with ``has_frame_step``: ``frames``) and a
+stream model (a model with ``has_frame_step``: ``stream``), the graph takes one hop of samples of
+every channel (``window`` input ``[1, channels, hop]``) and every state (``[1, units]`` each:
+the code's bank tail and recursion, its converters, whether the stream has started; the model's
+membranes and its silent-frame count) and returns ``scores`` (the readout at this frame),
+``decision`` (the leading class where it leads by the fitted margin, else -1) and each state's
+next value (``<name>_out``). No loop over a window: each call is one frame, so a decision is
+one frame (one hop) after the frame's last sample. A fresh stream starts from
+:func:`initial_frame_state` (the runtime's rule per state, in the graph's metadata: the code's
+tail repeats the stream's first sample, every other state starts at zero).
+
+:func:`run_frames` runs a whole recording through the graph in onnxruntime, as a service
+would; :func:`torch_frames` through the same step in torch; :func:`export_frames` writes the
+graph after checking the two agree frame by frame over whole recordings (spikes, scores,
+decisions and state).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import torch
+from torch import Tensor, nn
+
+from ..core.graph_contract import SCORES_OUTPUT, WINDOW_INPUT, state_output
+from ..core.onnx_graph import component_to_onnx, operator_nodes
+from ..pipeline import SpikePipeline
+
+DECISION_OUTPUT = "decision"
+SPIKES_OUTPUT = "frame_spikes"
+
+
+def frame_problem(pipe: SpikePipeline) -> str | None:
+    """Why ``pipe`` cannot step frame by frame (None: it can)."""
+    enc, model = pipe.encoder, pipe.model
+    if not enc.has_frame_step:
+        return (f"the {pipe.config.encoder_type} encoder codes whole windows: a frame step needs "
+                "a continuous code (--encoder frames)")  # fmt: skip
+    if not model.has_frame_step:
+        return (f"the {pipe.config.model_type} model classifies whole windows: a frame step "
+                "needs a stream model (--model stream)")  # fmt: skip
+    if pipe.level is not None or pipe.n_clock:
+        return ("the level code and clock afferents are window codes: train with "
+                "--level-neurons 0 --clock-afferents 0 for a frame step")  # fmt: skip
+    f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
+    if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
+        return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "
+                "leave the model's dt_ms at 0 (the code's frame)")  # fmt: skip
+    return None
+
+
+class FrameGraph(nn.Module):
+    """``window [B, channels, hop]`` + state -> ``(scores, decision, frame spikes, *next
+    state)``: the code's frame step, then the model's."""
+
+    def __init__(self, pipe: SpikePipeline, gather: bool = False) -> None:
+        super().__init__()
+        problem = frame_problem(pipe)
+        if problem:
+            raise ValueError(problem)
+        self.encoder = pipe.encoder.frame_module()
+        self.model = pipe.model.frame_module(gather)
+        idx = list(pipe.channel_idx)
+        self.select = idx != list(range(len(pipe.channel_names)))
+        self.register_buffer("channel_idx", torch.as_tensor(idx, dtype=torch.long))
+        self.n_enc = len(self.encoder.state_names)
+        self.state_names: list[tuple[str, int]] = [*self.encoder.state_names,
+                                                   *self.model.state_names]  # fmt: skip
+        self.hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+        self.encoder_init = pipe.encoder.initial_frame_state
+        self.channels = idx
+
+    def forward(self, frame: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
+        x = torch.index_select(frame, 1, self.channel_idx) if self.select else frame
+        spikes, *enc_new = self.encoder(x, *state[: self.n_enc])
+        scores, decision, *model_new = self.model(spikes, *state[self.n_enc :])
+        return (scores, decision, spikes, *enc_new, *model_new)
+
+
+def initial_frame_state(graph: FrameGraph, first: np.ndarray) -> dict[str, np.ndarray]:
+    """Every state of fresh streams whose first frames are ``first [B, channels, >= 1]`` (all
+    the data's channels): the code's (it holds each channel's first sample constant before the
+    stream), the model's at rest (zeros)."""
+    sel = np.asarray(first, np.float32)[:, graph.channels]
+    state = {n: np.zeros((len(sel), u), np.float32) for n, u in graph.state_names}
+    return {**state, **graph.encoder_init(sel)}
+
+
+def build_frame_graph(
+    pipe: SpikePipeline, exporter: str | None = None, gather: bool = False
+) -> tuple[onnx.ModelProto, FrameGraph]:
+    """The one-frame step graph (batch 1 with ``gather``) and its torch module."""
+    graph = FrameGraph(pipe, gather).eval()
+    frame = torch.randn(1, len(pipe.channel_names), graph.hop, generator=torch.Generator().manual_seed(0))
+    state = [torch.zeros(1, u) for _, u in graph.state_names]
+    names = [n for n, _ in graph.state_names]
+    outs = [SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT, *(state_output(n) for n in names)]
+    model = component_to_onnx(graph, (frame, *state), [WINDOW_INPUT, *names], outs,
+                              exporter=exporter)  # fmt: skip
+    return model, graph
+
+
+def frame_session(model: onnx.ModelProto, threads: int = 1):
+    import onnxruntime as ort
+
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(threads)
+    opts.inter_op_num_threads = 1
+    return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+
+
+def _frames_of(stream: np.ndarray, hop: int) -> np.ndarray:
+    x = np.asarray(stream, np.float32)
+    n = x.shape[1] // hop
+    return x[:, : n * hop].reshape(x.shape[0], n, hop).transpose(1, 0, 2)  # [frames, C, hop]
+
+
+def run_frames(session, graph: FrameGraph, stream: np.ndarray) -> dict[str, np.ndarray]:
+    """A whole recording ``stream [channels, samples]`` through the step graph in onnxruntime,
+    one frame per call from a fresh state: ``scores [frames, classes]``, ``decision
+    [frames]``, ``spikes [frames, afferents]`` and the final state."""
+    frames = _frames_of(stream, graph.hop)
+    state = initial_frame_state(graph, frames[:1])
+    names = list(state)
+    outs = [SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT, *(state_output(n) for n in names)]
+    scores, decision, spikes = [], [], []
+    for f in frames:
+        got = session.run(outs, {WINDOW_INPUT: f[None], **state})
+        scores.append(got[0][0])
+        decision.append(got[1][0])
+        spikes.append(got[2][0])
+        state = dict(zip(names, got[3:], strict=True))
+    return {"scores": np.asarray(scores), "decision": np.asarray(decision, np.int64),
+            "spikes": np.asarray(spikes), "state": state}  # fmt: skip
+
+
+@torch.no_grad()
+def torch_frames(graph: FrameGraph, stream: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`run_frames` in torch: the same step module, frame after frame."""
+    frames = _frames_of(stream, graph.hop)
+    state = [torch.from_numpy(v) for v in initial_frame_state(graph, frames[:1]).values()]
+    scores, decision, spikes = [], [], []
+    for f in frames:
+        s, d, sp, *state = graph(torch.from_numpy(np.ascontiguousarray(f[None])), *state)
+        scores.append(s[0].numpy())
+        decision.append(int(d[0]))
+        spikes.append(sp[0].numpy())
+    names = [n for n, _ in graph.state_names]
+    return {"scores": np.asarray(scores), "decision": np.asarray(decision, np.int64),
+            "spikes": np.asarray(spikes),
+            "state": {n: v.numpy() for n, v in zip(names, state, strict=True)}}  # fmt: skip
+
+
+#: test windows joined end to end into the recordings the export is checked on
+CHECK_WINDOWS = 32
+#: score tolerance (absolute, plus relative to the score range) of the frame-by-frame check
+SCORE_ATOL, SCORE_RTOL = 1e-4, 1e-4
+
+
+def compare_frames(got: dict, want: dict) -> dict:
+    """Frame-by-frame agreement of two :func:`run_frames` results: frames whose spikes all
+    agree, score differences on those frames up to the first disagreement (after a threshold
+    flip on a rounding boundary, the two streams may part, legitimately), and the final state's
+    difference relative to its size where no frame flipped."""
+    same = (got["spikes"] == want["spikes"]).all(1)
+    first = int(np.argmin(same)) if not same.all() else len(same)
+    ds = np.abs(got["scores"][:first] - want["scores"][:first])
+    return {"frames": int(len(same)), "frames_before_first_flip": first,
+            "spike_flips": int((got["spikes"] != want["spikes"]).sum()),
+            "max_score_diff": float(ds.max()) if ds.size else 0.0,
+            "decisions_agree": float((got["decision"] == want["decision"]).mean()),
+            # each state's largest difference relative to its largest value (at least 1)
+            "max_state_diff": (max(float(np.abs(got["state"][k] - want["state"][k]).max()
+                                         / max(1.0, float(np.abs(want["state"][k]).max())))
+                                   for k in want["state"]) if first == len(same) else None)}  # fmt: skip
+
+
+def export_frames(
+    pipe: SpikePipeline,
+    out: Path,
+    X_check: np.ndarray,
+    metadata: dict[str, str] | None = None,
+    overwrite: bool = False,
+    exporter: str | None = None,
+    gather: bool = False,
+) -> dict:
+    """Write the step graph of ``pipe`` to ``out`` after running up to ``CHECK_WINDOWS`` of
+    ``X_check`` joined into one recording through it in onnxruntime and its torch module, frame
+    by frame: every frame's spikes equal, scores within tolerance, the same decisions."""
+    from .onnx import ExportError, check_out, pipeline_contract, save_atomic
+
+    out = check_out(out, overwrite)
+    model, graph = build_frame_graph(pipe, exporter, gather)
+    names = [n for n, _ in graph.state_names]
+    extra = {**dict(metadata or {}), "frame_step_samples": str(graph.hop),
+             "frame_states": json.dumps(graph.state_names),
+             "frame_outputs": json.dumps([SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT])}  # fmt: skip
+    contract = pipeline_contract(pipe, tuple(names),
+                                 f"input: the next {graph.hop} samples (one frame) in the sensor's "
+                                 "readout units", extra)  # fmt: skip
+    for k, v in contract.to_metadata().items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = k, str(v)
+    onnx.checker.check_model(model)
+    X = np.asarray(X_check, np.float32)[:CHECK_WINDOWS]
+    stream = np.concatenate(list(X), axis=1)
+    got = run_frames(frame_session(model), graph, stream)
+    want = torch_frames(graph, stream)
+    rep = compare_frames(got, want)
+    span = float(np.ptp(want["scores"])) if want["scores"].size else 0.0
+    if rep["frames_before_first_flip"] < rep["frames"] and rep["spike_flips"] > 2:
+        raise ExportError(f"the frame graph's spikes differ from torch's on {rep['spike_flips']} "
+                          f"(frame, afferent) pairs of {rep['frames']} frames")  # fmt: skip
+    if rep["max_score_diff"] > SCORE_ATOL + SCORE_RTOL * span:
+        raise ExportError(f"the frame graph's scores differ from torch's by up to "
+                          f"{rep['max_score_diff']:.3g}")  # fmt: skip
+    save_atomic(model, out)
+    return {"path": str(out), "nodes": operator_nodes(model), "hop_samples": graph.hop,
+            "frame_ms": 1000.0 * graph.hop / pipe.fs_hz, **rep}  # fmt: skip
