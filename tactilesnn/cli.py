@@ -98,7 +98,7 @@ def _task_option_values(args: argparse.Namespace) -> dict:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .app.commands import parity_line, stream_hint
+    from .app.commands import frame_stream_line, parity_line, stream_hint
     from .app.defaults import run_spec
     from .app.run import train_run
 
@@ -134,6 +134,8 @@ def cmd_train(args: argparse.Namespace) -> int:
               f"{st['test_windows_with_past']} of {m['n_test_windows']} test windows have one; "
               f"trained on both codes: {st['train_windows_added']} windows added): "
               f"{100 * st['test_accuracy']:.2f} % (+-{100 * st['test_accuracy_ci95']:.2f} %)")  # fmt: skip
+    if "frame_stream" in m:
+        print(frame_stream_line(m["frame_stream"]))
     path = result.path
     if "error" in m.get("onnx", {}):
         print(f"run folder {path} is complete, but the ONNX export failed: {m['onnx']['error']}")

@@ -188,6 +188,25 @@ class SpikePipeline:
             out[i : i + batch, :, 0] = self.level(chunk)
         return out
 
+    def frame_problem(self) -> str | None:
+        """Why this pipeline cannot run frame by frame (None: it can): it needs a continuous
+        code (an encoder with ``has_frame_step``), a stream model (``has_frame_step``), no
+        window codes appended, and the model stepping at the code's frame."""
+        enc, model = self.encoder, self.model
+        if not enc.has_frame_step:
+            return (f"the {self.config.encoder_type} encoder codes whole windows: a frame step "
+                    "needs a continuous code (--encoder frames)")  # fmt: skip
+        if not model.has_frame_step:
+            return (f"the {self.config.model_type} model classifies whole windows: a frame step "
+                    "needs a stream model (--model stream)")  # fmt: skip
+        if self.level is not None or self.n_clock:  # (a stream model gets neither)
+            return "the level code and clock afferents are window codes"
+        f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
+        if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
+            return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "
+                    "leave the model's dt_ms at 0 (the code's frame)")  # fmt: skip
+        return None
+
     # ------------------------------------------------------------------ inference
     def scores(self, spikes: torch.Tensor) -> torch.Tensor:
         """Spike times -> class scores ``[N, classes]`` in batches bounded by a byte budget."""

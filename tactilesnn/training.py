@@ -24,6 +24,7 @@ from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
 from .pipeline import SpikePipeline, accuracy_ci95
+from .streaming import stream_evaluation
 from .trainer import Trainer
 
 log = logging.getLogger("tactilesnn")
@@ -185,6 +186,9 @@ def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bo
         metrics["early_decision"] = early
     if test_rec is not None or in_rec is not None:
         metrics["in_stream"] = stream_metrics(pipe, test_scores, test_rec, test.y, in_rec)
+    frames = stream_evaluation(pipe, test.X, test.y, test.scan, test_scores)
+    if frames is not None:
+        metrics["frame_stream"] = frames
     if trainer.history.get("solved") is not None:
         metrics["model_fit"] = trainer.history["solved"]
     skipped = pipe.encoder.skip_stats()  # {mechanism: what it skipped}

@@ -19,7 +19,10 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("core",)),
     ("components", ("datasets_synth", "encoders", "models", "recordings", "readers")),
     ("pipeline", ("config", "data_policy", "pipeline", "trainer", "baselines")),
-    ("training | export | service", ("training", "selection", "estimator", "export", "service")),
+    (
+        "training | export | service",
+        ("training", "selection", "estimator", "streaming", "export", "service"),
+    ),
     ("application", ("app",)),
     ("cli", ("cli", "__main__")),
 ]
@@ -29,6 +32,7 @@ SIDE_BY_SIDE = {
     "training": "training",
     "selection": "training",
     "estimator": "training",
+    "streaming": "training",
     "export": "export",
     "service": "service",
 }

@@ -50,6 +50,21 @@ def parity_line(rep: dict) -> str:
     return text + f", predictions agree {100 * rep['prediction_agreement']:.2f} %"
 
 
+def frame_stream_line(st: dict) -> str:
+    """The train command's line for a stream model scored frame by frame
+    (:func:`~tactilesnn.streaming.stream_evaluation`)."""
+    text = (f"as a stream (frame by frame, state carried, a decision every {st['frame_ms']:.3g} "
+            f"ms frame): per window {100 * st['per_window']:.2f} %")  # fmt: skip
+    if "per_recording" in st:
+        text += f", per recording {100 * st['per_recording']:.2f} %"
+    lat = st.get("decision_latency_ms")
+    if lat:
+        text += (f"; decision latency median {lat['median']:.0f} ms (quartiles {lat['q25']:.0f}-"
+                 f"{lat['q75']:.0f}), {100 * st['settled_fraction']:.0f} % of "
+                 f"{st['segments']} label segments settle")  # fmt: skip
+    return text
+
+
 def stream_hint(encoder: str, path: Path) -> str | None:
     """How to export a run's stream graph, where its encoder has a stream form."""
     if not ENCODERS.get(encoder).has_stream_form:

@@ -234,8 +234,8 @@ class FrameCodeEncoder(SpikeEncoder):
         bank, tail = self.bank, self.bank.n_taps - 1
         n_buf, n_state = tail + self.hop, bank.n_bands * 2 * bank.order
         eye = torch.eye(n_buf + n_state, dtype=torch.float64)
-        re, im, state = bank.frames_from(eye[:, None, :n_buf],
-                                         eye[:, n_buf:].reshape(-1, bank.n_bands, 2 * bank.order))  # fmt: skip
+        past = eye[:, n_buf:].reshape(-1, bank.n_bands, 2 * bank.order)
+        re, im, state = bank.frames_from(eye[:, None, :n_buf], past)
         assert state is not None
         env = torch.stack([re[..., 0], im[..., 0]], -1).reshape(len(eye), -1)
         return torch.cat([env, state.reshape(len(eye), -1), eye[:, self.hop : n_buf]], 1)

@@ -36,22 +36,9 @@ SPIKES_OUTPUT = "frame_spikes"
 
 
 def frame_problem(pipe: SpikePipeline) -> str | None:
-    """Why ``pipe`` cannot step frame by frame (None: it can)."""
-    enc, model = pipe.encoder, pipe.model
-    if not enc.has_frame_step:
-        return (f"the {pipe.config.encoder_type} encoder codes whole windows: a frame step needs "
-                "a continuous code (--encoder frames)")  # fmt: skip
-    if not model.has_frame_step:
-        return (f"the {pipe.config.model_type} model classifies whole windows: a frame step "
-                "needs a stream model (--model stream)")  # fmt: skip
-    if pipe.level is not None or pipe.n_clock:
-        return ("the level code and clock afferents are window codes: train with "
-                "--level-neurons 0 --clock-afferents 0 for a frame step")  # fmt: skip
-    f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
-    if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
-        return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "
-                "leave the model's dt_ms at 0 (the code's frame)")  # fmt: skip
-    return None
+    """Why ``pipe`` cannot step frame by frame (None: it can): :meth:`SpikePipeline.
+    frame_problem`."""
+    return pipe.frame_problem()
 
 
 class FrameGraph(nn.Module):
@@ -96,7 +83,9 @@ def build_frame_graph(
 ) -> tuple[onnx.ModelProto, FrameGraph]:
     """The one-frame step graph (batch 1 with ``gather``) and its torch module."""
     graph = FrameGraph(pipe, gather).eval()
-    frame = torch.randn(1, len(pipe.channel_names), graph.hop, generator=torch.Generator().manual_seed(0))
+    frame = torch.randn(
+        1, len(pipe.channel_names), graph.hop, generator=torch.Generator().manual_seed(0)
+    )
     state = [torch.zeros(1, u) for _, u in graph.state_names]
     names = [n for n, _ in graph.state_names]
     outs = [SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT, *(state_output(n) for n in names)]
@@ -170,7 +159,7 @@ def compare_frames(got: dict, want: dict) -> dict:
     same = (got["spikes"] == want["spikes"]).all(1)
     first = int(np.argmin(same)) if not same.all() else len(same)
     ds = np.abs(got["scores"][:first] - want["scores"][:first])
-    return {"frames": int(len(same)), "frames_before_first_flip": first,
+    return {"frames": len(same), "frames_before_first_flip": first,
             "spike_flips": int((got["spikes"] != want["spikes"]).sum()),
             "max_score_diff": float(ds.max()) if ds.size else 0.0,
             "decisions_agree": float((got["decision"] == want["decision"]).mean()),

@@ -296,7 +296,9 @@ class _StreamWindowGraph(nn.Module):
         fc1 = model.hidden.fc
         self.dt, self.steps = model.dt_ms, model.steps
         self.fc1, self.fc2 = fc1, model.out
-        self.register_buffer("updates", fc1.weight.detach().t().repeat_interleave(model.max_spikes, 0))
+        self.register_buffer(
+            "updates", fc1.weight.detach().t().repeat_interleave(model.max_spikes, 0)
+        )
         rec = model.hidden.rec.weight.detach().clone() if model.hidden.rec is not None else None
         self.register_buffer("w_rec", rec if rec is not None else torch.zeros(0, 0))
         self.lstm = _LSTMWeights(fc1.out_features, model.hidden.beta, 1.0, True, rec)

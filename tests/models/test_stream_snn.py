@@ -26,7 +26,9 @@ def _spikes(n=6, seed=0):
 def test_the_raster_bins_as_spike_raster():
     s = _spikes()
     s[0, 0, 0] = 100.0  # exactly at the window end: the last step
-    np.testing.assert_array_equal(frame_raster(s, 5.0, 20).numpy(), spike_raster(s, 5.0, 20).numpy())
+    np.testing.assert_array_equal(
+        frame_raster(s, 5.0, 20).numpy(), spike_raster(s, 5.0, 20).numpy()
+    )
 
 
 def test_the_step_follows_the_window_trajectory():
@@ -43,7 +45,7 @@ def test_the_step_follows_the_window_trajectory():
     state = [torch.zeros(6, 16), torch.zeros(6, 3), torch.zeros(6, 1)]
     with torch.no_grad():
         for t in range(raster.shape[0]):
-            scores, decision, *state = step(raster[t], *state)
+            scores, _, *state = step(raster[t], *state)
     torch.testing.assert_close(scores, want[-1], atol=1e-4, rtol=1e-4)
     assert m.dt_ms == pytest.approx(5.0)  # the window over its 20 slots
 
