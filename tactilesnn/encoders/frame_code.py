@@ -116,32 +116,32 @@ def spike_times(spikes: Tensor, frame_ms: float) -> Tensor:
 
 class _FrameStep(nn.Module):
     """One frame: ``frame [B, C, hop]`` + state -> that frame's spikes ``[B, afferents]`` +
-    the next state (``[B, units]`` each: the bank's input tail and recursion, the converters'
-    membranes). The bank's frame is linear in (tail, frame, recursion): one MatMul by
-    :meth:`FrameCodeEncoder.step_matrix`, the same map :meth:`CausalGaborScalogram.frames_from`
-    computes, with the real and imaginary parts of each band side by side so that one L2 norm
-    gives the envelopes; the envelopes times :meth:`FrameCodeEncoder.gain` as one MatMul."""
+    the next state (``[B, units]`` each: per channel the bank's input tail and recursion, then
+    the converters' membranes). The bank's frame is linear in (tail, recursion, frame): one
+    MatMul by :meth:`FrameCodeEncoder.step_matrix`, the map :meth:`CausalGaborScalogram.
+    frames_from` computes, with the real and imaginary parts of each band side by side so that
+    one L2 norm gives the envelopes; the envelopes times :meth:`FrameCodeEncoder.gain` as one
+    MatMul. (Each graph node and each graph input costs onnxruntime ~1.5 us on a 2-core machine,
+    more than these products: the form has as few of either as the arithmetic allows.)"""
 
     def __init__(self, enc: FrameCodeEncoder) -> None:
         super().__init__()
-        self.c, self.nb, self.k = enc.n_channels, enc.bank.n_bands, enc.bank.order
-        self.tail = enc.bank.n_taps - 1
+        self.c, self.nb = enc.n_channels, enc.bank.n_bands
+        self.per_channel = enc.bank.n_taps - 1 + 2 * enc.bank.order * self.nb
         self.register_buffer("step", enc.step_matrix().float())
         self.register_buffer("expand", enc.gain_matrix())
         self.beta = enc.beta
-        self.state_names = [("frame_tail", self.c * self.tail),
-                            ("frame_bank", self.c * self.nb * 2 * self.k),
+        self.state_names = [("frame_bank", self.c * self.per_channel),
                             ("frame_code", enc.n_afferents)]  # fmt: skip
 
-    def forward(self, frame: Tensor, tail: Tensor, bank: Tensor, u: Tensor):
+    def forward(self, frame: Tensor, bank: Tensor, u: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         b = frame.shape[0]
-        rows = torch.cat([tail.reshape(b * self.c, self.tail), frame.reshape(b * self.c, -1),
-                          bank.reshape(b * self.c, -1)], 1)  # fmt: skip
-        out = rows @ self.step  # [B C, bands x (re, im) | recursion | tail]
-        env, state, new_tail = out.split([2 * self.nb, 2 * self.nb * self.k, self.tail], 1)
+        rows = torch.cat([bank.reshape(b * self.c, self.per_channel),
+                          frame.reshape(b * self.c, -1)], 1)  # fmt: skip
+        env, new_bank = (rows @ self.step).split([2 * self.nb, self.per_channel], 1)
         env = torch.linalg.vector_norm(env.reshape(b, self.c * self.nb, 2), dim=-1)
         s, u_new, _ = lif_step(u, env @ self.expand, self.beta, 1.0, True)
-        return s, new_tail.reshape(b, -1), state.reshape(b, -1), u_new
+        return s, new_bank.reshape(b, -1), u_new
 
 
 class _FrameCodeGraph(nn.Module):
@@ -227,18 +227,19 @@ class FrameCodeEncoder(SpikeEncoder):
 
     @torch.no_grad()
     def step_matrix(self) -> Tensor:
-        """float64 ``[taps - 1 + hop + 2 K bands, 2 bands + 2 K bands + taps - 1]``: one
-        channel's ``[tail, frame, recursion]`` -> ``[(re, im) per band, recursion, tail]`` for
+        """float64 ``[taps - 1 + 2 K bands + hop, 2 bands + taps - 1 + 2 K bands]``: one
+        channel's ``[tail, recursion, frame]`` -> ``[(re, im) per band, tail, recursion]`` for
         one frame, read off :meth:`CausalGaborScalogram.frames_from` column by column (it is
         linear)."""
         bank, tail = self.bank, self.bank.n_taps - 1
-        n_buf, n_state = tail + self.hop, bank.n_bands * 2 * bank.order
-        eye = torch.eye(n_buf + n_state, dtype=torch.float64)
-        past = eye[:, n_buf:].reshape(-1, bank.n_bands, 2 * bank.order)
-        re, im, state = bank.frames_from(eye[:, None, :n_buf], past)
+        rec = bank.n_bands * 2 * bank.order
+        eye = torch.eye(tail + rec + self.hop, dtype=torch.float64)
+        buf = torch.cat([eye[:, :tail], eye[:, tail + rec :]], 1)  # the tail, then the frame
+        past = eye[:, tail : tail + rec].reshape(-1, bank.n_bands, 2 * bank.order)
+        re, im, state = bank.frames_from(buf[:, None], past)
         assert state is not None
         env = torch.stack([re[..., 0], im[..., 0]], -1).reshape(len(eye), -1)
-        return torch.cat([env, state.reshape(len(eye), -1), eye[:, self.hop : n_buf]], 1)
+        return torch.cat([env, buf[:, self.hop :], state.reshape(len(eye), -1)], 1)
 
     @torch.no_grad()
     def envelopes(self, x: Tensor) -> Tensor:
@@ -321,12 +322,14 @@ class FrameCodeEncoder(SpikeEncoder):
     def initial_frame_state(self, first: np.ndarray) -> dict[str, np.ndarray]:
         """The state of fresh streams whose first frames are ``first [B, channels, >= 1]``:
         the bank's tail holds each channel's first sample (constant before the stream, as a
-        window is coded), the rest zeros."""
+        window is coded), its recursion and the converters at zero."""
         x = np.asarray(first, np.float32)
-        tail = np.repeat(x[:, :, :1], self.bank.n_taps - 1, axis=2).reshape(len(x), -1)
-        names = _FrameStep(self).state_names
-        return {n: (tail if n == "frame_tail" else np.zeros((len(x), u), np.float32))
-                for n, u in names}  # fmt: skip
+        tail = self.bank.n_taps - 1
+        bank = np.zeros((len(x), self.n_channels, tail + 2 * self.bank.order * self.bank.n_bands),
+                        np.float32)  # fmt: skip
+        bank[:, :, :tail] = x[:, :, :1]
+        return {"frame_bank": bank.reshape(len(x), -1),
+                "frame_code": np.zeros((len(x), self.n_afferents), np.float32)}  # fmt: skip
 
     def onnx_module(self) -> nn.Module:
         return _FrameCodeGraph(self)

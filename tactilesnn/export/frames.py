@@ -2,7 +2,7 @@
 
 For a pipeline of a continuous code (an encoder with ``has_frame_step``: ``frames``) and a
 stream model (a model with ``has_frame_step``: ``stream``), the graph takes one hop of samples of
-every channel (``window`` input ``[1, channels, hop]``) and every state (``[1, units]`` each:
+every channel (``window`` input ``[1, channels, hop]``) and its state (``[1, units]``:
 the code's bank tail and recursion, its converters, whether the stream has started; the model's
 membranes and its silent-frame count) and returns ``scores`` (the readout at this frame),
 ``decision`` (the leading class where it leads by the fitted margin, else -1) and each state's
@@ -41,13 +41,19 @@ def frame_problem(pipe: SpikePipeline) -> str | None:
     return pipe.frame_problem()
 
 
+#: the graph's one state input (every part packed: one input and one output instead of six
+#: of each; each graph input or output costs onnxruntime ~1.5 us per call from Python)
+STATE = "frame_state"
+
+
 class FrameGraph(nn.Module):
-    """``window [B, channels, hop]`` + state -> ``(scores, decision, frame spikes, *next
-    state)``: the code's frame step, then the model's."""
+    """``window [B, channels, hop]`` + ``frame_state [B, units]`` -> ``(scores, decision,
+    frame spikes, next frame_state)``: the code's frame step, then the model's; the state is
+    their parts (:attr:`parts`: ``(name, units)``) side by side."""
 
     def __init__(self, pipe: SpikePipeline, gather: bool = False) -> None:
         super().__init__()
-        problem = frame_problem(pipe)
+        problem = pipe.frame_problem()
         if problem:
             raise ValueError(problem)
         self.encoder = pipe.encoder.frame_module()
@@ -56,37 +62,40 @@ class FrameGraph(nn.Module):
         self.select = idx != list(range(len(pipe.channel_names)))
         self.register_buffer("channel_idx", torch.as_tensor(idx, dtype=torch.long))
         self.n_enc = len(self.encoder.state_names)
-        self.state_names: list[tuple[str, int]] = [*self.encoder.state_names,
-                                                   *self.model.state_names]  # fmt: skip
+        self.parts: list[tuple[str, int]] = [*self.encoder.state_names, *self.model.state_names]
+        self.state_names = [(STATE, sum(u for _, u in self.parts))]
         self.hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
         self.encoder_init = pipe.encoder.initial_frame_state
         self.channels = idx
 
-    def forward(self, frame: Tensor, *state: Tensor) -> tuple[Tensor, ...]:
+    def forward(self, frame: Tensor, state: Tensor) -> tuple[Tensor, ...]:
         x = torch.index_select(frame, 1, self.channel_idx) if self.select else frame
-        spikes, *enc_new = self.encoder(x, *state[: self.n_enc])
-        scores, decision, *model_new = self.model(spikes, *state[self.n_enc :])
-        return (scores, decision, spikes, *enc_new, *model_new)
+        parts = state.split([u for _, u in self.parts], 1)
+        spikes, *enc_new = self.encoder(x, *parts[: self.n_enc])
+        scores, decision, *model_new = self.model(spikes, *parts[self.n_enc :])
+        return scores, decision, spikes, torch.cat([*enc_new, *model_new], 1)
 
 
 def initial_frame_state(graph: FrameGraph, first: np.ndarray) -> dict[str, np.ndarray]:
-    """Every state of fresh streams whose first frames are ``first [B, channels, >= 1]`` (all
+    """The state of fresh streams whose first frames are ``first [B, channels, >= 1]`` (all
     the data's channels): the code's (it holds each channel's first sample constant before the
     stream), the model's at rest (zeros)."""
     sel = np.asarray(first, np.float32)[:, graph.channels]
-    state = {n: np.zeros((len(sel), u), np.float32) for n, u in graph.state_names}
-    return {**state, **graph.encoder_init(sel)}
+    parts = {n: np.zeros((len(sel), u), np.float32) for n, u in graph.parts}
+    parts.update(graph.encoder_init(sel))
+    return {STATE: np.concatenate([parts[n] for n, _ in graph.parts], 1)}
 
 
 def build_frame_graph(
     pipe: SpikePipeline, exporter: str | None = None, gather: bool = False
 ) -> tuple[onnx.ModelProto, FrameGraph]:
-    """The one-frame step graph (batch 1 with ``gather``) and its torch module."""
+    """The one-frame step graph (any batch of streams; batch 1 with ``gather``, whose gather
+    reads the first stream's spikes) and its torch module."""
     graph = FrameGraph(pipe, gather).eval()
-    frame = torch.randn(
-        1, len(pipe.channel_names), graph.hop, generator=torch.Generator().manual_seed(0)
-    )
-    state = [torch.zeros(1, u) for _, u in graph.state_names]
+    batch = 1 if gather else 2  # (an example batch of 1 would fix the graph's batch at 1)
+    gen = torch.Generator().manual_seed(0)
+    frame = torch.randn(batch, len(pipe.channel_names), graph.hop, generator=gen)
+    state = [torch.zeros(batch, u) for _, u in graph.state_names]
     names = [n for n, _ in graph.state_names]
     outs = [SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT, *(state_output(n) for n in names)]
     model = component_to_onnx(graph, (frame, *state), [WINDOW_INPUT, *names], outs,
@@ -187,7 +196,7 @@ def export_frames(
     model, graph = build_frame_graph(pipe, exporter, gather)
     names = [n for n, _ in graph.state_names]
     extra = {**dict(metadata or {}), "frame_step_samples": str(graph.hop),
-             "frame_states": json.dumps(graph.state_names),
+             "frame_state_parts": json.dumps(graph.parts),
              "frame_outputs": json.dumps([SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT])}  # fmt: skip
     contract = pipeline_contract(pipe, tuple(names),
                                  f"input: the next {graph.hop} samples (one frame) in the sensor's "

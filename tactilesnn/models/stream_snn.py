@@ -249,10 +249,11 @@ def decide(scores: Tensor, margin: Tensor) -> Tensor:
     # the lead as one product with (1, -1): fewer graph nodes than two slices and a difference
     lead = torch.matmul(top.values, _LEAD.to(scores.dtype))
     leader = top.indices.select(-1, 0)
-    return torch.where(lead >= margin, leader, -torch.ones_like(leader))
+    return torch.where(lead >= margin, leader, _UNDECIDED)
 
 
 _LEAD = torch.tensor([1.0, -1.0])
+_UNDECIDED = torch.tensor(-1)  # (a constant: no nodes to build it in a graph)
 
 
 class _StreamStep(nn.Module):

@@ -83,6 +83,8 @@ FULL = (
         "cgwt20 hop5+snn64 dt10",
         {"encoder": "cgwt", "cgwt_hop": 5, "model": "snn", "snn_dt_ms": 10.0},
     ),
+    # the continuous code and the stream model (scored here as windows, from rest)
+    Point("frames+stream", {"encoder": "frames", "model": "stream"}),
 )
 QUICK = (Point("gwt10 hop5+tempotron", {"n_bands": 10, "gwt_hop": 5}), Point("stft10+readout",
          {"encoder": "stft", "n_bands": 10, "model": "readout"}))  # fmt: skip
@@ -258,6 +260,17 @@ def realtime_session(
     from ...service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
+    if form.startswith(_F) or form == _FLOOR:  # the continuous code + stream model, hop ~5 ms
+        cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",),
+                                       f_lo_hz=5.0, f_hi_hz=800.0, stream_hidden=snn[0],
+                                       frame_ms=1000.0 * hop / fs)  # fmt: skip
+        pipe = SpikePipeline(cfg, fs, window, channels, ("a", "b"))
+        X = np.random.default_rng(0).standard_normal((8, 12, window)).astype(np.float32)
+        pipe.calibrate(X)
+        return _frame_call(pipe, X, form, {"form": form, "window_samples": window, "gwt_hop": hop,
+                                           "touched_taxels": None, "precision": "float32",
+                                           "snn_hidden": snn[0], "snn_dt_ms": 1000.0 * hop / fs,
+                                           "step_samples": hop, "windows_per_s": fs / hop})  # fmt: skip
     enc = form.split()[0]
     hop_key = {f: k for k, f in flag_fields(ENCODERS.config_class(enc)).items()}["hop"]
     cfg = PipelineConfig.from_flat(encoder=enc, model="snn", channels=("all",), f_hi_hz=800.0,
@@ -274,6 +287,8 @@ def realtime_session(
             "windows_per_s": fs / step}  # fmt: skip
     if form.startswith(_S):
         return _stream_call(pipe, X, form, step), info
+    if form.startswith(_F) or form == _FLOOR:
+        return _frame_call(pipe, X, form, info)
     path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
@@ -334,6 +349,44 @@ def _stream_call(
                                     providers=["CPUExecutionProvider"])  # fmt: skip
     outs = [o.name for o in sess.get_outputs()]
     return lambda: sess.run(outs, feeds)
+
+
+def _frame_call(pipe: SpikePipeline, X: np.ndarray, form: str, info: dict
+                ) -> tuple[Callable[[], object], dict]:  # fmt: skip
+    """A one-frame step graph's call (:mod:`~tactilesnn.export.frames`: one hop of samples and
+    the state in, the frame's scores, decision and next state out; random weights): ``frames
+    step`` (batch 1: one stream, latency one frame), ``... gather`` (the input layer as a
+    gather of the weight rows of the afferents that fired), ``... 100 streams`` (a skin of
+    100 such 12-taxel streams in one call per frame: the real-time factor per stream), or the
+    floor (``ort call floor``: a graph of one ``Identity`` node with one input and one output,
+    what any call from Python costs)."""
+    import onnx
+    import onnxruntime as ort
+
+    from ...core.graph_contract import WINDOW_INPUT
+    from ...export.frames import STATE, build_frame_graph, frame_session, initial_frame_state
+
+    streams = FRAME_STREAMS if form == _FB else 1
+    hop = info["step_samples"]
+    x = np.ascontiguousarray(np.repeat(X[:1, :, :hop], streams, 0))
+    if form == _FLOOR:
+        h = onnx.helper
+        v_in = h.make_tensor_value_info(WINDOW_INPUT, onnx.TensorProto.FLOAT, [1, 12, hop])
+        v_out = h.make_tensor_value_info("scores", onnx.TensorProto.FLOAT, [1, 12, hop])
+        model = h.make_model(h.make_graph([h.make_node("Identity", [WINDOW_INPUT], ["scores"])],
+                                          "floor", [v_in], [v_out]),
+                             opset_imports=[h.make_opsetid("", 17)])  # fmt: skip
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        sess = ort.InferenceSession(model.SerializeToString(), opts,
+                                    providers=["CPUExecutionProvider"])  # fmt: skip
+        return (lambda: sess.run(["scores"], {WINDOW_INPUT: x})), {**info, "streams": 1}
+    model, graph = build_frame_graph(pipe, gather=form == _FG)
+    sess = frame_session(model)
+    feeds = {WINDOW_INPUT: x, **initial_frame_state(graph, x)}
+    outs = ["scores", "decision", f"{STATE}_out"]  # what a stream's runtime reads
+    info = {**info, "streams": streams, "nodes": len(model.graph.node)}
+    return (lambda: sess.run(outs, feeds)), info
 
 
 #: an operator doing at least this many multiply-adds per call counts as heavy
@@ -411,7 +464,8 @@ def realtime_rows(
     secs = _interleaved_medians([call for call, _ in built], repeats, rounds)
     out = []
     for (_, info), t in zip(built, secs, strict=True):
-        cost = _cost_ms_per_s(t, info.pop("windows_per_s"))
+        # per stream: a call of several streams serves each of them
+        cost = _cost_ms_per_s(t, info.pop("windows_per_s")) / info.get("streams", 1)
         out.append({**info, "ms_per_window": 1000 * t, "ms_per_signal_s": cost,
                     "realtime_factor": 1000.0 / cost})  # fmt: skip
     return out
@@ -430,6 +484,11 @@ _SH, _SD = "cgwt stream heavy", "cgwt stream decision"
 #: the stream graph stepping one frame (one hop) per call, asked for every output as the
 #: service's stream path: a window's spikes and early decision every frame (latency one frame)
 _SF = "cgwt stream frame"
+#: the continuous code + stream model's one-frame step graph (:mod:`~tactilesnn.export.frames`):
+#: one stream per call, its input layer as a gather, a skin of FRAME_STREAMS streams per call,
+#: and the floor of any call (one Identity node)
+_F, _FG, _FB, _FLOOR = "frames step", "frames step gather", "frames step streams", "ort call floor"
+FRAME_STREAMS = 100
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
            (10, 3, False, (64, 5.0), _G), (10, 1, False, (64, 5.0), _G),
@@ -445,7 +504,10 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (50, None, False, SMALL_SNN, _SD), (50, None, False, (64, 10.0), _S),
            (50, None, False, SMALL_SNN, _SH), (50, 1, False, SMALL_SNN, _C),
            # one frame per call: latency one frame (5 ms at hop 10, 25 ms at hop 50)
-           (10, None, False, (64, 5.0), _SF), (50, None, False, SMALL_SNN, _SF))  # fmt: skip
+           (10, None, False, (64, 5.0), _SF), (50, None, False, SMALL_SNN, _SF),
+           # the continuous stream model stepping one 5 ms frame per call (latency one frame)
+           (10, None, False, (64, 5.0), _F), (10, None, False, (64, 5.0), _FG),
+           (10, None, False, (64, 5.0), _FB), (10, None, False, (64, 5.0), _FLOOR))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -516,8 +578,25 @@ def format_rt(rt: dict) -> str:
             _SH: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}: its Conv, MatMul "
                  f"and LSTM nodes of >= {HEAVY_MACS:,} multiply-adds alone",
             _SF: f"causal GWT stream graph (hop {rt['gwt_hop']}) + {snn}, one frame per call "
-                 "with its early decision (latency one frame)"}[form]  # fmt: skip
+                 "with its early decision (latency one frame)",
+            _F: f"continuous code (frames, hop {rt['gwt_hop']}) + stream SNN "
+                f"({rt.get('snn_hidden', 64)} units), one-frame step graph "
+                f"({rt.get('nodes', '?')} nodes), one frame per call with its decision (latency "
+                "one frame)",
+            _FG: f"continuous code (frames, hop {rt['gwt_hop']}) + stream SNN "
+                 f"({rt.get('snn_hidden', 64)} units), input layer as a gather, one frame per call "
+                 "(latency one frame)",
+            _FB: f"continuous code (frames, hop {rt['gwt_hop']}) + stream SNN "
+                 f"({rt.get('snn_hidden', 64)} units), {rt.get('streams')} streams of 12 taxels "
+                 "in one call per frame (latency one frame; per stream)",
+            _FLOOR: "the floor of any onnxruntime call from Python (one Identity node, one input, "
+                    "one output), one frame per call"}[form]  # fmt: skip
     step = rt.get("step_samples", rt["window_samples"] // 2)
+    if form in (_F, _FG, _FB, _FLOOR):  # no window: a frame per call
+        return (f"{name}, 12 taxels @ 2 kHz, a frame every {step} samples "
+                f"({1000 * step / 2000:g} ms), onnxruntime 1 thread: "
+                f"{1000 * rt['ms_per_window']:.1f} us per call, {rt['ms_per_signal_s']:.2f} ms "
+                f"per second of signal = {rt['realtime_factor']:.0f}x real time")  # fmt: skip
     every = ("half window" if 2 * step == rt["window_samples"]
              else f"{step} samples ({1000 * step / 2000:g} ms)")  # fmt: skip
     return (f"{name}, 12 taxels @ 2 kHz{scene}, "
