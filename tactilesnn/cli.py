@@ -170,7 +170,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     lines = export_run(Path(args.run_dir), Path(args.out), fmt=args.format, stream=args.stream,
                        stream_step=args.stream_step, quantize=args.quantize,
-                       overwrite=args.overwrite, progress=not args.quiet)  # fmt: skip
+                       overwrite=args.overwrite, progress=not args.quiet,
+                       frames=args.frames)  # fmt: skip
     print("\n".join(lines))
     return 0
 
@@ -330,6 +331,13 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
         "window; any whole number of the encoder's hops dividing the window, at most half of "
         "it: one hop gives every frame's spikes and scores one call after its last sample, "
         "at a whole window's coding and classifying per frame)",
+    )
+    p.add_argument(
+        "--frames",
+        action="store_true",
+        help="write the one-frame step graph instead (one hop of samples and the state per "
+        "call: the frame's scores and decision; a continuous code and a stream model: "
+        "--encoder frames --model stream)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_export)

@@ -147,8 +147,10 @@ class SpikePipeline:
     def streams_recordings(self) -> bool:
         """Whether the encoder codes a window with its recording's past (its stream form
         carries state across windows: the encoder's ``codes_with_past``), so that a window
-        served in a stream differs from the same window alone."""
-        return self.encoder.codes_with_past
+        served in a stream differs from the same window alone. Not for a pipeline that runs
+        frame by frame: its model's state is carried too, and it is scored so
+        (:mod:`~tactilesnn.streaming`), not as windows served one by one."""
+        return self.encoder.codes_with_past and self.frame_problem() is not None
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray

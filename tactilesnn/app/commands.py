@@ -66,7 +66,11 @@ def frame_stream_line(st: dict) -> str:
 
 
 def stream_hint(encoder: str, path: Path) -> str | None:
-    """How to export a run's stream graph, where its encoder has a stream form."""
+    """How to export a run's stream graph, where its encoder has a stream form (or its
+    one-frame step graph, where it has a frame step)."""
+    if ENCODERS.get(encoder).has_frame_step:
+        return (f"for streams, a decision every frame: tactilesnn export {path} --frames --out "
+                f"{path / 'frames.onnx'} (with a stream model: --model stream)")  # fmt: skip
     if not ENCODERS.get(encoder).has_stream_form:
         return None
     return (f"for streams (each sample transformed once): tactilesnn export {path} --stream "
@@ -121,9 +125,13 @@ def evaluation_lines(rep: dict[str, Any]) -> list[str]:
 # ---------------------------------------------------------------- export
 def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False,
                stream_step: int | None = None, quantize: bool = False, overwrite: bool = False,
-               progress: bool = True) -> list[str]:  # fmt: skip
-    """Export a run folder (ONNX window graph, ONNX stream graph or NIR), every conflict among
-    the options refused before any work; returns the lines to print."""
+               progress: bool = True, frames: bool = False) -> list[str]:  # fmt: skip
+    """Export a run folder (ONNX window graph, ONNX stream graph, the one-frame step graph or
+    NIR), every conflict among the options refused before any work; returns the lines to
+    print."""
+    if frames and (stream or quantize or fmt != "onnx"):
+        raise ValueError("--frames writes the float32 ONNX one-frame step graph: drop --stream / "
+                         "--quantize / --format")  # fmt: skip
     if stream_step is not None and not stream:
         raise ValueError("--stream-step sets the stream graph's step: add --stream")
     if stream and (quantize or fmt != "onnx"):
@@ -131,6 +139,8 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
             "--stream writes the float32 ONNX stream graph: drop --quantize / --format"
         )
     pipe, cfg = load_run(Path(run_dir))
+    if frames and pipe.frame_problem():
+        raise ValueError(f"--frames: {pipe.frame_problem()}")
     if fmt == "nir":
         pipe.model.to_nir()  # refuses models NIR cannot express, before any work
     if stream:
@@ -157,6 +167,18 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
             f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
         ]
     meta = {"training_data_sha256": data_hash(cfg), "run": str(run_dir)}
+    if frames:
+        from ..export.frames import export_frames
+
+        rep = export_frames(pipe, Path(out), test.X, metadata=meta, overwrite=overwrite)
+        return [
+            f"exported the one-frame step graph {out} ({rep['hop_samples']} samples = "
+            f"{rep['frame_ms']:.4g} ms per call: the frame's scores and decision, state carried): "
+            f"{rep['nodes']} nodes; over {rep['frames']} frames of test windows joined into one "
+            f"recording, onnxruntime vs torch frame by frame: {rep['spike_flips']} spike flips, "
+            f"scores within {rep['max_score_diff']:.2g}, decisions agree "
+            f"{100 * rep['decisions_agree']:.2f} %"
+        ]
     if stream:
         from ..export.stream import export_stream
 

@@ -41,7 +41,7 @@ from ..core.checks import check_int, check_positive
 from ..core.data import evenly_spaced
 from ..core.settings import ComponentSettings, setting
 from ..models.functional import decay_factor, lif_step
-from ..models.onnx_ops import lif_as_lstm, lif_lstm_buffers
+from ..models.snn import _LSTMWeights
 from .base import SpikeEncoder, register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .gwt import log_bands
@@ -77,6 +77,11 @@ class FrameCodeConfig(ComponentSettings):
     tau_frames: float = setting(
         1.0, flag="frame_tau", help="converter membrane time constant, in frames"
     )
+    sustained: bool = setting(
+        True, flag="frame_sustained",
+        help="also code each channel's level against its training median (an ON and an OFF "
+        "row: what a held press keeps, which band envelopes drop)",
+    )  # fmt: skip
 
     follows_data: ClassVar[bool] = True
 
@@ -130,6 +135,9 @@ class _FrameStep(nn.Module):
         self.per_channel = enc.bank.n_taps - 1 + 2 * enc.bank.order * self.nb
         self.register_buffer("step", enc.step_matrix().float())
         self.register_buffer("expand", enc.gain_matrix())
+        self.sus = 2 if enc.n_sustained else 0
+        # the rest level of each channel's (ON, OFF) pair: (rest, -rest)
+        self.register_buffer("rest2", torch.stack([enc.rest, -enc.rest], 1).reshape(1, -1))
         self.beta = enc.beta
         self.state_names = [("frame_bank", self.c * self.per_channel),
                             ("frame_code", enc.n_afferents)]  # fmt: skip
@@ -138,33 +146,42 @@ class _FrameStep(nn.Module):
         b = frame.shape[0]
         rows = torch.cat([bank.reshape(b * self.c, self.per_channel),
                           frame.reshape(b * self.c, -1)], 1)  # fmt: skip
-        env, new_bank = (rows @ self.step).split([2 * self.nb, self.per_channel], 1)
-        env = torch.linalg.vector_norm(env.reshape(b, self.c * self.nb, 2), dim=-1)
+        out = (rows @ self.step).split([2 * self.nb, self.sus, self.per_channel], 1)
+        env = torch.linalg.vector_norm(out[0].reshape(b, self.c * self.nb, 2), dim=-1)
+        if self.sus:  # (ON, OFF) per channel: the frame's mean against the rest, rectified
+            env = torch.cat([env, torch.relu(out[1].reshape(b, -1) - self.rest2)], 1)
         s, u_new, _ = lif_step(u, env @ self.expand, self.beta, 1.0, True)
+        new_bank = out[2]
         return s, new_bank.reshape(b, -1), u_new
 
 
 class _FrameCodeGraph(nn.Module):
-    """Window ``[B, C, W]`` -> envelopes (the bank's linear map: MatMuls and a modulus) ->
-    converters (one ``LSTM`` node) -> spike times ``[B, afferents, frames]``."""
+    """Window ``[B, C, W]`` -> envelopes (the bank's linear map: MatMuls and a modulus) and the
+    sustained rows -> converters (one ``LSTM`` node, its independent units in rows of at
+    least 16) -> spike times ``[B, afferents, frames]``."""
 
     def __init__(self, enc: FrameCodeEncoder) -> None:
         super().__init__()
         self.envelopes = WindowEncoder(enc.bank, nn.Identity(), enc.window)  # type: ignore[arg-type]
-        self.frames, self.frame_ms = enc.frames, enc.frame_ms
+        self.frames, self.frame_ms, self.hop = enc.frames, enc.frame_ms, enc.hop
         self.register_buffer("gain", enc.gain().clone())
+        self.register_buffer("rest", enc.rest.detach().clone().view(1, -1, 1))
+        self.sustained = enc.n_sustained > 0
         self.beta, self.a = enc.beta, enc.n_afferents
-        for name, value in lif_lstm_buffers(self.a, self.beta, 1.0, True, None).items():
-            self.register_buffer(name, value)
+        self.lstm = _LSTMWeights(self.a, self.beta, 1.0, True)
 
     def forward(self, x: Tensor) -> Tensor:
-        b = x.shape[0]
-        env = self.envelopes.scalogram(x)[..., : self.frames]  # [B, C, bands, frames]
-        rows = env.reshape(b, -1, 1, self.frames) * self.gain.unsqueeze(-1)
-        cur = rows.reshape(b, self.a, self.frames).permute(2, 0, 1)  # [frames, B, A]
-        u0 = torch.zeros_like(cur[0])
-        spikes, _, _ = lif_as_lstm(cur, u0, None, self.W[:0, :0], self.W, self.R, self.B,
-                                   self.beta, 1.0, True)  # fmt: skip
+        b, c = x.shape[0], x.shape[1]
+        rows = self.envelopes.scalogram(x)[..., : self.frames].reshape(b, -1, self.frames)
+        if self.sustained:
+            m = x[..., : self.frames * self.hop].reshape(b, c, self.frames, self.hop).mean(-1)
+            d = m - self.rest
+            sus = torch.stack([torch.relu(d), torch.relu(-d)], 2).reshape(b, 2 * c, self.frames)
+            rows = torch.cat([rows, sus], 1)
+        cur = (rows.unsqueeze(2) * self.gain.unsqueeze(-1)).reshape(b, self.a, self.frames)
+        cur = cur.permute(2, 0, 1)  # [frames, B, A]
+        no_rec = self.lstm.W[:0, :0]
+        spikes, _, _ = self.lstm(cur, torch.zeros_like(cur[0]), None, no_rec)
         return spike_times(spikes, self.frame_ms)
 
 
@@ -192,12 +209,14 @@ class FrameCodeEncoder(SpikeEncoder):
         self.beta = decay_factor(1.0, config.tau_frames)
         thr = np.geomspace(config.lo, config.hi, config.neurons)
         self.register_buffer("inv_thr", torch.as_tensor(1.0 / thr, dtype=torch.float32))
-        rows = self.n_channels * config.n_bands
-        self.register_buffer("level", torch.ones(rows))  # per envelope row, input units
+        self.n_sustained = 2 * self.n_channels if config.sustained else 0
+        self.n_rows = self.n_channels * config.n_bands + self.n_sustained
+        self.register_buffer("level", torch.ones(self.n_rows))  # per row, input units
+        self.register_buffer("rest", torch.zeros(self.n_channels))  # training median, per channel
 
     @property
     def n_afferents(self) -> int:
-        return self.n_channels * self.config.n_bands * self.config.neurons
+        return self.n_rows * self.config.neurons
 
     @property
     def max_spikes(self) -> int:
@@ -227,10 +246,10 @@ class FrameCodeEncoder(SpikeEncoder):
 
     @torch.no_grad()
     def step_matrix(self) -> Tensor:
-        """float64 ``[taps - 1 + 2 K bands + hop, 2 bands + taps - 1 + 2 K bands]``: one
-        channel's ``[tail, recursion, frame]`` -> ``[(re, im) per band, tail, recursion]`` for
-        one frame, read off :meth:`CausalGaborScalogram.frames_from` column by column (it is
-        linear)."""
+        """float64 ``[taps - 1 + 2 K bands + hop, 2 bands (+ 2) + taps - 1 + 2 K bands]``: one
+        channel's ``[tail, recursion, frame]`` -> ``[(re, im) per band, (the frame's mean sample
+        and its negative, for the sustained rows), tail, recursion]`` for one frame, read off
+        :meth:`CausalGaborScalogram.frames_from` column by column (it is linear)."""
         bank, tail = self.bank, self.bank.n_taps - 1
         rec = bank.n_bands * 2 * bank.order
         eye = torch.eye(tail + rec + self.hop, dtype=torch.float64)
@@ -239,27 +258,51 @@ class FrameCodeEncoder(SpikeEncoder):
         re, im, state = bank.frames_from(buf[:, None], past)
         assert state is not None
         env = torch.stack([re[..., 0], im[..., 0]], -1).reshape(len(eye), -1)
-        return torch.cat([env, buf[:, self.hop :], state.reshape(len(eye), -1)], 1)
+        mean = buf[:, tail:].mean(1, keepdim=True)  # the frame's mean sample
+        parts = [env, *([mean, -mean] if self.n_sustained else []), buf[:, self.hop :],
+                 state.reshape(len(eye), -1)]  # fmt: skip
+        return torch.cat(parts, 1)
 
     @torch.no_grad()
     def envelopes(self, x: Tensor) -> Tensor:
-        """Windows ``[B, C, W]`` -> band envelopes ``[B, C * bands, frames]`` (input units)."""
-        env = self.bank(x)[..., : self.frames]
-        return env.reshape(x.shape[0], -1, self.frames)
+        """Windows ``[B, C, W]`` -> band envelopes ``[B, C * bands, W // hop]`` (input units)."""
+        env = self.bank(x)
+        return env.reshape(x.shape[0], -1, env.shape[-1])
+
+    def sustained_rows(self, x: Tensor) -> Tensor:
+        """Windows ``[B, C, W]`` -> each frame's mean sample against the channel's training
+        median, rectified: ``[B, 2 C, frames]``, rows ``(c ON, c OFF)`` channel by channel."""
+        b, c, n = x.shape
+        f = n // self.hop
+        m = x[..., : f * self.hop].reshape(b, c, f, self.hop).mean(-1)
+        d = m - self.rest.to(x.dtype).view(1, -1, 1)
+        return torch.stack([torch.relu(d), torch.relu(-d)], 2).reshape(b, 2 * c, f)
+
+    def rows(self, x: Tensor) -> Tensor:
+        """Windows ``[B, C, W]`` -> every coded row ``[B, rows, frames]`` (input units): the
+        band envelopes, then the sustained rows."""
+        env = self.envelopes(x)
+        return torch.cat([env, self.sustained_rows(x)], 1) if self.n_sustained else env
 
     def fit(self, X: np.ndarray, n_max: int = 1024) -> FrameCodeEncoder:
-        """Each row's level: the median over (up to ``n_max``, evenly spaced) training windows
-        of its RMS envelope, floored at 1e-3 of its channel's loudest row."""
+        """Each channel's rest: the median of its samples; each row's level: the median over
+        (up to ``n_max``, evenly spaced) training windows of its RMS, floored at 1e-3 of its
+        channel's loudest row (both over those windows)."""
         arr = np.asarray(X)
         idx = evenly_spaced(len(arr), n_max)
         batch = max(1, (1 << 27) // max(1, self.bytes_per_window()))
+        self.rest.copy_(torch.from_numpy(np.median(
+            np.asarray(arr[idx], np.float32).transpose(1, 0, 2).reshape(self.n_channels, -1), 1)))  # fmt: skip
         rms = torch.cat([
-            self.envelopes(torch.from_numpy(np.ascontiguousarray(arr[idx[i : i + batch]],
-                                                                 dtype=np.float32)))
+            self.rows(torch.from_numpy(np.ascontiguousarray(arr[idx[i : i + batch]],
+                                                            dtype=np.float32)))
             .double().pow(2).mean(-1).sqrt()
             for i in range(0, len(idx), batch)
         ])  # fmt: skip
-        level = rms.median(0).values.view(self.n_channels, -1)
+        med = rms.median(0).values
+        nb = self.config.n_bands
+        level = torch.cat([med[: self.n_channels * nb].view(self.n_channels, nb),
+                           med[self.n_channels * nb :].view(self.n_channels, -1)], 1)  # fmt: skip
         if not (level > 0).any():
             raise ValueError("every channel is zero in the training windows: nothing to encode")
         loudest = level.amax(1, keepdim=True)
@@ -268,7 +311,8 @@ class FrameCodeEncoder(SpikeEncoder):
         if quiet:
             log.warning("frames encoder: channel(s) %s silent in training; level floored at "
                         "1e-3 of the loudest channel", quiet)  # fmt: skip
-        self.level.copy_(torch.maximum(level, floor).flatten().float())
+        level = torch.maximum(level, floor)
+        self.level.copy_(torch.cat([level[:, :nb].flatten(), level[:, nb:].flatten()]).float())
         self.fitted.fill_(True)
         return self
 
@@ -284,7 +328,7 @@ class FrameCodeEncoder(SpikeEncoder):
         return out, u
 
     def encode_batch(self, x: Tensor) -> Tensor:
-        spikes, _ = self.code(self.envelopes(x))
+        spikes, _ = self.code(self.rows(x))
         return spike_times(spikes, self.frame_ms)
 
     def encode_recording(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
@@ -306,8 +350,7 @@ class FrameCodeEncoder(SpikeEncoder):
         samples]`` coded from its start (the stream's view)."""
         self.check_fitted()
         t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))[None]
-        env = self.bank(t).reshape(1, -1, t.shape[-1] // self.hop)
-        return self.code(env)[0][:, 0]
+        return self.code(self.rows(t))[0][:, 0]
 
     def bytes_per_window(self) -> int:
         # the bank's frames (complex, per band) and the converters' current and spikes

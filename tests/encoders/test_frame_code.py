@@ -25,7 +25,13 @@ def _reference_spikes(enc, x: np.ndarray) -> np.ndarray:
     """float64: SciPy's per-pole filters (the bank's reference), then the converters as written
     in the module docstring, frame by frame. ``x [C, S]`` -> ``[frames, afferents]``."""
     env = np.abs(reference_frames(x, FS, enc.freqs_hz, hop=enc.hop))  # [C, bands, frames]
-    rows = env.reshape(-1, env.shape[-1])
+    f = env.shape[-1]
+    d = (
+        x[:, : f * enc.hop].reshape(x.shape[0], f, enc.hop).mean(-1)
+        - enc.rest.double().numpy()[:, None]
+    )
+    sustained = np.stack([np.maximum(d, 0), np.maximum(-d, 0)], 1).reshape(-1, f)  # (ON, OFF)
+    rows = np.concatenate([env.reshape(-1, f), sustained])
     level = enc.level.double().numpy()
     thr = np.geomspace(enc.config.lo, enc.config.hi, enc.config.neurons)
     beta = np.exp(-1.0 / enc.config.tau_frames)
@@ -59,6 +65,21 @@ def test_times_are_ascending_frame_centres():
     k = t[fin] / enc.frame_ms - 0.5
     np.testing.assert_allclose(k, np.round(k), atol=1e-4)
     assert enc.frame_ms == pytest.approx(5.0)
+
+
+def test_a_held_level_keeps_firing_where_bands_fall_silent():
+    enc, X = _encoder()
+    x = np.zeros((1, C, W), np.float32) + enc.rest.numpy()[None, :, None]
+    x[..., W // 4 :] += 5.0 * enc.level.numpy()[-2 * C :: 2][None, :, None]  # a step, then held
+    t = enc.encode(x)[0].numpy()
+    ms = 1000 * W / FS
+    bands = C * 4 * enc.config.neurons
+    # the two upper bands of each channel (the 5 Hz band's own response lasts ~ its period)
+    upper = (np.arange(bands) // enc.config.neurons) % 4 >= 2
+    after_step = (np.isfinite(t) & (t > 0.25 * ms) & (t < 0.5 * ms))[:bands][upper].sum()
+    held = np.isfinite(t) & (t > 0.75 * ms)  # the last quarter: the level held, no change
+    assert held[bands:].any()  # the sustained rows keep firing
+    assert after_step > 0 and held[:bands][upper].sum() == 0  # while the fast bands fall silent
 
 
 def test_louder_bands_fire_more():

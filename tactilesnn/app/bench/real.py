@@ -105,6 +105,8 @@ PIPELINES = (
     ("gwt>lif+readout", "bands", "readout", "analog", {}),
     # convolutions need a taxel grid, every afferent on it (as train --data gives a grid file)
     ("events+csnn", "events", "csnn", "events", {"level_neurons": 0}),
+    # the continuous code and the stream model: scored per window and as it runs frame by frame
+    ("frames+stream", "frames", "stream", "analog", {}),
 )
 
 
@@ -287,6 +289,8 @@ def _one_split(name: str, seed: int, train, test, events: bool, chosen: list, ep
             "early_accuracy": m.get("early_decision", {}).get("accuracy"),
             "early_window_fraction": None if "early_decision" not in m else
             1.0 - m["early_decision"]["window_skipped_fraction"],
+            # a stream model run frame by frame over the test recordings, state carried
+            "frame_stream": m.get("frame_stream"),
         })  # fmt: skip
         if enc is None and ref_pipe is None:
             ref_pipe = res.pipeline
