@@ -28,6 +28,50 @@ from .core.data import join_run, recording_runs
 from .pipeline import SpikePipeline
 
 
+def recording_frames(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray
+                     ) -> list[tuple[np.ndarray, np.ndarray, torch.Tensor, np.ndarray]]:  # fmt: skip
+    """Each recording the windows ``X`` tile, coded once from its start: ``(window indices,
+    their end frames, input spikes [frames, afferents], a label per frame)``; a frame's label
+    is that of the window ending next, from the end of the first window and the first input
+    spike (the contact onset) on; -1 before them and after the last window."""
+    x = pipe.encoder_input(X)
+    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+    out = []
+    for members, shift in recording_runs(x, scan):
+        spikes = pipe.encoder.frame_spikes(join_run(x, members, shift))
+        ends = (np.arange(len(members)) * shift + pipe.window) // hop - 1
+        f = np.arange(spikes.shape[0])
+        labels = np.where(f <= ends[-1], y[members][np.minimum(np.searchsorted(ends, f),
+                                                              len(ends) - 1)], -1)  # fmt: skip
+        active = np.flatnonzero(spikes.sum(1).numpy() > 0)
+        # unlabelled until the first window is complete (the windows' burn-in) and contact
+        labels[: max(int(ends[0]), int(active[0]) if active.size else len(f))] = -1
+        out.append((members, ends, spikes, labels))
+    return out
+
+
+def fit_streams(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray,
+                progress: bool = False) -> dict | None:  # fmt: skip
+    """After the window epochs: the stream model's truncated back-propagation through time over
+    the training recordings (:meth:`~tactilesnn.models.stream_snn.StreamSNNModel.fit_streams`),
+    where the pipeline steps frames and its training windows tile recordings; returns what it
+    did (None: nothing)."""
+    if pipe.frame_problem() is not None or pipe.model.config.stream_epochs == 0:
+        return None
+    recs = recording_frames(pipe, X, y, scan)
+    if not recs:
+        return None
+    t = max(r[2].shape[0] for r in recs)
+    frames = torch.zeros(t, len(recs), pipe.encoder.n_afferents)
+    labels = torch.full((t, len(recs)), -1, dtype=torch.long)
+    for i, (_, _, spikes, lab) in enumerate(recs):
+        frames[: len(spikes), i] = spikes
+        labels[: len(lab), i] = torch.from_numpy(lab)
+    losses = pipe.model.fit_streams(frames, labels, progress=progress)
+    return {"recordings": len(recs), "frames": int((labels >= 0).sum()), "epochs": len(losses),
+            "loss_history": losses}  # fmt: skip
+
+
 @torch.no_grad()
 def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray,
                       window_scores: np.ndarray) -> dict | None:  # fmt: skip
@@ -36,22 +80,17 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
     does not step frames or no windows tile a recording."""
     if pipe.frame_problem() is not None:
         return None
-    x = pipe.encoder_input(X)
-    runs = recording_runs(x, scan)
-    if not runs:
+    recs = recording_frames(pipe, X, y, scan)
+    if not recs:
         return None
-    enc, model = pipe.encoder, pipe.model
-    hop = round(enc.frame_period_ms * pipe.fs_hz / 1000.0)
+    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
     frame_ms = 1000.0 * hop / pipe.fs_hz
     scores = np.asarray(window_scores, np.float64).copy()
     latencies, settled, decided, correct = [], 0, 0, 0
     segments = 0
-    for members, shift in runs:
-        rec = join_run(x, members, shift)
-        spikes = enc.frame_spikes(rec)  # [frames, A]
-        out, dec, _ = model.stream(spikes[:, None])
+    for members, ends, spikes, _ in recs:
+        out, dec, _ = pipe.model.stream(spikes[:, None])
         out, dec = out[:, 0].numpy(), dec[:, 0].numpy()
-        ends = (np.arange(len(members)) * shift + pipe.window) // hop - 1  # window-end frames
         scores[members] = out[ends]
         labels = y[members]
         past = dec[ends[0] :]  # frames past the first window
@@ -68,16 +107,13 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
                 onset = int(active[0]) if active.size else 0
             else:
                 onset = ends[seg[0] - 1] + 1
-            d = dec[onset : last + 1]
-            wrong = np.flatnonzero((d >= 0) & (d != c))
-            start = wrong[-1] + 1 if wrong.size else 0
-            hits = np.flatnonzero(d[start:] == c)
-            if hits.size:
+            lat = settle_latency_ms(dec[onset : last + 1], int(c), frame_ms)
+            if lat is not None:
                 settled += 1
-                latencies.append((start + hits[0] + 1) * frame_ms)  # known at the frame's end
+                latencies.append(lat)
     pred = scores.argmax(1)
     out_d: dict = {"frame_ms": frame_ms, "per_window": float((pred == y).mean()),
-                   "windows_in_streams": int(sum(len(m) for m, _ in runs)),
+                   "windows_in_streams": int(sum(len(r[0]) for r in recs)),
                    "segments": segments, "settled_fraction": settled / max(segments, 1),
                    "decided_frames": decided,
                    "decided_accuracy": correct / decided if decided else None}  # fmt: skip
@@ -103,3 +139,15 @@ def _per_recording(scores: np.ndarray, y: np.ndarray, scan: np.ndarray) -> float
     if not same.all():
         return None
     return float((total.argmax(1) == lab).mean())
+
+
+def settle_latency_ms(decisions: np.ndarray, label: int, frame_ms: float) -> float | None:
+    """From a segment's onset (its first frame) to the end of the first frame from which
+    every decision is ``label`` or undecided (-1) and that frame decides ``label``: ``(k + 1)
+    frame_ms`` for that frame ``k`` (a decision is known at its frame's end); None if the
+    segment never settles on ``label``."""
+    d = np.asarray(decisions)
+    wrong = np.flatnonzero((d >= 0) & (d != label))
+    start = int(wrong[-1]) + 1 if wrong.size else 0
+    hits = np.flatnonzero(d[start:] == label)
+    return None if hits.size == 0 else (start + int(hits[0]) + 1) * frame_ms

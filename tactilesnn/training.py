@@ -24,7 +24,7 @@ from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
 from .pipeline import SpikePipeline, accuracy_ci95
-from .streaming import stream_evaluation
+from .streaming import fit_streams, stream_evaluation
 from .trainer import Trainer
 
 log = logging.getLogger("tactilesnn")
@@ -127,6 +127,10 @@ def fit_pipeline(
         resume=resume,
         groups=fit_groups,
     )
+    # a stream model: then trained on the recordings as streams, its state carried
+    streams = fit_streams(pipe, fit_set.X, fit_set.y, fit_set.scan, progress) if with_past else None
+    if streams is not None:
+        trainer.history["streams"] = streams
     return Fitted(pipe, trainer, history, fit_set, val_set, s_val, s_train, fit_y, in_rec,
                   t_enc, time.perf_counter() - t0 - t_enc)  # fmt: skip
 
@@ -189,6 +193,8 @@ def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bo
     frames = stream_evaluation(pipe, test.X, test.y, test.scan, test_scores)
     if frames is not None:
         metrics["frame_stream"] = frames
+    if trainer.history.get("streams") is not None:
+        metrics["stream_training"] = trainer.history["streams"]
     if trainer.history.get("solved") is not None:
         metrics["model_fit"] = trainer.history["solved"]
     skipped = pipe.encoder.skip_stats()  # {mechanism: what it skipped}

@@ -291,8 +291,8 @@ class FrameCodeEncoder(SpikeEncoder):
         arr = np.asarray(X)
         idx = evenly_spaced(len(arr), n_max)
         batch = max(1, (1 << 27) // max(1, self.bytes_per_window()))
-        self.rest.copy_(torch.from_numpy(np.median(
-            np.asarray(arr[idx], np.float32).transpose(1, 0, 2).reshape(self.n_channels, -1), 1)))  # fmt: skip
+        samples = np.asarray(arr[idx], np.float32).transpose(1, 0, 2).reshape(self.n_channels, -1)
+        self.rest.copy_(torch.from_numpy(np.median(samples, 1)))
         rms = torch.cat([
             self.rows(torch.from_numpy(np.ascontiguousarray(arr[idx[i : i + batch]],
                                                             dtype=np.float32)))

@@ -332,17 +332,24 @@ def stream_step(
     beta_o: float,
     quiet_frames: float,
     w_rec: Tensor | None = None,
+    spike_fn=None,
 ) -> tuple[Tensor, StreamState]:
     """One frame of the stream SNN: the input spikes ``x [B, A]`` and their current ``cur
     [B, H]`` (``x W_in^T + b_in``: dense or a gather of the rows that fired) -> the hidden LIF
     layer (threshold 1, reset by subtraction; ``+ hs W_rec^T`` where recurrent) -> the leaky
     readout ``v <- beta_o v + s W_out^T + b_out``. The state returns to rest after
     ``quiet_frames`` frames with no input spike (:func:`quiet_reset`). Returns ``(hidden
-    spikes, next state)``; the scores are ``state.v``."""
+    spikes, next state)``; the scores are ``state.v``. ``spike_fn``: ``u - theta`` -> spikes
+    with a surrogate gradient (training; the reset detached), else the step function."""
     keep, quiet = quiet_reset(x, state.quiet, quiet_frames)
     h, v = state.h * keep, state.v * keep
     if w_rec is not None and state.hs is not None:
         cur = cur + torch.matmul(state.hs * keep, w_rec.t())
-    s, h, _ = lif_step(h, cur, beta_h, 1.0, True)
+    if spike_fn is None:
+        s, h, _ = lif_step(h, cur, beta_h, 1.0, True)
+    else:
+        m = lif_integrate(h, cur, beta_h)
+        s = spike_fn(m - 1.0)
+        h = lif_reset(m, s.detach(), 1.0, True)
     v = li_step(v, torch.matmul(s, w_out.t()) + b_out, beta_o)
     return s, StreamState(h, v, quiet, s if w_rec is not None else None)

@@ -44,7 +44,7 @@ from .functional import (
     stream_step,
 )
 from .onnx_ops import raster_current
-from .snn import LIFLayer, _LSTMWeights
+from .snn import LIFLayer, _LSTMWeights, _SpikeFn
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,11 @@ class StreamSNNConfig(ComponentSettings):
     )  # fmt: skip
     recurrent: bool = setting(False, flag="stream_recurrent", help="recurrent hidden layer")
     lr: float = setting(0.003, flag="stream_lr", help="Adam learning rate")
+    stream_epochs: int = setting(
+        10, flag="stream_epochs",
+        help="epochs of truncated back-propagation through time over the training recordings "
+        "(state carried from chunk to chunk), after the window epochs; 0: windows only",
+    )  # fmt: skip
     early_agreement: float = setting(
         0.95, flag="stream_agreement",
         help="decision margin: fraction of training frames past the burn-in on which a "
@@ -96,6 +101,7 @@ class StreamSNNConfig(ComponentSettings):
         if not isinstance(self.recurrent, bool):
             raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
         check_positive(self.lr, "lr")
+        check_int(self.stream_epochs, "stream_epochs", 0)
         if not 0 < self.early_agreement <= 1:
             raise ValueError(f"early_agreement must be in (0, 1], got {self.early_agreement}")
 
@@ -221,6 +227,80 @@ class StreamSNNModel(SpikeModel):
                                 self.hidden.beta, self.beta_o, self.quiet_frames, w_rec)  # fmt: skip
             out[t] = st.v
         return out, decide(out, self.decision_margin), st
+
+    def _stream_grad(self, frames: Tensor, st: StreamState) -> tuple[Tensor, StreamState]:
+        """:meth:`stream` with surrogate gradients: scores ``[frames, B, classes]``."""
+        w_rec = self.hidden.rec.weight if self.hidden.rec is not None else None
+        cur = torch.matmul(frames, self.hidden.fc.weight.t()) + self.hidden.fc.bias
+        spike = lambda x: _SpikeFn.apply(x, self.hidden.surrogate, self.hidden.alpha)  # noqa: E731
+        out = []
+        for t in range(frames.shape[0]):
+            _, st = stream_step(cur[t], frames[t], st, self.out.weight, self.out.bias,
+                                self.hidden.beta, self.beta_o, self.quiet_frames, w_rec, spike)  # fmt: skip
+            out.append(st.v)
+        return torch.stack(out), st
+
+    def fit_streams(self, frames: Tensor, labels: Tensor, batch: int = 16,
+                    progress: bool = False) -> list[float]:  # fmt: skip
+        """Truncated back-propagation through time over whole recordings: ``frames [T, R, A]``
+        (each recording's input spikes, zero-padded to the longest), ``labels [T, R]`` (int64,
+        -1 where a frame has none: before contact, past the end). ``stream_epochs`` passes over
+        the recordings in mini-batches of ``batch``, each run in chunks of one window's frames
+        with the state carried (detached) from chunk to chunk; the loss is every labelled
+        frame's cross-entropy. Then the decision margin is fitted on the streams' frames.
+        Returns each epoch's mean loss."""
+        from tqdm.auto import tqdm
+
+        from ..core.stages import bar_disabled
+
+        # a fine-tuning of the window-trained weights: a third of their learning rate
+        opt = torch.optim.Adam(self.parameters(), lr=self.config.lr / 3)
+        r = frames.shape[1]
+        losses = []
+        bar = tqdm(range(self.config.stream_epochs), desc="streams (TBPTT)", unit="epoch",
+                   disable=bar_disabled(progress))  # fmt: skip
+        for _ in bar:
+            total, count = 0.0, 0
+            for idx in torch.randperm(r).split(batch):
+                st = self.initial_stream_state(len(idx), frames.dtype)
+                for t0 in range(0, frames.shape[0], self.steps):
+                    lab = labels[t0 : t0 + self.steps, idx]
+                    if not bool((lab >= 0).any()):
+                        st = StreamState(*(None if v is None else v.detach() for v in st))
+                        continue
+                    v, st = self._stream_grad(frames[t0 : t0 + self.steps, idx], st)
+                    loss = nn.functional.cross_entropy(v.reshape(-1, v.shape[-1]),
+                                                       lab.reshape(-1), ignore_index=-1)  # fmt: skip
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+                    total += float(loss.detach()) * int((lab >= 0).sum())
+                    count += int((lab >= 0).sum())
+                    st = StreamState(*(None if v is None else v.detach() for v in st))
+            losses.append(total / max(count, 1))
+        self.calibrate_stream_decision(frames, labels)
+        return losses
+
+    @torch.no_grad()
+    def calibrate_stream_decision(self, frames: Tensor, labels: Tensor) -> None:
+        """The smallest margin (among 256 quantiles of the leads, and :attr:`NEVER`) at which
+        the decided frames of the streams ``frames [T, R, A]`` name their label ``labels [T, R]``
+        on ``early_agreement`` of them."""
+        if self.n_classes < 2:
+            return
+        v, _, _ = self.stream(frames)
+        lead, leader = class_lead(v)
+        ok = labels >= 0
+        lead, agree = lead[ok], (leader == labels)[ok]
+        if not bool((lead > 0).any()):
+            return
+        margin = self.NEVER
+        for m in np.unique(np.quantile(lead[lead > 0].double().numpy(), np.linspace(0, 1, 257))):
+            hit = lead >= float(m)
+            if hit.any() and float(agree[hit].float().mean()) >= self.config.early_agreement:
+                margin = float(m)
+                break
+        self.decision_margin.fill_(margin)
 
     def frame_module(self, gather: bool = False) -> nn.Module:
         """The one-frame step for the export (:class:`_StreamStep`); ``gather``: the input

@@ -68,7 +68,7 @@ def test_times_are_ascending_frame_centres():
 
 
 def test_a_held_level_keeps_firing_where_bands_fall_silent():
-    enc, X = _encoder()
+    enc, _ = _encoder()
     x = np.zeros((1, C, W), np.float32) + enc.rest.numpy()[None, :, None]
     x[..., W // 4 :] += 5.0 * enc.level.numpy()[-2 * C :: 2][None, :, None]  # a step, then held
     t = enc.encode(x)[0].numpy()
