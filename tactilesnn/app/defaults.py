@@ -36,6 +36,7 @@ from ..data_policy import (
 from ..datasets_synth import Task, get_task, parse_faults
 from ..datasets_synth.tasks.base import task_parameters
 from ..encoders import ENCODERS, build_encoder
+from ..models import MODELS
 from ..recordings import DataFacts, data_facts
 from .options import run_options, train_options
 from .run import FileSource, RunSpec, TaskSource
@@ -94,7 +95,12 @@ def pipeline_config(settings: dict[str, Any], base: dict[str, Any] | None = None
             part = owners[key].part if key in owners else None
             if key not in given and part not in given:
                 flat[key] = value
-    return apply_flat(base, flat), wide
+    config = apply_flat(base, flat)
+    epochs = MODELS.get(config.model_type).default_epochs  # a model's own, where it has one
+    if epochs is not None and "epochs" not in given:
+        flat["epochs"] = epochs
+        config = apply_flat(base, flat)
+    return config, wide
 
 
 def _model_settings_given(given: set[str]) -> bool:

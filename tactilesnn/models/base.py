@@ -63,6 +63,9 @@ class SpikeModel(nn.Module):
     score_units: ClassVar[str] = "class scores (larger = more likely)"
     #: runs on frame by frame with its state carried (:meth:`frame_module`): a stream model
     has_frame_step: ClassVar[bool] = False
+    #: the training epochs a run takes for this model when none are given (None: the
+    #: settings' default)
+    default_epochs: ClassVar[int | None] = None
 
     def __init__(
         self,
