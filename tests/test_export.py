@@ -285,3 +285,29 @@ def test_session_zero_state_is_kept_per_batch_size_and_never_written(tmp_path):
     np.testing.assert_allclose(three, ref, rtol=0, atol=1e-4)
     for a in sess._zeros[1].values():
         assert not a.flags.writeable and not a.any()
+
+
+@pytest.mark.slow
+def test_a_stream_run_exports_its_window_and_frame_graphs(tmp_path, held_out_windows):
+    cfg = PipelineConfig.from_flat(encoder="frames", model="stream", epochs=1, stream_epochs=1,
+                                   stream_hidden=16)  # fmt: skip
+    run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "run", progress=False)
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["frame_stream"]["frame_ms"] == pytest.approx(5.0)  # scored as it runs
+    assert metrics["stream_training"]["epochs"] == 1  # and trained on streams
+    out = tmp_path / "frames.onnx"
+    assert main(["export", str(run), "--frames", "--out", str(out), "--quiet"]) == 0
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert meta["frame_step_samples"] == "1" and meta["encoder"] == "frames"
+    # the window graph scores windows as torch does
+    pipe, _ = load_run(run)
+    export_pipeline(pipe, tmp_path / "m.onnx", held_out_windows.X)
+    sess = PipelineSession(str(tmp_path / "m.onnx"))
+    got = sess.run(sess.validate(held_out_windows.X))
+    ref = pipe.scores(pipe.encode(held_out_windows.X)).numpy()
+    assert np.abs(got - ref).max() <= 1e-3
+    # --frames writes the frame graph alone: a conflicting option is refused, nothing written
+    assert (
+        main(["export", str(run), "--frames", "--stream", "--out", str(tmp_path / "x.onnx")]) == 2
+    )
+    assert not (tmp_path / "x.onnx").exists()

@@ -1,0 +1,28 @@
+"""bench pareto's frame rows: the one-frame step graph, its gather form, many streams per call
+and the floor of any call, each timed and printed with its latency and real-time factor."""
+
+import pytest
+
+from tactilesnn.app.bench.pareto import (
+    _F,
+    _FB,
+    _FG,
+    _FLOOR,
+    FRAME_STREAMS,
+    format_rt,
+    realtime_rows,
+)
+
+
+@pytest.mark.slow
+def test_the_frame_rows_run_and_say_one_frame(tmp_path):
+    rows = tuple((10, None, False, (16, 5.0), f) for f in (_F, _FG, _FB, _FLOOR))
+    rt = realtime_rows(rows, 3, tmp_path, window=400, rounds=1)
+    assert [r["form"] for r in rt] == [_F, _FG, _FB, _FLOOR]
+    for r in rt:
+        line = format_rt(r)
+        assert "latency one frame" in line or r["form"] == _FLOOR
+        assert "x real time" in line and r["realtime_factor"] > 0
+        assert r["step_samples"] == 10  # one 5 ms frame at 2 kHz per call
+    assert rt[2]["streams"] == FRAME_STREAMS and rt[0]["streams"] == 1
+    assert rt[0]["nodes"] > 1
