@@ -21,6 +21,8 @@ start (``encoder.frame_spikes``) and run through the model's frame step with its
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -28,48 +30,76 @@ from .core.data import join_run, recording_runs
 from .pipeline import SpikePipeline
 
 
-def recording_frames(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray
-                     ) -> list[tuple[np.ndarray, np.ndarray, torch.Tensor, np.ndarray]]:  # fmt: skip
-    """Each recording the windows ``X`` tile, coded once from its start: ``(window indices,
-    their end frames, input spikes [frames, afferents], a label per frame)``; a frame's label
-    is that of the window ending next, from the end of the first window and the first input
-    spike (the contact onset) on; -1 before them and after the last window."""
+def _frames_and_labels(pipe: SpikePipeline, x: np.ndarray, y: np.ndarray, members: np.ndarray,
+                       shift: int, hop: int) -> tuple[torch.Tensor, np.ndarray]:  # fmt: skip
+    spikes = pipe.encoder.frame_spikes(join_run(x, members, shift))
+    ends = _ends(len(members), shift, pipe.window, hop)
+    f = np.arange(spikes.shape[0])
+    labels = np.where(f <= ends[-1], y[members][np.minimum(np.searchsorted(ends, f),
+                                                          len(ends) - 1)], -1)  # fmt: skip
+    active = np.flatnonzero(spikes.sum(1).numpy() > 0)
+    # unlabelled until the first window is complete (the windows' burn-in) and contact
+    labels[: max(int(ends[0]), int(active[0]) if active.size else len(f))] = -1
+    return spikes, labels
+
+
+def _ends(n: int, shift: int, window: int, hop: int) -> np.ndarray:
+    """The frames at which each of ``n`` windows ``shift`` samples apart ends."""
+    return (np.arange(n) * shift + window) // hop - 1
+
+
+def recording_frames(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray):
+    """Each recording the windows ``X`` tile, coded once from its start, one at a time:
+    ``(window indices, their end frames, input spikes [frames, afferents], a label per
+    frame)``; a frame's label is that of the window ending next, from the end of the first
+    window and the first input spike (the contact onset) on; -1 before them and after the last
+    window."""
     x = pipe.encoder_input(X)
     hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
-    out = []
     for members, shift in recording_runs(x, scan):
-        spikes = pipe.encoder.frame_spikes(join_run(x, members, shift))
-        ends = (np.arange(len(members)) * shift + pipe.window) // hop - 1
-        f = np.arange(spikes.shape[0])
-        labels = np.where(f <= ends[-1], y[members][np.minimum(np.searchsorted(ends, f),
-                                                              len(ends) - 1)], -1)  # fmt: skip
-        active = np.flatnonzero(spikes.sum(1).numpy() > 0)
-        # unlabelled until the first window is complete (the windows' burn-in) and contact
-        labels[: max(int(ends[0]), int(active[0]) if active.size else len(f))] = -1
-        out.append((members, ends, spikes, labels))
-    return out
+        spikes, labels = _frames_and_labels(pipe, x, y, members, shift, hop)
+        yield members, _ends(len(members), shift, pipe.window, hop), spikes, labels
+
+
+#: the training recordings' input spikes kept for the streams' epochs (bool, one byte per
+#: afferent and frame) at most this large: evenly spaced recordings up to it
+STREAM_BYTES = 128 << 20
 
 
 def fit_streams(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray,
                 progress: bool = False) -> dict | None:  # fmt: skip
     """After the window epochs: the stream model's truncated back-propagation through time over
     the training recordings (:meth:`~tactilesnn.models.stream_snn.StreamSNNModel.fit_streams`),
-    where the pipeline steps frames and its training windows tile recordings; returns what it
-    did (None: nothing)."""
+    where the pipeline steps frames and its training windows tile recordings; recordings
+    evenly spaced among them up to :data:`STREAM_BYTES` of spikes. Returns what it did (None:
+    nothing)."""
     if pipe.frame_problem() is not None or pipe.model.config.stream_epochs == 0:
         return None
-    recs = recording_frames(pipe, X, y, scan)
-    if not recs:
+    x = pipe.encoder_input(X)
+    runs = recording_runs(x, scan)
+    if not runs:
         return None
-    t = max(r[2].shape[0] for r in recs)
-    frames = torch.zeros(t, len(recs), pipe.encoder.n_afferents)
-    labels = torch.full((t, len(recs)), -1, dtype=torch.long)
-    for i, (_, _, spikes, lab) in enumerate(recs):
-        frames[: len(spikes), i] = spikes
-        labels[: len(lab), i] = torch.from_numpy(lab)
-    losses = pipe.model.fit_streams(frames, labels, progress=progress)
-    return {"recordings": len(recs), "frames": int((labels >= 0).sum()), "epochs": len(losses),
-            "loss_history": losses}  # fmt: skip
+    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+    per = [
+        (shift * (len(m) - 1) + pipe.window) // hop * pipe.encoder.n_afferents for m, shift in runs
+    ]  # bytes of each recording's spikes as bool
+    stride = max(1, math.ceil(sum(per) / STREAM_BYTES))  # every stride-th recording
+    keep, used = [], 0
+    for i in range(0, len(runs), stride):
+        if used + per[i] <= STREAM_BYTES:
+            keep.append(i)
+            used += per[i]
+    streams = []
+    for i in keep:
+        members, shift = runs[i]
+        spikes, labels = _frames_and_labels(pipe, x, y, members, shift, hop)
+        streams.append((spikes.bool(), torch.from_numpy(labels)))
+    if not streams:
+        return None
+    losses = pipe.model.fit_streams(streams, progress=progress)
+    return {"recordings": len(streams), "of_recordings": len(runs),
+            "frames": int(sum(int((lab >= 0).sum()) for _, lab in streams)),
+            "epochs": len(losses), "loss_history": losses}  # fmt: skip
 
 
 @torch.no_grad()
@@ -80,15 +110,13 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
     does not step frames or no windows tile a recording."""
     if pipe.frame_problem() is not None:
         return None
-    recs = recording_frames(pipe, X, y, scan)
-    if not recs:
-        return None
     hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
     frame_ms = 1000.0 * hop / pipe.fs_hz
     scores = np.asarray(window_scores, np.float64).copy()
     latencies, settled, decided, correct = [], 0, 0, 0
-    segments = 0
-    for members, ends, spikes, _ in recs:
+    segments, in_streams = 0, 0
+    for members, ends, spikes, _ in recording_frames(pipe, X, y, scan):
+        in_streams += len(members)
         out, dec, _ = pipe.model.stream(spikes[:, None])
         out, dec = out[:, 0].numpy(), dec[:, 0].numpy()
         scores[members] = out[ends]
@@ -111,9 +139,11 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
             if lat is not None:
                 settled += 1
                 latencies.append(lat)
+    if in_streams == 0:
+        return None
     pred = scores.argmax(1)
     out_d: dict = {"frame_ms": frame_ms, "per_window": float((pred == y).mean()),
-                   "windows_in_streams": int(sum(len(r[0]) for r in recs)),
+                   "windows_in_streams": in_streams,
                    "segments": segments, "settled_fraction": settled / max(segments, 1),
                    "decided_frames": decided,
                    "decided_accuracy": correct / decided if decided else None}  # fmt: skip

@@ -63,3 +63,19 @@ def test_window_pipelines_are_not_scored_as_frames():
     cfg = PipelineConfig.from_flat(encoder="frames", model="readout", channels=("all",))
     pipe = SpikePipeline(cfg, 1000.0, 200, ("a", "b"), ("lo", "hi"))
     assert stream_evaluation(pipe, X, y, scan, np.zeros((len(X), 2))) is None
+
+
+@pytest.mark.slow
+def test_training_on_streams_is_bounded_by_a_byte_budget(monkeypatch):
+    import tactilesnn.streaming as streaming
+
+    X, y, scan = _recordings(n_rec=6, windows=4)
+    cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",), epochs=1,
+                                   stream_epochs=2, f_lo_hz=10.0, f_hi_hz=300.0, stream_hidden=8)  # fmt: skip
+    pipe = SpikePipeline(cfg, 1000.0, 200, ("a", "b"), ("lo", "hi"))
+    pipe.calibrate(X)
+    frames = (3 * 100 + 200) // pipe.encoder.hop  # one recording's frames
+    monkeypatch.setattr(streaming, "STREAM_BYTES", 2 * frames * pipe.encoder.n_afferents)
+    done = streaming.fit_streams(pipe, X, y, scan)
+    assert done["of_recordings"] == 6 and done["recordings"] == 2  # every third, up to budget
+    assert done["epochs"] == 2 and all(np.isfinite(done["loss_history"]))

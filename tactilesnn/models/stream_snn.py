@@ -243,58 +243,67 @@ class StreamSNNModel(SpikeModel):
             out.append(st.v)
         return torch.stack(out), st
 
-    def fit_streams(self, frames: Tensor, labels: Tensor, batch: int = 16,
+    def fit_streams(self, streams: list[tuple[Tensor, Tensor]], batch: int = 16,
                     progress: bool = False) -> list[float]:  # fmt: skip
-        """Truncated back-propagation through time over whole recordings: ``frames [T, R, A]``
-        (each recording's input spikes, zero-padded to the longest), ``labels [T, R]`` (int64,
-        -1 where a frame has none: before contact, past the end). ``stream_epochs`` passes over
-        the recordings in mini-batches of ``batch``, each run in chunks of one window's frames
-        with the state carried (detached) from chunk to chunk; the loss is every labelled
-        frame's cross-entropy. Then the decision margin is fitted on the streams' frames.
-        Returns each epoch's mean loss."""
+        """Truncated back-propagation through time over whole recordings: ``streams``, per
+        recording its input spikes ``[frames, A]`` (bool or float) and a label per frame
+        ``[frames]`` (int64, -1 where a frame has none: before contact, past the end).
+        ``stream_epochs`` passes, each over mini-batches of ``batch`` recordings of similar
+        length, run in chunks of one window's frames (built chunk by chunk: memory does not
+        grow with the recordings' length) with the state carried (detached) from chunk to
+        chunk; the loss is every labelled frame's cross-entropy. Then the decision margin is
+        fitted on the streams. Returns each epoch's mean loss."""
         from tqdm.auto import tqdm
 
         from ..core.stages import bar_disabled
 
         # a fine-tuning of the window-trained weights: a third of their learning rate
         opt = torch.optim.Adam(self.parameters(), lr=self.config.lr / 3)
-        r = frames.shape[1]
+        order = sorted(range(len(streams)), key=lambda i: len(streams[i][1]))
+        groups = [order[i : i + batch] for i in range(0, len(order), batch)]
+        gen = torch.Generator().manual_seed(0)
         losses = []
         bar = tqdm(range(self.config.stream_epochs), desc="streams (TBPTT)", unit="epoch",
                    disable=bar_disabled(progress))  # fmt: skip
         for _ in bar:
             total, count = 0.0, 0
-            for idx in torch.randperm(r).split(batch):
-                st = self.initial_stream_state(len(idx), frames.dtype)
-                for t0 in range(0, frames.shape[0], self.steps):
-                    lab = labels[t0 : t0 + self.steps, idx]
+            for g in torch.randperm(len(groups), generator=gen).tolist():
+                idx = groups[g]
+                st = self.initial_stream_state(len(idx))
+                longest = max(len(streams[i][1]) for i in idx)
+                for t0 in range(0, longest, self.steps):
+                    x, lab = _chunk([streams[i] for i in idx], t0, self.steps)
                     if not bool((lab >= 0).any()):
-                        st = StreamState(*(None if v is None else v.detach() for v in st))
+                        st = _detached(self.stream(x, st)[2])  # (no labels: state only)
                         continue
-                    v, st = self._stream_grad(frames[t0 : t0 + self.steps, idx], st)
+                    v, st = self._stream_grad(x, st)
                     loss = nn.functional.cross_entropy(v.reshape(-1, v.shape[-1]),
                                                        lab.reshape(-1), ignore_index=-1)  # fmt: skip
                     opt.zero_grad()
                     loss.backward()
                     opt.step()
-                    total += float(loss.detach()) * int((lab >= 0).sum())
-                    count += int((lab >= 0).sum())
-                    st = StreamState(*(None if v is None else v.detach() for v in st))
+                    n = int((lab >= 0).sum())
+                    total, count = total + float(loss.detach()) * n, count + n
+                    st = _detached(st)
             losses.append(total / max(count, 1))
-        self.calibrate_stream_decision(frames, labels)
+        self.calibrate_stream_decision(streams)
         return losses
 
     @torch.no_grad()
-    def calibrate_stream_decision(self, frames: Tensor, labels: Tensor) -> None:
+    def calibrate_stream_decision(self, streams: list[tuple[Tensor, Tensor]]) -> None:
         """The smallest margin (among 256 quantiles of the leads, and :attr:`NEVER`) at which
-        the decided frames of the streams ``frames [T, R, A]`` name their label ``labels [T, R]``
+        the decided frames of ``streams`` (as :meth:`fit_streams` takes them) name their label
         on ``early_agreement`` of them."""
         if self.n_classes < 2:
             return
-        v, _, _ = self.stream(frames)
-        lead, leader = class_lead(v)
-        ok = labels >= 0
-        lead, agree = lead[ok], (leader == labels)[ok]
+        leads, agrees = [], []
+        for spikes, labels in streams:
+            v, _, _ = self.stream(spikes.float()[:, None])
+            lead, leader = class_lead(v[:, 0])
+            ok = labels >= 0
+            leads.append(lead[ok])
+            agrees.append((leader == labels)[ok])
+        lead, agree = torch.cat(leads), torch.cat(agrees)
         if not bool((lead > 0).any()):
             return
         margin = self.NEVER
@@ -395,3 +404,20 @@ class _StreamWindowGraph(nn.Module):
         hid, h_new, hs_new = self.lstm(cur, h, hs[0] if hs else None, self.w_rec)
         v = li_closed(self.fc2(hid), o, self.beta_o, self.decay)
         return (v[-1], h_new, v[-1], hs_new) if hs else (v[-1], h_new, v[-1])
+
+
+def _chunk(streams: list[tuple[Tensor, Tensor]], t0: int, steps: int) -> tuple[Tensor, Tensor]:
+    """Frames ``[t0, t0 + steps)`` of each stream, zero-padded past its end: input spikes
+    ``[steps, B, A]`` float32 and labels ``[steps, B]`` (-1 past the end)."""
+    a = streams[0][0].shape[1]
+    x = torch.zeros(steps, len(streams), a)
+    lab = torch.full((steps, len(streams)), -1, dtype=torch.long)
+    for j, (spikes, labels) in enumerate(streams):
+        part = spikes[t0 : t0 + steps]
+        x[: len(part), j] = part.float()
+        lab[: len(part), j] = labels[t0 : t0 + steps]
+    return x, lab
+
+
+def _detached(st: StreamState) -> StreamState:
+    return StreamState(*(None if v is None else v.detach() for v in st))
