@@ -55,7 +55,7 @@ def recording_frames(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np
     window and the first input spike (the contact onset) on; -1 before them and after the last
     window."""
     x = pipe.encoder_input(X)
-    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+    hop = pipe.encoder.frame_hop
     for members, shift in recording_runs(x, scan):
         spikes, labels = _frames_and_labels(pipe, x, y, members, shift, hop)
         yield members, _ends(len(members), shift, pipe.window, hop), spikes, labels
@@ -79,7 +79,7 @@ def fit_streams(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndar
     runs = recording_runs(x, scan)
     if not runs:
         return None
-    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+    hop = pipe.encoder.frame_hop
     per = [
         (shift * (len(m) - 1) + pipe.window) // hop * pipe.encoder.n_afferents for m, shift in runs
     ]  # bytes of each recording's spikes as bool
@@ -110,7 +110,7 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
     does not step frames or no windows tile a recording."""
     if pipe.frame_problem() is not None:
         return None
-    hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+    hop = pipe.encoder.frame_hop
     frame_ms = 1000.0 * hop / pipe.fs_hz
     scores = np.asarray(window_scores, np.float64).copy()
     latencies, settled, decided, correct = [], 0, 0, 0

@@ -161,6 +161,11 @@ class SpikeEncoder(nn.Module):
         else None."""
         return None
 
+    @property
+    def frame_hop(self) -> int | None:
+        """Samples per frame where the code codes frame by frame, else None."""
+        return None
+
     def frame_module(self) -> nn.Module:
         """The frame step: ``frame [B, channels, hop]`` + state (``state_names``: ``(name,
         units)``, ``[B, units]`` each) -> ``(spikes [B, afferents], *next state)``; only where

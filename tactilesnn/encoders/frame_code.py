@@ -227,6 +227,10 @@ class FrameCodeEncoder(SpikeEncoder):
         return self.frame_ms
 
     @property
+    def frame_hop(self) -> int:
+        return self.hop
+
+    @property
     def codes_with_past(self) -> bool:
         return True
 

@@ -64,7 +64,7 @@ class FrameGraph(nn.Module):
         self.n_enc = len(self.encoder.state_names)
         self.parts: list[tuple[str, int]] = [*self.encoder.state_names, *self.model.state_names]
         self.state_names = [(STATE, sum(u for _, u in self.parts))]
-        self.hop = round(pipe.encoder.frame_period_ms * pipe.fs_hz / 1000.0)
+        self.hop = pipe.encoder.frame_hop
         self.encoder_init = pipe.encoder.initial_frame_state
         self.channels = idx
 

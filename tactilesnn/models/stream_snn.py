@@ -193,15 +193,18 @@ class StreamSNNModel(SpikeModel):
             lead, leader = class_lead(v)
             leads.append(lead.flatten())
             same.append((leader == v[-1].argmax(-1)).flatten())
-        lead, agree = torch.cat(leads), torch.cat(same)
-        cands = np.unique(np.quantile(lead[lead > 0].double().numpy(), np.linspace(0, 1, 257)))
-        margin = self.NEVER
-        for m in cands if lead.gt(0).any() else []:
+        self.decision_margin.fill_(self._smallest_margin(torch.cat(leads), torch.cat(same)))
+
+    def _smallest_margin(self, lead: Tensor, agree: Tensor) -> float:
+        """The smallest of 256 quantiles of the positive ``lead`` s at which the frames that
+        lead by at least it ``agree`` on ``early_agreement`` of them (else :attr:`NEVER`)."""
+        if not bool((lead > 0).any()):
+            return self.NEVER
+        for m in np.unique(np.quantile(lead[lead > 0].double().numpy(), np.linspace(0, 1, 257))):
             hit = lead >= float(m)
             if hit.any() and float(agree[hit].float().mean()) >= self.config.early_agreement:
-                margin = float(m)
-                break
-        self.decision_margin.fill_(margin)
+                return float(m)
+        return self.NEVER
 
     # ------------------------------------------------------------------ streams
     @property
@@ -303,16 +306,7 @@ class StreamSNNModel(SpikeModel):
             ok = labels >= 0
             leads.append(lead[ok])
             agrees.append((leader == labels)[ok])
-        lead, agree = torch.cat(leads), torch.cat(agrees)
-        if not bool((lead > 0).any()):
-            return
-        margin = self.NEVER
-        for m in np.unique(np.quantile(lead[lead > 0].double().numpy(), np.linspace(0, 1, 257))):
-            hit = lead >= float(m)
-            if hit.any() and float(agree[hit].float().mean()) >= self.config.early_agreement:
-                margin = float(m)
-                break
-        self.decision_margin.fill_(margin)
+        self.decision_margin.fill_(self._smallest_margin(torch.cat(leads), torch.cat(agrees)))
 
     def frame_module(self, gather: bool = False) -> nn.Module:
         """The one-frame step for the export (:class:`_StreamStep`); ``gather``: the input
