@@ -86,6 +86,27 @@ def initial_frame_state(graph: FrameGraph, first: np.ndarray) -> dict[str, np.nd
     return {STATE: np.concatenate([parts[n] for n, _ in graph.parts], 1)}
 
 
+def repeat_first_rule(graph: FrameGraph) -> list[int]:
+    """How a fresh stream's state holds its first samples, as the runtime applies it
+    (``[offset, stride, length]``: encoder channel ``c``'s first sample fills
+    ``state[offset + c stride : offset + c stride + length]``, every other entry zero), read off
+    :func:`initial_frame_state` (first samples ``c + 1``) and checked against it."""
+    c = len(graph.channels)
+    first = np.zeros((1, max(graph.channels) + 1, 1), np.float32)
+    first[0, graph.channels, 0] = np.arange(1, c + 1)
+    state = initial_frame_state(graph, first)[STATE][0]
+    where = [np.flatnonzero(state == k + 1) for k in range(c)]
+    offset, length = int(where[0][0]), len(where[0])
+    stride = int(where[1][0] - offset) if c > 1 else length
+    rule = [offset, stride, length]
+    want = np.zeros_like(state)
+    for k in range(c):
+        want[offset + k * stride : offset + k * stride + length] = k + 1
+    if not np.array_equal(want, state):
+        raise ValueError("the code's initial state is not one span per channel: no runtime rule")
+    return rule
+
+
 def build_frame_graph(
     pipe: SpikePipeline, exporter: str | None = None, gather: bool = False
 ) -> tuple[onnx.ModelProto, FrameGraph]:
@@ -197,6 +218,7 @@ def export_frames(
     names = [n for n, _ in graph.state_names]
     extra = {**dict(metadata or {}), "frame_step_samples": str(graph.hop),
              "frame_state_parts": json.dumps(graph.parts),
+             "frame_state_init": json.dumps({"repeat_first": repeat_first_rule(graph)}),
              "frame_outputs": json.dumps([SCORES_OUTPUT, DECISION_OUTPUT, SPIKES_OUTPUT])}  # fmt: skip
     contract = pipeline_contract(pipe, tuple(names),
                                  f"input: the next {graph.hop} samples (one frame) in the sensor's "

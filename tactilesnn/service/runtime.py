@@ -245,6 +245,51 @@ class StreamContract:
         return out
 
 
+@dataclass(frozen=True)
+class FrameContract:
+    """A one-frame step graph's promise (metadata ``frame_step_samples``, ``frame_state_init``;
+    :mod:`tactilesnn.export.frames`): its ``window`` input is one frame of ``hop`` samples, its
+    one state holds a stream's state, and a fresh stream starts from zeros with encoder channel
+    ``c``'s first sample in ``state[offset + c stride : offset + c stride + length]``; outputs
+    ``scores`` and ``decision`` (the leading class, or -1 while undecided) every frame."""
+
+    hop: int
+    state: str
+    repeat_first: tuple[int, int, int]
+
+    @classmethod
+    def parse(cls, path: str, c: GraphContract) -> FrameContract | None:
+        import json
+
+        if "frame_step_samples" not in c.extra:
+            return None
+        try:
+            hop = int(c.extra["frame_step_samples"], 10)
+            rule = json.loads(c.extra.get("frame_state_init", "{}")).get("repeat_first")
+        except (ValueError, AttributeError, RecursionError) as e:
+            raise ValueError(f"{path}: unreadable frame metadata ({e})") from e
+        if not 1 <= hop <= c.window_samples:
+            raise ValueError(f"{path}: frame step {hop} is not within the window")
+        if len(c.state_inputs) != 1 or not (isinstance(rule, list) and len(rule) == 3 and all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in rule)):  # fmt: skip
+            raise ValueError(f"{path}: frame state metadata is not one state and one rule")
+        return cls(hop, c.state_inputs[0], (rule[0], rule[1], rule[2]))
+
+    def check_units(self, path: str, units: int, channels: int) -> None:
+        offset, stride, length = self.repeat_first
+        if length > stride or offset + max(channels - 1, 0) * stride + length > units:
+            raise ValueError(f"{path}: the frame state's start rule does not fit its {units} units")
+
+    def initial(self, first: np.ndarray, channels: tuple[int, ...], units: int) -> np.ndarray:
+        """The state of fresh streams whose first frames are ``first [B, channels, hop]``."""
+        offset, stride, length = self.repeat_first
+        out = np.zeros((len(first), units), np.float32)
+        for k, ch in enumerate(channels):
+            start = offset + k * stride
+            out[:, start : start + length] = first[:, ch, :1]
+        return out
+
+
 class PipelineSession:
     """onnxruntime session over an exported ``model.onnx`` with validation and metadata."""
 
@@ -290,12 +335,19 @@ class PipelineSession:
         self.batch = max(1, self.RUN_BUDGET_BYTES // per_window) if per_window > 0 else 1 << 30
         self.inputs = {i.name: i for i in self.plain_session.get_inputs()}
         self.stream = StreamContract.parse(path, c)
-        _check_io(path, c, self.inputs, outs, None if self.stream is None else self.stream.step)
+        self.frames = FrameContract.parse(path, c)
+        if self.frames is not None and self.stream is not None:
+            raise ValueError(f"{path}: a graph is a stream graph or a frame graph, not both")
+        step = self.stream.step if self.stream is not None else None
+        _check_io(path, c, self.inputs, outs, self.frames.hop if self.frames else step)
         # every graph input besides the window is streaming state, returned as "<name>_out"
         self.state_units = {k: int(v.shape[1]) for k, v in self.inputs.items() if k != WINDOW_INPUT}
         self.stateful = bool(self.state_units)
         if self.stream is not None:
             self.stream.check_units(path, self.state_units, len(c.encoder_channels))
+        if self.frames is not None:
+            self.frames.check_units(path, self.state_units[self.frames.state],
+                                    len(c.encoder_channels))  # fmt: skip
         # activity gate of the encoder: the graph encodes only the channels above their RMS
         # threshold (the rest is silent); a window in which every channel is silent has the
         # same scores each time for a stateless model, so the stream path answers it from a
@@ -389,6 +441,8 @@ class PipelineSession:
             raise InputError("empty batch: no windows to classify")
         if self.stream is not None:
             return self._run_steps(x, state, detail)
+        if self.frames is not None:
+            return self._run_frames(x)
         names = list(self.state_units)
         feeds: dict[str, np.ndarray] = {}
         if names:
@@ -448,6 +502,53 @@ class PipelineSession:
         if state is not None:
             state.values = new
         return out
+
+    def _frame(self, x: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One call of a frame graph: ``(scores, decision, next state)``."""
+        name = self.frames.state
+        scores, decision, new = run_batched(self.session, [SCORES_OUTPUT, "decision",
+                                                           state_output(name)],
+                                            {WINDOW_INPUT: x, name: values}, self.batch)  # fmt: skip
+        return scores, decision, new
+
+    def _run_frames(self, x: np.ndarray) -> Detail:
+        """A frame graph on whole windows ``x``: every frame from a fresh stream's state (a
+        window from rest); the scores at its last frame."""
+        hop = self.frames.hop
+        values = self.frames.initial(x[:, :, :hop], self.contract.encoder_channels,
+                                     self.state_units[self.frames.state])  # fmt: skip
+        scores = np.zeros((len(x), len(self.class_names)), np.float32)
+        for start in range(0, self.window - hop + 1, hop):
+            scores, _, values = self._frame(np.ascontiguousarray(x[:, :, start : start + hop]),
+                                            values)  # fmt: skip
+        return Detail(scores, None, None, None)
+
+    def _feed_frames(self, state: StreamState, buf: np.ndarray, detail: bool) -> list[dict]:
+        """The stream path of a frame graph: one call per frame, the state carried; a result
+        every frame (its scores, its class, and its decision: a class name, or None while the
+        model is undecided)."""
+        hop, name, results = self.frames.hop, self.frames.state, []
+        while buf.shape[1] >= hop:
+            x = np.ascontiguousarray(buf[None, :, :hop])
+            if state.steps == 0:
+                state.values = {name: self.frames.initial(x, self.contract.encoder_channels,
+                                                          self.state_units[name])}  # fmt: skip
+            self.stats.add(stream_windows=1)
+            scores, decision, state.values[name] = self._frame(x, state.values[name])
+            k, d = int(scores[0].argmax()), int(decision[0])
+            res = {"window_index": state.windows_done, "class": self.class_names[k],
+                   "scores": scores[0].tolist(),
+                   "decision": self.class_names[d] if 0 <= d < len(self.class_names) else None}  # fmt: skip
+            past = x[0] if state.recent is None else np.concatenate([state.recent, x[0]], axis=1)
+            state.recent = past[:, -self.window :]
+            if detail:
+                res.update(window=state.recent, spikes=None)
+            results.append(res)
+            state.windows_done += 1
+            state.steps += 1
+            buf = buf[:, hop:]
+        state.buffer = buf
+        return results
 
     def _advanced(self, x: np.ndarray, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """``feeds`` with the encoder's state after the step ``x`` (a call that completes no
@@ -534,7 +635,9 @@ class PipelineSession:
     @property
     def window_step(self) -> int:
         """Samples between the starts of the windows a stream is classified in: a stream
-        graph's step, else half a window."""
+        graph's step, a frame graph's frame, else half a window."""
+        if self.frames is not None:
+            return self.frames.hop
         return self.window // 2 if self.stream is None else self.stream.step
 
     def feed_stream(
@@ -563,6 +666,11 @@ class PipelineSession:
         _check_float32(arr, "chunk")
         arr = arr.astype(np.float32)
         buf = arr if state.buffer is None else np.concatenate([state.buffer, arr], axis=1)
+        if self.frames is not None:
+            if hop != self.frames.hop:
+                raise InputError(f"this frame graph classifies every frame of {self.frames.hop} "
+                                 f"samples, not every {hop}")  # fmt: skip
+            return self._feed_frames(state, buf, detail)
         if self.stream is not None:
             if hop != self.stream.step:
                 raise InputError(f"this stream graph classifies a window every {self.stream.step} "
