@@ -172,7 +172,11 @@ class _FrameCodeGraph(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         b, c = x.shape[0], x.shape[1]
-        rows = self.envelopes.scalogram(x)[..., : self.frames].reshape(b, -1, self.frames)
+        # the bank sees differences only (its past: the first sample held), so the window less
+        # its first sample has the same envelopes; in float32 a large offset (a pressure
+        # sensor's counts at rest) would otherwise swamp the product's small sums
+        rel = x - x[..., :1]
+        rows = self.envelopes.scalogram(rel)[..., : self.frames].reshape(b, -1, self.frames)
         if self.sustained:
             m = x[..., : self.frames * self.hop].reshape(b, c, self.frames, self.hop).mean(-1)
             d = m - self.rest

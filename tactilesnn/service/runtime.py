@@ -503,7 +503,9 @@ class PipelineSession:
             state.values = new
         return out
 
-    def _frame(self, x: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _frame(
+        self, x: np.ndarray, values: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """One call of a frame graph: ``(scores, decision, next state)``."""
         name = self.frames.state
         scores, decision, new = run_batched(self.session, [SCORES_OUTPUT, "decision",
