@@ -246,7 +246,7 @@ class StreamSNNModel(SpikeModel):
             out.append(st.v)
         return torch.stack(out), st
 
-    def fit_streams(self, streams: list[tuple[Tensor, Tensor]], batch: int = 16,
+    def fit_streams(self, streams: list[tuple[Tensor, Tensor]], batch: int = 64,
                     progress: bool = False) -> list[float]:  # fmt: skip
         """Truncated back-propagation through time over whole recordings: ``streams``, per
         recording its input spikes ``[frames, A]`` (bool or float) and a label per frame
@@ -255,7 +255,9 @@ class StreamSNNModel(SpikeModel):
         length, run in chunks of one window's frames (built chunk by chunk: memory does not
         grow with the recordings' length) with the state carried (detached) from chunk to
         chunk; the loss is every labelled frame's cross-entropy. Then the decision margin is
-        fitted on the streams. Returns each epoch's mean loss."""
+        fitted on the streams. Returns each epoch's mean loss. (Each frame is one Python step
+        for a whole mini-batch: hook_loop's 320 recordings of 2,000 frames took 3 min for 10
+        epochs in mini-batches of 16.)"""
         from tqdm.auto import tqdm
 
         from ..core.stages import bar_disabled
