@@ -49,6 +49,8 @@ from .scalogram_latency import GWTConfig
 from .window_graphs import WindowEncoder
 
 log = logging.getLogger("tactilesnn")
+#: a row's level is at least this many float32 units of its channel's largest training value
+RESOLUTION_ULPS = 256
 
 
 @dataclass(frozen=True)
@@ -315,6 +317,12 @@ class FrameCodeEncoder(SpikeEncoder):
             raise ValueError("every channel is zero in the training windows: nothing to encode")
         loudest = level.amax(1, keepdim=True)
         floor = torch.where(loudest > 0, 1e-3 * loudest, 1e-3 * level.max())
+        # and at what float32 resolves on the channel's values: a channel held near a large
+        # value (a 16-bit reading stuck at 65535) varies by its rounding alone, which two
+        # orders of the same sums round differently (FabricSlide: 110,386 spikes of 1.9 M
+        # differed between the window graph and torch)
+        resolution = RESOLUTION_ULPS * np.finfo(np.float32).eps * np.abs(samples).max(1)
+        floor = torch.maximum(floor, torch.from_numpy(resolution).double().view(-1, 1))
         quiet = torch.nonzero(loudest[:, 0] <= 0).flatten().tolist()
         if quiet:
             log.warning("frames encoder: channel(s) %s silent in training; level floored at "
