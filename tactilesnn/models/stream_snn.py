@@ -32,7 +32,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int, check_positive
+from ..core.checks import check_int, check_positive, check_range
 from ..core.settings import ComponentSettings, setting
 from .base import SpikeModel, register_model, seeded
 from .functional import (
@@ -88,16 +88,12 @@ class StreamSNNConfig(ComponentSettings):
 
     def __post_init__(self) -> None:
         check_int(self.hidden, "hidden", 1)
-        if not (self.dt_ms >= 0 and math.isfinite(self.dt_ms)):
-            raise ValueError(f"dt_ms must be >= 0 (0: the encoder's frame), got {self.dt_ms}")
+        # 0 = derived (the code's frame; twice the window)
+        for name in ("dt_ms", "readout_tau_ms", "quiet_ms"):
+            check_range(getattr(self, name), name, 0.0, math.inf)
         check_positive(self.tau_ms, "tau_ms")
-        if not (self.readout_tau_ms >= 0 and math.isfinite(self.readout_tau_ms)):
-            raise ValueError(f"readout_tau_ms must be >= 0 (0: twice the window), got "
-                             f"{self.readout_tau_ms}")  # fmt: skip
         if not 0 <= self.burn_in < 1:
             raise ValueError(f"burn_in must be in [0, 1), got {self.burn_in}")
-        if not (self.quiet_ms >= 0 and math.isfinite(self.quiet_ms)):
-            raise ValueError(f"quiet_ms must be >= 0, got {self.quiet_ms}")
         if not isinstance(self.recurrent, bool):
             raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
         check_positive(self.lr, "lr")
