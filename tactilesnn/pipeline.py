@@ -273,3 +273,28 @@ class SpikePipeline:
 def accuracy_ci95(acc: float, n: int) -> float:
     """Half-width of a normal-approximation 95 % interval for an accuracy over ``n`` samples."""
     return 1.96 * math.sqrt(max(acc * (1 - acc), 1.0 / max(n, 1)) / max(n, 1))
+
+
+def recording_accuracy(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> dict | None:
+    """Evidence accumulated over the windows of each recording (mean score, then argmax).
+
+    Only when every recording has one label and some have several windows (a scan that visits
+    several textures, like hook_loop's, has no single answer); None otherwise.
+    """
+    ids, inv = np.unique(groups, return_inverse=True)
+    if ids.size == 0 or ids.size == y.size:
+        return None
+    lab_min = np.full(ids.size, np.iinfo(np.int64).max)
+    lab_max = np.full(ids.size, -1)
+    np.minimum.at(lab_min, inv, y)
+    np.maximum.at(lab_max, inv, y)
+    if (lab_min != lab_max).any():
+        return None
+    total = np.zeros((ids.size, scores.shape[1]))
+    np.add.at(total, inv, scores)
+    acc = float((total.argmax(1) == lab_min).mean())
+    return {
+        "test_accuracy_per_recording": acc,
+        "test_accuracy_per_recording_ci95": accuracy_ci95(acc, ids.size),
+        "n_test_recordings": int(ids.size),
+    }

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from .core.data import join_run, recording_runs
-from .pipeline import SpikePipeline
+from .pipeline import SpikePipeline, recording_accuracy
 
 
 def _frames_and_labels(pipe: SpikePipeline, x: np.ndarray, y: np.ndarray, members: np.ndarray,
@@ -151,24 +151,10 @@ def stream_evaluation(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: n
         q = np.percentile(latencies, [25, 50, 75])
         out_d["decision_latency_ms"] = {"median": float(q[1]), "q25": float(q[0]),
                                         "q75": float(q[2])}  # fmt: skip
-    per_rec = _per_recording(scores, y, scan)
+    per_rec = recording_accuracy(scores, y, scan)
     if per_rec is not None:
-        out_d["per_recording"] = per_rec
+        out_d["per_recording"] = per_rec["test_accuracy_per_recording"]
     return out_d
-
-
-def _per_recording(scores: np.ndarray, y: np.ndarray, scan: np.ndarray) -> float | None:
-    ids, inv = np.unique(scan, return_inverse=True)
-    if ids.size == y.size:
-        return None
-    total = np.zeros((ids.size, scores.shape[1]))
-    np.add.at(total, inv, scores)
-    lab = np.full(ids.size, -1)
-    lab[inv] = y
-    same = np.array([np.all(y[inv == i] == lab[i]) for i in range(ids.size)])
-    if not same.all():
-        return None
-    return float((total.argmax(1) == lab).mean())
 
 
 def settle_latency_ms(decisions: np.ndarray, label: int, frame_ms: float) -> float | None:

@@ -23,7 +23,7 @@ from .core.data import WindowDataset
 from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
-from .pipeline import SpikePipeline, accuracy_ci95
+from .pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
 from .streaming import fit_streams, stream_evaluation
 from .trainer import Trainer
 
@@ -231,31 +231,6 @@ def stream_metrics(
     return {"test_accuracy": acc, "test_accuracy_ci95": accuracy_ci95(acc, y.size),
             "test_windows_with_past": n_test,
             "train_windows_added": 0 if train_rec is None else len(train_rec[0])}  # fmt: skip
-
-
-def recording_accuracy(scores: np.ndarray, y: np.ndarray, groups: np.ndarray) -> dict | None:
-    """Evidence accumulated over the windows of each recording (mean score, then argmax).
-
-    Only when every recording has one label and some have several windows (a scan that visits
-    several textures, like hook_loop's, has no single answer); None otherwise.
-    """
-    ids, inv = np.unique(groups, return_inverse=True)
-    if ids.size == 0 or ids.size == y.size:
-        return None
-    lab_min = np.full(ids.size, np.iinfo(np.int64).max)
-    lab_max = np.full(ids.size, -1)
-    np.minimum.at(lab_min, inv, y)
-    np.maximum.at(lab_max, inv, y)
-    if (lab_min != lab_max).any():
-        return None
-    total = np.zeros((ids.size, scores.shape[1]))
-    np.add.at(total, inv, scores)
-    acc = float((total.argmax(1) == lab_min).mean())
-    return {
-        "test_accuracy_per_recording": acc,
-        "test_accuracy_per_recording_ci95": accuracy_ci95(acc, ids.size),
-        "n_test_recordings": int(ids.size),
-    }
 
 
 @torch.no_grad()

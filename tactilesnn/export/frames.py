@@ -35,12 +35,6 @@ DECISION_OUTPUT = "decision"
 SPIKES_OUTPUT = "frame_spikes"
 
 
-def frame_problem(pipe: SpikePipeline) -> str | None:
-    """Why ``pipe`` cannot step frame by frame (None: it can): :meth:`SpikePipeline.
-    frame_problem`."""
-    return pipe.frame_problem()
-
-
 #: the graph's one state input (every part packed: one input and one output instead of six
 #: of each; each graph input or output costs onnxruntime ~1.5 us per call from Python)
 STATE = "frame_state"

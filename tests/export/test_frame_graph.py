@@ -11,7 +11,6 @@ from tactilesnn.export.frames import (
     build_frame_graph,
     compare_frames,
     export_frames,
-    frame_problem,
     frame_session,
     run_frames,
     torch_frames,
@@ -88,13 +87,13 @@ def test_compare_frames_reports_a_flip():
 def test_window_pipelines_are_refused():
     cfg = PipelineConfig.from_flat(encoder="gwt", model="stream", channels=("all",))
     pipe = SpikePipeline(cfg, FS, W, ("a",), ("x", "y"))
-    assert "continuous code" in frame_problem(pipe)
+    assert "continuous code" in pipe.frame_problem()
     cfg = PipelineConfig.from_flat(encoder="frames", model="snn", channels=("all",))
     pipe = SpikePipeline(cfg, FS, W, ("a",), ("x", "y"))
-    assert "stream model" in frame_problem(pipe)
+    assert "stream model" in pipe.frame_problem()
     cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",),
                                    stream_dt_ms=2.0)  # fmt: skip
     pipe = SpikePipeline(cfg, FS, W, ("a",), ("x", "y"))
-    assert "dt_ms" in frame_problem(pipe)
+    assert "dt_ms" in pipe.frame_problem()
     with pytest.raises(ValueError, match="dt_ms"):
         FrameGraph(pipe)
