@@ -31,7 +31,19 @@ Physics, per frame:
 
 The taxel layout (:func:`icub_fingertip_layout`) is a planar projection of the 12 pads of the
 fingertip's flexible PCB (approximate: 3 rows x 4 columns, staggered, 3.5 mm pitch); the real
-fingertip is curved about both axes, which the height ``h(u)`` models.
+fingertip is curved about both axes, which the height ``h(u)`` models. ``pads_mm`` (12 centres,
+in the output's channel order) replaces it: the layout and channel map a calibration fits
+(:mod:`~tactilesnn.datasets_synth.calibration`).
+
+The finger's mount (defaults: rigid, the position control above). A robot finger sits on a
+compliant joint: ``mount_N_per_mm`` (normal stiffness, N/mm; inf = rigid) lets a dot lift the
+fingertip (the approach solves ``F_foam(delta) + k delta = F_set + k delta_flat``, ``delta_flat``
+the approach on the flat surface at the set force), so the taxels beside the dot unload; and
+``tilt_Nmm_per_rad`` (rotational stiffness about the axis across the slide, N mm/rad; inf =
+none) lets the dot's moment about the contact point roll it: ``theta = M_dot / k_theta``, the
+fingertip's height then ``h(u) + theta (u_x - contact_x)`` (first order: the moment is the
+rigid solve's). Together they give the dip of the unloaded taxels the real iCub file shows as a
+letter passes.
 """
 
 from __future__ import annotations
@@ -82,6 +94,10 @@ class FingertipParams:
     grid_mm: float = 0.25  # quadrature step of the force balance
     pad_rings: int = 3  # sub-point rings per pad (disc quadrature)
     cover_spread_mm: float = 1.5  # how far the outer cover's drape over a dot reaches beyond it
+    mount_N_per_mm: float = np.inf  # the finger joint's normal stiffness (inf: rigid)
+    tilt_Nmm_per_rad: float = np.inf  # ... and its rotational stiffness across the slide
+    #: the pad centres ``((x, y), ...)`` (mm) in channel order; None: :func:`icub_fingertip_layout`
+    pads_mm: tuple[tuple[float, float], ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("pad_diameter_mm", "pitch_mm", "radius_along_mm", "radius_across_mm",
@@ -95,6 +111,14 @@ class FingertipParams:
             )
         if not 0 <= self.shift_bits <= 8:
             raise ValueError(f"shift_bits must be 0..8, got {self.shift_bits}")
+        for name in ("mount_N_per_mm", "tilt_Nmm_per_rad"):
+            v = getattr(self, name)
+            if not (v > 0) or np.isnan(v):  # inf allowed: rigid
+                raise ValueError(f"{name} must be > 0 (inf: rigid), got {v}")
+        if self.pads_mm is not None:
+            pads = np.asarray(self.pads_mm, np.float64)
+            if pads.shape != (12, 2) or not np.isfinite(pads).all():
+                raise ValueError(f"pads_mm must be 12 finite (x, y) centres, got {pads.shape}")
 
     def triangle_params(self) -> CapacitiveTriangleParams:
         """The same pad, foam and CDC as a :class:`CapacitiveTriangleParams` (shared physics)."""
@@ -128,11 +152,15 @@ class CapacitiveFingertip:
 
     def __init__(self, params: FingertipParams | None = None) -> None:
         self.params = params or FingertipParams()
-        self.taxels_mm = icub_fingertip_layout(self.params.pitch_mm)
-        self._cap = CapacitiveTriangle(self.params.triangle_params())
-        offs, self._pad_w = disc_points(self.params.pad_diameter_mm, self.params.pad_rings)
-        self.pad_points_mm = (self.taxels_mm[:, None, :] + offs[None]).reshape(-1, 2)  # [12*Q, 2]
-        self._n_sub = offs.shape[0]
+        p = self.params
+        self.taxels_mm = (
+            icub_fingertip_layout(p.pitch_mm) if p.pads_mm is None
+            else np.asarray(p.pads_mm, np.float64)
+        )  # fmt: skip
+        self._cap = CapacitiveTriangle(p.triangle_params())
+        self._pad_offsets, self._pad_w = disc_points(p.pad_diameter_mm, p.pad_rings)
+        self.pad_points_mm = self.pad_points(self.taxels_mm)  # [12*Q, 2]
+        self._n_sub = self._pad_offsets.shape[0]
         self.last_force_N = np.zeros(0)  # the contact force of the last read, per frame (N)
 
     @property
@@ -165,8 +193,10 @@ class CapacitiveFingertip:
         raised-cosine drape over it; overlapping drapes take the higher."""
         a = diameter_mm / 2
         out = np.zeros((bumps_mm.shape[0], points_mm.shape[0]))
+        px, py = points_mm[None, :, 0], points_mm[None, :, 1]
         for k in range(bumps_mm.shape[1]):
-            r = np.linalg.norm(points_mm[None, :, :] - bumps_mm[:, k, None, :], axis=-1)
+            dx, dy = px - bumps_mm[:, k, 0, None], py - bumps_mm[:, k, 1, None]
+            r = np.sqrt(dx * dx + dy * dy)  # (no [frames, P, 2] temporary, as norm makes)
             spread = self.params.cover_spread_mm
             if spread > 0:
                 reach = a + spread
@@ -189,21 +219,142 @@ class CapacitiveFingertip:
         c = np.maximum(delta[:, None] - height[None, :] + relief, 0.0)
         return np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
 
+    def pad_points(self, centres_mm: np.ndarray) -> np.ndarray:
+        """The quadrature sub-points ``[P * Q, 2]`` (mm) of pads centred at ``centres_mm [P, 2]``."""
+        c = np.asarray(centres_mm, np.float64)
+        return (c[:, None, :] + self._pad_offsets[None]).reshape(-1, 2)
+
+    def _foam_force(self, delta: np.ndarray, height: np.ndarray, relief: np.ndarray) -> np.ndarray:
+        return (
+            self.pressure_Pa(self._strain(delta, height, relief)).sum(1)
+            * self.params.grid_mm**2
+            * 1e-6
+        )
+
     def approach_mm(
         self, force_N: np.ndarray, grid_mm: np.ndarray, height: np.ndarray, relief: np.ndarray
     ) -> np.ndarray:
         """The approach ``delta [frames]`` (mm) at which the foam carries ``force_N``
         (bisection to 1e-6 mm; the force grows monotonically with ``delta``)."""
         p = self.params
-        da = p.grid_mm**2 * 1e-6  # m^2 per quadrature point
         lo = np.zeros(force_N.size)
         hi = np.full(force_N.size, p.foam_mm * p.strain_max + float(relief.max(initial=0.0)))
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            f = self.pressure_Pa(self._strain(mid, height, relief)).sum(1) * da
-            low = f < force_N
+            low = self._foam_force(mid, height, relief) < force_N
             lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
         return 0.5 * (lo + hi)
+
+    def flat_approach_mm(self, force_N: np.ndarray, height: np.ndarray) -> np.ndarray:
+        """:meth:`approach_mm` on the flat surface (no relief: one force law for every frame):
+        the law tabulated once, inverted by interpolation, then polished by Newton steps (the
+        same root to ~1e-9 mm at a tenth of the bisection's cost)."""
+        p = self.params
+        grid = np.linspace(0.0, p.foam_mm * p.strain_max, 513)
+        law = self._foam_force(grid, height, np.zeros((1, height.size)))
+        f = np.asarray(force_N, np.float64)
+        d = np.interp(f, law, grid)  # beyond what the foam carries: fully compressed, as bisected
+        step = grid[1] * 1e-3
+        for _ in range(3):
+            here = self._foam_force(d, height, np.zeros((1, height.size)))
+            slope = (self._foam_force(d + step, height, np.zeros((1, height.size))) - here) / step
+            d = np.clip(d - (here - f) / np.maximum(slope, 1e-12), 0.0, grid[-1])
+        return d
+
+    def contact_state(
+        self,
+        force_N: np.ndarray,
+        bumps_mm: np.ndarray,
+        bump_height_mm: float,
+        bump_diameter_mm: float,
+        contact_mm: np.ndarray,
+        position_control: bool = True,
+    ) -> dict[str, np.ndarray]:
+        """The fingertip's pose per frame: ``delta`` (approach, mm), ``theta`` (roll, rad),
+        ``load_N`` (the foam's force) and what :meth:`codes_at` needs to read pads."""
+        p = self.params
+        shape = (bump_height_mm, bump_diameter_mm)
+        grid = self.contact_grid(contact_mm, bump_height_mm)
+        height = self.height_mm(grid, contact_mm)
+        relief = self.relief_mm(grid, bumps_mm, *shape)
+        n = force_N.size
+        theta = np.zeros(n)
+        if position_control:
+            delta = self.flat_approach_mm(force_N, height)
+            touched = relief.max(1) > 0
+            rigid = np.isinf(p.mount_N_per_mm) and np.isinf(p.tilt_Nmm_per_rad)
+            if touched.any() and not rigid:
+                lever = grid[:, 0] - float(np.asarray(contact_mm)[0])  # mm from the contact point
+                r, h = relief[touched], height[None, :]
+                if np.isfinite(p.tilt_Nmm_per_rad):
+                    da = p.grid_mm**2 * 1e-6
+                    press = self.pressure_Pa(self._strain(delta[touched], height, r)) * da
+                    flat = self.pressure_Pa(self._strain(delta[touched], height, 0 * r)) * da
+                    theta[touched] = ((press - flat) @ lever) / p.tilt_Nmm_per_rad
+                    h = height[None, :] + theta[touched, None] * lever[None, :]
+                if np.isfinite(p.mount_N_per_mm):
+                    k, ref = p.mount_N_per_mm, delta[touched]
+                    target = force_N[touched] + k * ref
+                    lo, hi = ref - p.foam_mm * p.strain_max - bump_height_mm, ref.copy()
+                    for _ in range(24):  # F_foam(d) + k d grows with d: bisection to ~0.2 um
+                        mid = 0.5 * (lo + hi)
+                        c = np.maximum(mid[:, None] - h + r, 0.0)
+                        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+                        f = self.pressure_Pa(s).sum(1) * p.grid_mm**2 * 1e-6 + k * mid
+                        low = f < target
+                        lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
+                    delta[touched] = 0.5 * (lo + hi)
+        else:
+            delta = self.approach_mm(force_N, grid, height, relief)
+        c = np.maximum(
+            delta[:, None] - height[None, :] - theta[:, None] * (grid[:, 0] - contact_mm[0])
+            + relief, 0.0,
+        )  # fmt: skip
+        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+        load = self.pressure_Pa(s).sum(1) * p.grid_mm**2 * 1e-6
+        return {"delta": delta, "theta": theta, "load_N": load, "bumps": bumps_mm,
+                "shape": np.array(shape), "contact": np.asarray(contact_mm, np.float64)}  # fmt: skip
+
+    def capacitance_field_pF(
+        self, points_mm: np.ndarray, state: dict[str, np.ndarray]
+    ) -> np.ndarray:
+        """The capacitance a unit pad would have at each of ``points_mm [P, 2]`` (mm) above its
+        parasitic ``[frames, P]`` (pF) in the pose :meth:`contact_state` found: a pad's is the
+        area-weighted mean of this over its surface."""
+        p = self.params
+        contact = state["contact"]
+        height = self.height_mm(points_mm, contact)[None, :] + state["theta"][:, None] * (
+            points_mm[:, 0] - contact[0]
+        )
+        relief = self.relief_mm(points_mm, state["bumps"], *state["shape"])
+        c = np.maximum(state["delta"][:, None] - height + relief, 0.0)
+        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+        return self._cap.capacitance_pF(s) - p.parasitic_pF
+
+    def code_of(self, pad_pF: np.ndarray) -> np.ndarray:
+        """CDC code above rest of pads whose capacitance above the parasitic is ``pad_pF``."""
+        cap = self._cap
+        rest = cap.cdc_code(cap.capacitance_pF(np.zeros(1)))
+        return cap.cdc_code(pad_pF + self.params.parasitic_pF) - rest
+
+    def codes_at(self, centres_mm: np.ndarray, state: dict[str, np.ndarray]) -> np.ndarray:
+        """Noise-free CDC code above the pad's rest ``[P, frames]`` of pads centred at
+        ``centres_mm [P, 2]`` (mm) in the pose :meth:`contact_state` found."""
+        p = self.params
+        pts = self.pad_points(centres_mm)
+        contact = state["contact"]
+        height = self.height_mm(pts, contact)[None, :] + state["theta"][:, None] * (
+            pts[:, 0] - contact[0]
+        )
+        relief = self.relief_mm(pts, state["bumps"], *state["shape"])
+        c = np.maximum(state["delta"][:, None] - height + relief, 0.0)
+        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+        cap = self._cap
+        c_sub = cap.capacitance_pF(s) - p.parasitic_pF
+        n_pads = np.asarray(centres_mm).reshape(-1, 2).shape[0]
+        c_pad = (c_sub.reshape(s.shape[0], n_pads, self._n_sub) @ self._pad_w).T + p.parasitic_pF
+        rest = cap.cdc_code(cap.capacitance_pF(np.zeros(1)))
+        return cap.cdc_code(c_pad) - rest
 
     def read(
         self,
@@ -228,8 +379,9 @@ class CapacitiveFingertip:
 
         ``position_control`` (default, as a robot arm sliding at a set height): ``force_N`` is
         the force on the flat surface, which sets the approach; a dot then compresses the foam
-        further and the force rises (``last_force_N`` holds it per frame). Otherwise the force
-        is held (force control) and a dot takes load from the rest of the contact.
+        further and the force rises (``last_force_N`` holds it per frame; the mount's
+        compliance, when finite, gives some of it back). Otherwise the force is held (force
+        control) and a dot takes load from the rest of the contact.
         """
         p = self.params
         f = as_float_array(force_N, "force_N", ndim=1).astype(np.float64)
@@ -245,28 +397,16 @@ class CapacitiveFingertip:
         check_finite(bumps, "bumps_mm")
         check_positive(bump_height_mm, "bump_height_mm")
         check_positive(bump_diameter_mm, "bump_diameter_mm")
-        shape = (bump_height_mm, bump_diameter_mm)
-        grid = self.contact_grid(contact_mm, bump_height_mm)
-        height = self.height_mm(grid, contact_mm)
-        relief = self.relief_mm(grid, bumps, *shape)
-        delta = self.approach_mm(
-            f, grid, height, np.zeros_like(relief) if position_control else relief
+        contact = np.asarray(contact_mm, np.float64)
+        state = self.contact_state(f, bumps, bump_height_mm, bump_diameter_mm, contact,
+                                   position_control)  # fmt: skip
+        self.last_force_N = state["load_N"]
+        code = self.codes_at(self.taxels_mm, state) + self._cap.cdc_code(
+            self._cap.capacitance_pF(np.zeros(1))
         )
-        da = p.grid_mm**2 * 1e-6
-        self.last_force_N = self.pressure_Pa(self._strain(delta, height, relief)).sum(1) * da
-        pads = self.pad_points_mm
-        s = self._strain(
-            delta, self.height_mm(pads, contact_mm), self.relief_mm(pads, bumps, *shape)
-        )
-        cap = self._cap
-        c_sub = cap.capacitance_pF(s) - p.parasitic_pF  # [F, 12*Q] pF per sub-area share
-        c_pad = (
-            c_sub.reshape(f.size, self.n_channels, self._n_sub) @ self._pad_w
-        ).T + p.parasitic_pF
-        code = cap.cdc_code(c_pad)
         if rng is not None:
             code = np.clip(np.round(code + p.noise_lsb * rng.standard_normal(code.shape)), 0, 65535)
-        rest = cap.cdc_code(cap.capacitance_pF(np.zeros(1)))
+        rest = self._cap.cdc_code(self._cap.capacitance_pF(np.zeros(1)))
         off = np.asarray(offset_counts, np.float64)
         off = off[:, None] if off.ndim == 1 else off
         counts = gain[:, None] * (code - rest) / 2**p.shift_bits + off

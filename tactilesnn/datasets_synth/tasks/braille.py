@@ -23,15 +23,25 @@ contact point: the real file's sub-millimetre offsets), ``taxel_noise`` (scales 
 rms noise and the readout's 0.7 counts rms). ``force_ramp``: the relative rise of the pressing
 force along the slide (a plate not level with the arm's path; the real file's robot state shows
 +32 %), drawn +-50 % around its value per trial. ``difficulty`` scales every knob at once.
+
+``calibration``: a sensor fit file (:class:`~..calibration.SensorFit`, written by ``tactilesnn
+calibrate`` from a user's slides, :meth:`BrailleTask.calibrate`): the fingertip's fitted
+parameters (its pads where the fit put them, in the recordings' channel order), the scene's
+fitted force, ramp, speed, timing and track, each channel's fitted gain, offset and noise; the
+randomisation then draws around those values with the file's widths (timing, gain, per-channel
+offset; the knobs above keep scaling them: 0 switches one off, ``difficulty`` scales all).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import ClassVar
+from dataclasses import dataclass, fields
+from functools import cached_property
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 
+from ..calibration import SensorFit
 from ..scenes.inputs import FingertipPress
 from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 from .base import register_task
@@ -83,6 +93,7 @@ class BrailleTask(TrialTask):
     row_mm: float = DOT_SPACING_MM  # the track's offset from the cell's middle row (to dots 1, 4)
     position_mm: float = 0.5
     taxel_noise: float = 1.0
+    calibration: str = ""  # a sensor fit file (tactilesnn calibrate); "" = the model's own values
 
     name: ClassVar[str] = "braille"
     task_id: ClassVar[int] = 6
@@ -104,6 +115,28 @@ class BrailleTask(TrialTask):
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
         super().__post_init__()
+        if self.calibration:
+            fit = self.fit
+            if fit.task != self.name or fit.sensor != "capacitive_fingertip":
+                raise ValueError(f"{self.calibration} fits {fit.task}/{fit.sensor}, not braille")
+            if len(fit.channels.get("gain", ())) != 12:
+                raise ValueError(f"{self.calibration}: 12 channels expected")
+
+    @cached_property
+    def fit(self) -> SensorFit | None:
+        """The sensor fit file's content (None without one)."""
+        return SensorFit.load(Path(self.calibration)) if self.calibration else None
+
+    @classmethod
+    def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
+                  budget_s: float = 240.0, seed: int = 0, progress: bool = False) -> SensorFit:  # fmt: skip
+        """Fit the fingertip and the scene to real slides ``X [N, 12, samples]`` of the letters
+        ``class_names[y]`` (see :mod:`.braille_fit`)."""
+        from . import braille_fit
+
+        letters = "".join(str(c).strip().lower() for c in class_names)
+        task = cls(letters=letters, fs_frames_hz=fs_hz, duration_s=X.shape[-1] / fs_hz)
+        return braille_fit.fit(task, X, y, fs_hz, budget_s=budget_s, seed=seed, progress=progress)
 
     @property
     def class_names(self) -> tuple[str, ...]:  # type: ignore[override]
@@ -112,6 +145,12 @@ class BrailleTask(TrialTask):
     @property
     def sensor(self) -> CapacitiveFingertip:
         scale = self.taxel_noise * self.difficulty
+        if self.fit is not None:
+            known = {f.name for f in fields(FingertipParams)}
+            params: dict[str, Any] = {k: v for k, v in self.fit.params.items() if k in known}
+            ch = self.fit.channels
+            params["pads_mm"] = tuple(zip(ch["pad_x_mm"], ch["pad_y_mm"], strict=True))
+            return CapacitiveFingertip(FingertipParams(**params))
         base = FingertipParams()
         return CapacitiveFingertip(
             FingertipParams(
@@ -124,6 +163,8 @@ class BrailleTask(TrialTask):
         return float(self.fs_frames_hz)
 
     def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        if self.fit is not None:
+            return self._render_fitted(label, rng)
         d = self.difficulty
         sensor = self.sensor
         n = self.window
@@ -152,6 +193,53 @@ class BrailleTask(TrialTask):
         counts = sensor.read_scene(press, rng)
         load = sensor.last_force_N
         info = {"speed_mm_s": float(speed), "force_N": float(force), "cell_offset_mm": place.tolist(),
+                "contact_mm": contact.tolist(),
+                "force_rise_N": float(load.max() - load[: max(1, n // 10)].mean())}  # fmt: skip
+        return counts, info
+
+    def _render_fitted(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+        """A slide of the fitted fingertip and scene, drawn around the fit's values."""
+        fit = self.fit
+        assert fit is not None
+        d = self.difficulty
+        sc, rz, ch = fit.scene, fit.randomisation, fit.channels
+        defaults = {f.name: f.default for f in fields(type(self))}
+
+        def knob(name: str, width: float) -> float:  # the task's knob scales the fitted width
+            base = defaults[name]
+            return width * d * (getattr(self, name) / base if base else 1.0)
+
+        sensor = self.sensor
+        n = self.window
+        t = np.arange(n) / self.fs_hz
+        speed = sc["speed_mm_s"] * np.exp(
+            knob("speed_spread", rz["speed_spread"]) * rng.standard_normal()
+        )
+        t_mid = n / self.fs_hz / 2 + sc["t_mid_offset_s"] + knob(
+            "speed_spread", rz["time_jitter_s"]) * rng.standard_normal()  # fmt: skip
+        place = knob("position_mm", rz["position_mm"]) * rng.standard_normal(2)
+        contact = knob("position_mm", rz["position_mm"]) * rng.standard_normal(2)
+        dots = cell_dots_mm(self.class_names[label]) + place - [0.0, sc["row_mm"]]
+        shift = speed * (t - t_mid)
+        bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]
+        fs = min(knob("force_spread", rz["force_spread"]), 0.9)
+        force = sc["force_N"] * np.exp(fs * rng.uniform(-1, 1)) * (
+            1 + sc["force_ramp"] * t / (n / self.fs_hz))  # fmt: skip
+        gain = np.asarray(ch["gain"]) * np.exp(
+            knob("gain_spread", rz["gain_spread"]) * rng.standard_normal(12))  # fmt: skip
+        off_scale = d * self.offset_counts / defaults["offset_counts"]
+        off_sd = np.asarray(ch.get("offset_sd", [0.0] * 12)) * off_scale
+        offset = np.asarray(ch["offset"]) + off_sd * rng.standard_normal(12)
+        drift = np.cumsum(rng.standard_normal((12, n)), 1) * (
+            knob("drift_counts", rz["drift_counts"]) / np.sqrt(n))  # fmt: skip
+        noise = (
+            np.asarray(ch["noise"])[:, None] * self.taxel_noise * d * rng.standard_normal((12, n))
+        )
+        press = FingertipPress(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
+                               offset[:, None] + drift + noise, self.fs_hz)  # fmt: skip
+        counts = sensor.read_scene(press, rng)
+        load = sensor.last_force_N
+        info = {"speed_mm_s": float(speed), "force_N": float(force[0]), "cell_offset_mm": place.tolist(),
                 "contact_mm": contact.tolist(),
                 "force_rise_N": float(load.max() - load[: max(1, n // 10)].mean())}  # fmt: skip
         return counts, info
