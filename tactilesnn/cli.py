@@ -1,6 +1,7 @@
 """Command-line interface: parse, call the application layer, print.
 
-``tactilesnn train | evaluate | export | generate | sweep | serve | demo-stream | bench``;
+``tactilesnn train | evaluate | export | generate | calibrate | sweep | serve | demo-stream |
+bench``;
 ``python train.py ...`` is the same as ``tactilesnn ...``.
 """
 
@@ -370,6 +371,41 @@ def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    from .app.commands import task_names
+
+    p = _command(sub, "calibrate", "fit a task's sensor model to your recordings (a fit file "
+                 "that generate / train read with --task-kw calibration=FILE)")  # fmt: skip
+    p.add_argument("--data", required=True,
+                   help="recordings as train --data reads them (.npz or folder)")  # fmt: skip
+    p.add_argument("--task", default="braille", choices=task_names(),
+                   help="the task whose scene the recordings are (its classes named as theirs)")  # fmt: skip
+    p.add_argument("--out", required=True, help="the fit file to write (JSON)")
+    p.add_argument("--recordings", type=int, nargs="+",
+                   help="fit on these recordings only (indices in the file's order; default all)")  # fmt: skip
+    p.add_argument("--budget-s", type=float, default=240.0,
+                   help="seconds the optimiser may search (default 240)")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="the optimiser's seed")
+    p.add_argument("--fs", type=float, help="sampling rate (Hz) for recordings without one")
+    p.add_argument("--plot", help="also write the statistics picture (PNG): real, the model's "
+                   "defaults and the fit")  # fmt: skip
+    p.add_argument("--overwrite", action="store_true", help="replace --out / --plot")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=cmd_calibrate)
+    return p
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .app.calibrate import calibrate
+
+    lines = calibrate(Path(args.data), args.task, Path(args.out), args.recordings,
+                      budget_s=args.budget_s, seed=args.seed,
+                      plot=Path(args.plot) if args.plot else None, overwrite=args.overwrite,
+                      fs_hz=args.fs, progress=not args.quiet)  # fmt: skip
+    print("\n".join(lines))
+    return 0
+
+
 def _parse_sweep(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "sweep", "grid / random search over train settings, each a run folder")
     p.add_argument("--config", required=True, help="sweep TOML ([base] + [grid] or [random])")
@@ -428,6 +464,7 @@ def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 #: the sub-commands and their parsers (``python train.py`` passes anything else to ``train``)
 COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse_export,
             "convert": _parse_convert, "generate": _parse_generate, "tasks": _parse_tasks,
+            "calibrate": _parse_calibrate,
             "sweep": _parse_sweep,
             "serve": _parse_serve, "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
 

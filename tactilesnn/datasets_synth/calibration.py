@@ -227,5 +227,7 @@ def plot_statistics(real: dict, fits: dict[str, dict], class_names: tuple[str, .
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    tmp = Path(path).with_name(Path(path).name + ".partial.png")
+    fig.savefig(tmp, dpi=100)
     plt.close(fig)
+    tmp.replace(path)

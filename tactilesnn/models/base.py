@@ -139,6 +139,55 @@ class SpikeModel(nn.Module):
         """Differentiable training loss (models that learn by gradient)."""
         raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")
 
+    def finetune_parameters(self) -> list[nn.Parameter]:
+        """The parameters :meth:`finetune` adapts (the read-out layer); default: none."""
+        return []
+
+    def finetune_penalty(self, n: int) -> float:
+        """The pull of :meth:`finetune` towards the trained values for ``n`` new windows."""
+        return 0.03 * 256 / max(n, 1)
+
+    def finetune_loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        """The data term :meth:`finetune` minimises (default: :meth:`loss`)."""
+        return self.loss(spikes, y)
+
+    def finetune(self, spikes: Tensor, y: Tensor, max_iter: int = 200) -> dict:
+        """Adapt a trained model to a few windows of a new domain (pretrain, then fine-tune):
+        :meth:`finetune_parameters` re-fitted by full-batch L-BFGS to :meth:`finetune_loss`
+        plus :meth:`finetune_penalty` times their squared distance from the trained values (a
+        prior centred on what pretraining learnt, not on zero; biases free). Spikes ``[N, A,
+        k]``, labels ``y [N]`` int64. Returns the penalty and the data term before and after."""
+        params = self.finetune_parameters()
+        if not params:
+            raise NotImplementedError(f"{type(self).__name__} does not fine-tune")
+        n = int(spikes.shape[0])
+        if n == 0 or y.shape[0] != n:
+            raise ValueError(
+                f"fine-tuning needs windows and one label each, got {n} / {y.shape[0]}"
+            )
+        lam = self.finetune_penalty(n)
+        anchors = [q.detach().clone() for q in params]
+        named = {id(q): name for name, q in self.named_parameters()}
+        pulled = [not named.get(id(q), "").endswith("bias") for q in params]
+        with torch.no_grad():
+            before = float(self.finetune_loss(spikes, y))
+        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=20,
+                                tolerance_grad=1e-7, line_search_fn="strong_wolfe")  # fmt: skip
+
+        def closure() -> Tensor:
+            opt.zero_grad()
+            loss = self.finetune_loss(spikes, y) + lam * sum(
+                (q - a).pow(2).sum() for q, a, pull in zip(params, anchors, pulled, strict=True)
+                if pull
+            )  # fmt: skip
+            loss.backward()
+            return loss
+
+        opt.step(closure)
+        with torch.no_grad():
+            after = float(self.finetune_loss(spikes, y))
+        return {"penalty": lam, "windows": n, "loss_before": before, "loss_after": after}
+
     def rule_update(self, spikes: Tensor, y: Tensor, epoch: int) -> None:
         """Apply the model's learning rule for one mini-batch (models that learn by rule)."""
         raise NotImplementedError(f"{type(self).__name__} learns by gradient, not by a rule")

@@ -360,6 +360,19 @@ class LIReadout(SpikeModel):
                                                               self.linear.bias), y)  # fmt: skip
         return ce + self.penalty * w.pow(2).sum()
 
+    def finetune_parameters(self) -> list[nn.Parameter]:
+        return [self.linear.weight, self.linear.bias]
+
+    def finetune_penalty(self, n: int) -> float:
+        # the same prior as training's (weight_decay at PRIOR_WINDOWS windows), centred on the
+        # pretrained weights
+        return self.config.weight_decay * PRIOR_WINDOWS / max(n, 1)
+
+    def finetune_loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+        w = self.linear.weight * self.instant_mask
+        return nn.functional.cross_entropy(nn.functional.linear(self.features(spikes), w,
+                                                                self.linear.bias), y)  # fmt: skip
+
     def learning_rate(self) -> float:
         return self.config.lr
 

@@ -19,8 +19,21 @@ model).
    slides added to the training set (the real windows repeated to half of it: joint training).
 4. **Randomisation knobs**: each of the task's knobs switched off and doubled (the others at
    their defaults), synthetic-only accuracy on the real file, the change against the defaults.
+5. **Calibrated** (``--calibrated-draws``, default 3 per ``k``): for each few-shot draw, the
+   sensor model is fitted (:meth:`~tactilesnn.datasets_synth.tasks.braille.BrailleTask.calibrate`,
+   ``--calibration-budget-s``) to the ``k`` training slides per class *only*; ``--calibrated-
+   synthetic`` slides of the fitted model then train the pipeline (the encoder chosen on them),
+   which is scored on the other real slides (synthetic only) and fine-tuned on the ``k`` real
+   slides (:func:`~tactilesnn.training.finetune_pipeline`: the read-out re-fitted with a prior
+   centred on the pretrained weights), next to the same pipeline trained on the ``k`` real
+   slides alone (real only). No test slide is seen by the calibration, the encoder's choice,
+   the training or the fine-tune (there is no early stopping); ``tests/bench/test_sim2real.py``
+   checks it.
 
-Writes ``sim2real.json``, ``sim2real.md`` and ``sim2real.png``.
+Writes ``sim2real.json`` (the calibrated section as ``synthetic_only_per_slide`` and ``shots:
+{k: {real_only_per_window, pretrained_per_window, ...}}``, means over draws), ``sim2real.md``,
+``sim2real.png`` and, per calibrated draw, the fit file and its statistics picture
+(``fits/k{k}_d{d}.json``, ``.png`` for the first draw of each ``k``).
 """
 
 from __future__ import annotations
@@ -189,10 +202,92 @@ def few_shot_split(
     return np.sort(train), np.setdiff1d(np.arange(real.y.size), train)
 
 
+def _accuracy(pipe, test: WindowDataset) -> tuple[float, float]:
+    """Per window and per slide (window scores summed) accuracy of a fitted pipeline."""
+    from ...pipeline import recording_accuracy
+
+    scores = pipe.scores(pipe.encode(test.X)).numpy()
+    per_window = float((scores.argmax(1) == test.y).mean())
+    rec = recording_accuracy(scores, test.y, test.scan)
+    return per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window
+
+
+def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
+                    synthetic: int, budget_s: float, seed: int, epochs: int | None,
+                    fit_path: Path | None = None, plot_path: Path | None = None) -> dict:  # fmt: skip
+    """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
+    synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``."""
+    from ...datasets_synth.tasks.braille import BrailleTask
+    from ...models.base import seeded
+    from ...training import finetune_pipeline, fit_pipeline
+
+    if np.intersect1d(train_idx, test_idx).size:
+        raise ValueError("a slide is in both the training and the test draw")
+    train_real = real.subset(np.isin(np.arange(real.y.size), train_idx))
+    test_real = real.subset(np.isin(np.arange(real.y.size), test_idx))
+    t0 = time.perf_counter()
+    fit = BrailleTask.calibrate(np.asarray(train_real.X, np.float64), train_real.y, real.fs_hz,
+                                real.class_names, budget_s=budget_s, seed=seed)  # fmt: skip
+    t_cal = time.perf_counter() - t0
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(fit_path) if fit_path is not None else Path(tmp) / "fit.json"
+        fit.save(path, overwrite=True)
+        synth, _ = render_synthetic(real, synthetic, seed, False, calibration=str(path))
+        if plot_path is not None:
+            from ...datasets_synth.calibration import plot_statistics, slide_statistics
+
+            n_cls = len(real.class_names)
+            st_real = slide_statistics(train_real.X, train_real.y, real.fs_hz, n_cls)
+            st_syn = slide_statistics(synth.X, synth.y, real.fs_hz, n_cls)
+            plot_statistics(st_real, {"calibrated": st_syn}, real.class_names, real.fs_hz,
+                            plot_path, title=f"fitted to {train_idx.size} real slides")  # fmt: skip
+    synth_w, train_w, test_w = cut(synth), cut(train_real), cut(test_real)
+    cfg, chosen = base_config(synth_w, seed, epochs)
+    cfg = with_seed(cfg, seed)
+    row: dict = {"train_slides": train_idx.tolist(), "test_slides": int(test_idx.size),
+                 "calibration_s": t_cal, "objective": fit.objective["value"],
+                 "distances": fit.objective["distances"], "encoder": chosen}  # fmt: skip
+    with seeded(seed):
+        pre = fit_pipeline(cfg, synth_w, with_past=False).pipeline
+    row["synthetic_only"], row["synthetic_only_per_slide"] = _accuracy(pre, test_w)
+    with seeded(seed):
+        report = finetune_pipeline(pre, train_w)
+    row["pretrained"], row["pretrained_per_slide"] = _accuracy(pre, test_w)
+    row["finetune"] = report
+    with seeded(seed):
+        alone = fit_pipeline(cfg, train_w, with_past=False).pipeline
+    row["real_only"], row["real_only_per_slide"] = _accuracy(alone, test_w)
+    return row
+
+
+def summarise_calibrated(rows: list[dict]) -> dict:
+    """The calibrated section's summary: means (fractions) over draws, per ``k``."""
+    out: dict = {"synthetic_only_per_slide": float(np.mean([r["synthetic_only_per_slide"]
+                                                            for r in rows])),
+                 "synthetic_only_per_window": float(np.mean([r["synthetic_only"] for r in rows])),
+                 "shots": {}}  # fmt: skip
+    for k in sorted({r["k"] for r in rows}):
+        sel = [r for r in rows if r["k"] == k]
+        out["shots"][str(k)] = {
+            name: float(np.mean([r[key] for r in sel]))
+            for name, key in (("real_only_per_window", "real_only"),
+                              ("pretrained_per_window", "pretrained"),
+                              ("synthetic_only_per_window", "synthetic_only"),
+                              ("real_only_per_slide", "real_only_per_slide"),
+                              ("pretrained_per_slide", "pretrained_per_slide"),
+                              ("synthetic_only_per_slide", "synthetic_only_per_slide"))
+        }  # fmt: skip
+        out["shots"][str(k)]["draws"] = len(sel)
+    return out
+
+
 def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
-        progress: bool = True) -> dict:  # fmt: skip
+        progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 90.0,
+        calibrated_synthetic: int = 200) -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
@@ -266,10 +361,31 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
             knob_rows.append({"knob": knob, "value": kw[knob], "accuracy": acc[0], "per_slide": acc[1],
                               "change_points": 100 * (acc[0] - base[0])})  # fmt: skip
     result["knobs"] = knob_rows
-    result["seconds"] = time.perf_counter() - t_start
 
+    # 5. calibrated: the sensor model fitted to each draw's training slides only
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    cal_rows = []
+    if calibrated_draws > 0:
+        (out / "fits").mkdir(exist_ok=True)
+    for k in shots:
+        for d in range(calibrated_draws):
+            tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
+            t0 = time.perf_counter()
+            row = calibrated_draw(real, tr, te, calibrated_synthetic, calibration_budget_s, d,
+                                  epochs, out / "fits" / f"k{k}_d{d}.json",
+                                  out / "fits" / f"k{k}_d{d}.png" if d == 0 else None)  # fmt: skip
+            row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
+            cal_rows.append(row)
+            log.info("calibrated k=%d draw %d: synthetic only %.3f / %.3f, real only %.3f, "
+                     "pretrained %.3f per window (%.0f s)", k, d, row["synthetic_only"],
+                     row["synthetic_only_per_slide"], row["real_only"], row["pretrained"],
+                     row["seconds"])  # fmt: skip
+    result["calibrated"] = cal_rows
+    if cal_rows:
+        result.update(summarise_calibrated(cal_rows))
+    result["seconds"] = time.perf_counter() - t_start
+
     (out / "sim2real.json").write_text(json.dumps(result, indent=2))
     text = table(result)
     (out / "sim2real.md").write_text(text)
@@ -329,6 +445,23 @@ def table(r: dict) -> str:
         ch = "-" if x["knob"] == "defaults" else f"{x['change_points']:+.1f}"
         val = "-" if x["value"] is None else f"{x['value']:g}"
         lines.append(f"| {x['knob']} | {val} | {100 * x['accuracy']:.1f} | {ch} |")
+    if r.get("calibrated"):
+        lines += ["", "Calibrated sensor model (fitted to each draw's k training slides per class only):",
+                  "", "| k real per class | draws | calibration s | synthetic only per window / per "
+                  "slide % | real only per window / per slide % | pretrained + fine-tuned per "
+                  "window / per slide % | gain per window (points) |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        for k in sorted({x["k"] for x in r["calibrated"]}):
+            sel = [x for x in r["calibrated"] if x["k"] == k]
+
+            def pair(a: str, b: str, sel: list = sel) -> str:
+                return f"{_ms([x[a] for x in sel])} / {_ms([x[b] for x in sel])}"
+
+            gain = 100 * np.mean([x["pretrained"] - x["real_only"] for x in sel])
+            lines.append(f"| {k} | {len(sel)} | {np.mean([x['calibration_s'] for x in sel]):.0f} | "
+                         f"{pair('synthetic_only', 'synthetic_only_per_slide')} | "
+                         f"{pair('real_only', 'real_only_per_slide')} | "
+                         f"{pair('pretrained', 'pretrained_per_slide')} | {gain:+.1f} |")  # fmt: skip
     lines.append(f"\n({r['seconds']:.0f} s)")
     return "\n".join(lines) + "\n"
 
@@ -402,6 +535,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="randomisation knobs to switch off and double (none: skip)")  # fmt: skip
     p.add_argument("--knob-synthetic", type=int, default=150, help="synthetic slides per knob run")
     p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
+    p.add_argument("--calibrated-draws", type=int, default=3,
+                   help="few-shot draws per k with the sensor model fitted to the draw (0: skip)")  # fmt: skip
+    p.add_argument("--calibration-budget-s", type=float, default=90.0,
+                   help="seconds each calibration may search")  # fmt: skip
+    p.add_argument("--calibrated-synthetic", type=int, default=200,
+                   help="slides rendered by each calibrated model")  # fmt: skip
     p.add_argument("--level-neurons", type=int, default=None,
                    help="level code neurons (default: train --data's; 0 = scale-invariant)")  # fmt: skip
 
@@ -413,5 +552,7 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
         draws=options.draws, knobs=tuple(options.knobs), knob_synthetic=options.knob_synthetic,
         epochs=options.epochs, level_neurons=options.level_neurons,
-        progress=not options.quiet)  # fmt: skip
+        progress=not options.quiet, calibrated_draws=options.calibrated_draws,
+        calibration_budget_s=options.calibration_budget_s,
+        calibrated_synthetic=options.calibrated_synthetic)  # fmt: skip
     return 0

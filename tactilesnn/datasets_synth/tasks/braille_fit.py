@@ -209,6 +209,27 @@ def place_pads(codes: np.ndarray, means: np.ndarray, centres_mm: np.ndarray
     return pad, gain, offset
 
 
+def activity(means: np.ndarray) -> np.ndarray:
+    """How much the channels move ``[T]``: the summed absolute change from each channel's rest
+    (first 10 %) level, over letters and channels of ``means [L, C, T]``."""
+    rest = np.median(means[..., : max(2, means.shape[-1] // 10)], -1, keepdims=True)
+    return np.abs(means - rest).sum((0, 1))
+
+
+def response_lag_s(values: dict[str, float], letters: str, fs_hz: float, n: int,
+                   real_means: np.ndarray) -> float:  # fmt: skip
+    """When the letters pass, as a timing offset (s) for ``values``: the lag that best aligns the
+    model's activity (every candidate pad, unit gains) with the recordings' (the search's start:
+    a wrong start leaves the timing in a local optimum)."""
+    model = activity(letter_codes({**values, "t_mid_offset_s": 0.0}, letters, fs_hz, n))
+    real = activity(real_means)
+    model, real = model - model.mean(), real - real.mean()
+    lo, hi = BOUNDS["t_mid_offset_s"][:2]
+    lags = np.arange(int(np.ceil(lo * fs_hz)), int(hi * fs_hz) + 1)
+    score = [float(np.dot(np.roll(model, lag), real)) for lag in lags]
+    return float(lags[int(np.argmax(score))] / fs_hz)
+
+
 def fit_levels(codes: np.ndarray, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per channel gain (>= 0, counts per code LSB) and offset (counts) of ``codes [C, T]`` that
     best fit ``means [C, T]`` (least squares)."""
@@ -307,7 +328,7 @@ def spread_of(X: np.ndarray, y: np.ndarray, rest_only: bool) -> np.ndarray:
 
 def fit_spreads(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarray,
                 offset: np.ndarray, letters: str, X: np.ndarray, y: np.ndarray, fs_hz: float,
-                noise: np.ndarray, draws: int = 4, seed: int = 0
+                noise: np.ndarray, defaults: dict[str, float], draws: int = 4, seed: int = 0
                 ) -> tuple[dict[str, float], np.ndarray, str]:  # fmt: skip
     """The widths of :data:`SPREAD_SOURCES` whose spread matches the real recordings', and the
     per-channel level spread (counts) left over.
@@ -317,7 +338,8 @@ def fit_spreads(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarray,
     source's variance (measured once, ``draws`` slides per letter at the source's reference
     width; a variance grows as the width squared) and the measured noise's; the squared scale
     of each width is the non-negative least-squares solution (channels weighted alike in
-    relative terms), clipped at :data:`SPREAD_MAX`."""
+    relative terms), clipped at :data:`SPREAD_MAX`; a source the statistic does not see keeps
+    its width in ``defaults`` (the task's)."""
     from scipy.optimize import nnls
 
     rest_only = not any((y == k).sum() >= 2 for k in np.unique(y))
@@ -332,11 +354,17 @@ def fit_spreads(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarray,
         ys = np.repeat(np.arange(len(letters)), draws)
         cols.append(spread_of(S, ys, rest_only))
     a = np.stack(cols, 1)  # [C, sources]
+    # a source that moves nothing the statistic sees (the speed, for rest levels) cannot be
+    # told by it: it keeps the task's default width instead of an arbitrary solution
+    seen = a.sum(0) > 1e-3 * max(float(np.maximum(target, 0.0).sum()), 1e-9)
     wt = 1.0 / (1.0 + np.sqrt(np.maximum(target, 0.0)))
-    scale, _ = nnls(a * wt[:, None], np.maximum(target, 0.0) * wt)
-    widths = {name: float(min(np.sqrt(sc) * ref, SPREAD_MAX[name]))
-              for sc, (name, ref) in zip(scale, SPREAD_SOURCES.items(), strict=True)}  # fmt: skip
-    used = np.array([(widths[k] / ref) ** 2 for k, ref in SPREAD_SOURCES.items()])
+    scale = np.zeros(a.shape[1])
+    if seen.any():
+        scale[seen], _ = nnls((a * wt[:, None])[:, seen], np.maximum(target, 0.0) * wt)
+    widths = {name: float(min(np.sqrt(sc) * ref, SPREAD_MAX[name])) if ok else float(defaults[name])
+              for sc, ok, (name, ref) in zip(scale, seen, SPREAD_SOURCES.items(), strict=True)}  # fmt: skip
+    used = np.array([(widths[k] / ref) ** 2 if ok else 0.0
+                     for ok, (k, ref) in zip(seen, SPREAD_SOURCES.items(), strict=True)])  # fmt: skip
     left = np.sqrt(np.maximum(target - a @ used, 0.0))
     return widths, left, "rest levels" if rest_only else "about the class means"
 
@@ -389,6 +417,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     )
     cands = candidates_mm()
     start = start_values(task, n / fs_hz)
+    start["t_mid_offset_s"] = response_lag_s(start, letters, fs, n_dec, real_dec)
     es = cma.CMAEvolutionStrategy(
         _to_unit(start), 0.25,
         {"bounds": [0.0, 1.0], "seed": int(seed) + 1, "verbose": -9, "popsize": 10},
@@ -426,9 +455,9 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     shift = 2 ** FingertipParams().shift_bits
     real_stats = slide_statistics(X, y, fs_hz, len(letters))
     spreads = rest_spreads(X, y, fs_hz)
-    {f.name: f.default for f in fields(task)}
-    widths, offset_sd, _spread_on = fit_spreads(values, cands[pad], gain, offset, letters, X, y,
-                                               fs_hz, real_stats["noise"], seed=seed)  # fmt: skip
+    defaults = {f.name: f.default for f in fields(task)}
+    widths, offset_sd, spread_on = fit_spreads(values, cands[pad], gain, offset, letters, X, y,
+                                               fs_hz, real_stats["noise"], defaults, seed=seed)  # fmt: skip
     channels = {"pad_x_mm": cands[pad, 0].tolist(), "pad_y_mm": cands[pad, 1].tolist(),
                 "gain": (gain * shift).tolist(), "offset": offset.tolist(),
                 "noise": real_stats["noise"].tolist(), "offset_sd": offset_sd.tolist()}  # fmt: skip
@@ -446,7 +475,8 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
         scene=scene, randomisation=randomisation,
         objective={"value": float(best[0]), "evaluations": evals,
                    "seconds": time.perf_counter() - t0, "optimiser": "cma-es (cma)",
-                   "history": history, "distances": dist, "seed": int(seed)},
+                   "history": history, "distances": dist, "seed": int(seed),
+                   "spreads_from": spread_on},
         fitted_on={"recordings": len(X), "per_class": np.bincount(y).tolist(),
                    "letters": letters, "fs_hz": float(fs_hz), "samples": int(n)},
     )  # fmt: skip

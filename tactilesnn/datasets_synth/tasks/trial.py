@@ -56,6 +56,18 @@ class TrialTask(ABC):
         if not 0 < self.test_fraction < 1:
             raise ValueError(f"test_fraction must be in (0, 1), got {self.test_fraction}")
 
+    @classmethod
+    def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
+                  budget_s: float = 240.0, seed: int = 0, progress: bool = False):  # fmt: skip
+        """Fit the task's sensor model to real recordings ``X [N, channels, samples]`` of the
+        classes ``class_names[y]``: a :class:`~..calibration.SensorFit`. A task that knows its
+        scene well enough to fit it overrides this."""
+        base = TrialTask.calibrate.__func__
+        able = sorted(n for n, c in _tasks().items()
+                      if getattr(getattr(c, "calibrate", None), "__func__", base) is not base)  # fmt: skip
+        raise ValueError(f"the {cls.name} task cannot be calibrated; tasks that can: "
+                         f"{', '.join(able) or 'none'}")  # fmt: skip
+
     # subclasses provide ``sensor`` (a model with ``fs_hz`` and ``channel_names``) and either a
     # ``duration_s`` field or their own ``window``
     @property
@@ -141,3 +153,9 @@ class TrialTask(ABC):
             for X, y, idx in zip(Xs, ys, parts, strict=True)
         )
         return train, test
+
+
+def _tasks() -> dict:
+    from .base import TASKS
+
+    return dict(TASKS.items())
