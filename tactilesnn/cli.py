@@ -382,7 +382,7 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
                    help="the task whose scene the recordings are (its classes named as theirs)")  # fmt: skip
     p.add_argument("--out", required=True, help="the fit file to write (JSON)")
     p.add_argument("--recordings", type=int, nargs="+",
-                   help="fit on these recordings only (indices in the file's order; default all)")  # fmt: skip
+                   help="fit on these recordings only (indices in file order; default all)")  # fmt: skip
     p.add_argument("--budget-s", type=float, default=240.0,
                    help="seconds the optimiser may search (default 240)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="the optimiser's seed")

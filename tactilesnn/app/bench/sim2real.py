@@ -536,7 +536,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--knob-synthetic", type=int, default=150, help="synthetic slides per knob run")
     p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
     p.add_argument("--calibrated-draws", type=int, default=3,
-                   help="few-shot draws per k with the sensor model fitted to the draw (0: skip)")  # fmt: skip
+                   help="few-shot draws per k, the sensor model fitted to each (0: skip)")  # fmt: skip
     p.add_argument("--calibration-budget-s", type=float, default=90.0,
                    help="seconds each calibration may search")  # fmt: skip
     p.add_argument("--calibrated-synthetic", type=int, default=200,
