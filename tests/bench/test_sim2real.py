@@ -57,3 +57,70 @@ def test_bench_sim2real_on_a_synthetic_stand_in(tmp_path):
     assert [r["knob"] for r in res["knobs"]] == ["defaults", "gain_spread", "gain_spread"]
     text = (tmp_path / "out" / "sim2real.md").read_text()
     assert "synthetic only (taxels matched" in text and "force rise" in text
+
+
+@pytest.mark.slow
+def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
+    """The calibrated draw: the calibration gets exactly the draw's training slides, the
+    pipeline is trained on synthetic windows and fine-tuned on training slides only, and the
+    scores are computed on the other slides (the split checked through every call)."""
+    from tactilesnn import training
+    from tactilesnn.datasets_synth.tasks.braille import BrailleTask
+
+    _stand_in(tmp_path / "data", n=18)
+    real = sim2real.load_real(tmp_path / "data")
+    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng(0))
+    seen: dict[str, list] = {"calibrate": [], "fit": [], "finetune": [], "scored": []}
+    calibrate = BrailleTask.calibrate.__func__
+
+    def spy_calibrate(cls, X, y, *a, **kw):
+        seen["calibrate"].append(np.asarray(X).copy())
+        kw["budget_s"] = 1.0
+        return calibrate(cls, X, y, *a, **kw)
+
+    fit_pipeline, finetune_pipeline = training.fit_pipeline, training.finetune_pipeline
+
+    def spy_fit(cfg, data, *a, **kw):
+        seen["fit"].append(data.scan.copy())
+        return fit_pipeline(cfg, data, *a, **kw)
+
+    def spy_finetune(pipe, data, *a, **kw):
+        seen["finetune"].append(data.scan.copy())
+        return finetune_pipeline(pipe, data, *a, **kw)
+
+    accuracy = sim2real._accuracy
+
+    def spy_accuracy(pipe, test):
+        seen["scored"].append(test.scan.copy())
+        return accuracy(pipe, test)
+
+    monkeypatch.setattr(BrailleTask, "calibrate", classmethod(spy_calibrate))
+    monkeypatch.setattr(training, "fit_pipeline", spy_fit)
+    monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
+    monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
+    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3)
+    # the calibration saw the three training slides, as they are in the file
+    assert len(seen["calibrate"]) == 1
+    assert np.array_equal(seen["calibrate"][0], real.X[tr].astype(np.float64))
+    test_ids = set(real.scan[te].tolist())
+    train_ids = set(real.scan[tr].tolist())
+    for scans in seen["fit"] + seen["finetune"]:  # synthetic ids (>= 1e6) or training slides
+        assert not set(scans.tolist()) & test_ids
+    assert any(set(s.tolist()) <= train_ids for s in seen["fit"])  # the real-only arm
+    assert all(set(s.tolist()) <= train_ids for s in seen["finetune"])
+    assert seen["scored"] and all(set(s.tolist()) == test_ids for s in seen["scored"])
+    for key in ("synthetic_only", "real_only", "pretrained", "synthetic_only_per_slide"):
+        assert 0.0 <= row[key] <= 1.0
+    with pytest.raises(ValueError, match="both the training and the test"):
+        sim2real.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
+
+
+def test_calibrated_summary_has_the_documented_keys():
+    rows = [{"k": k, "synthetic_only_per_slide": 0.5 + 0.1 * d, "synthetic_only": 0.4,
+             "real_only": 0.5, "pretrained": 0.6 + 0.1 * d, "real_only_per_slide": 0.6,
+             "pretrained_per_slide": 0.7} for k in (1, 2) for d in range(2)]  # fmt: skip
+    s = sim2real.summarise_calibrated(rows)
+    assert np.isclose(s["synthetic_only_per_slide"], 0.55)
+    assert set(s["shots"]) == {"1", "2"}
+    assert np.isclose(s["shots"]["1"]["pretrained_per_window"], 0.65)
+    assert s["shots"]["2"]["real_only_per_window"] == 0.5 and s["shots"]["2"]["draws"] == 2

@@ -235,3 +235,42 @@ def test_a_little_over_the_budget_the_exact_fit_takes_the_recordings_that_fit(mo
     w, b, _ = fit_features(feats, torch.from_numpy(y[rows]), 3, info["penalty"])
     np.testing.assert_allclose(model.linear.weight.detach().numpy(), w.T.numpy(), atol=1e-5)
     np.testing.assert_allclose(model.linear.bias.detach().numpy(), b.numpy(), atol=1e-5)
+
+
+def _domain(rng, proto, per):
+    y = np.repeat(np.arange(proto.shape[0]), per)
+    s = proto[y] + rng.normal(0, 10, (y.size, proto.shape[1], 1))
+    return torch.from_numpy(np.clip(s, 0, 500)).float(), y
+
+
+def test_finetune_adapts_near_the_pretrained_weights():
+    """Pretrain on one domain, fine-tune on a few windows of a shifted one: the fine-tuned
+    readout classifies the shifted domain better than the pretrained one, and a strong prior
+    keeps it at the pretrained weights (the penalty pulls towards them, not towards zero)."""
+    from tactilesnn.config import TrainConfig
+
+    rng = np.random.default_rng(4)
+    proto = rng.uniform(50, 450, (3, 12, 1))
+    src, ys = _domain(rng, proto, 40)
+    # the new domain: classes 0 and 1 swap their timing on two thirds of the afferents
+    new = proto.copy()
+    new[0, :8], new[1, :8] = proto[1, :8], proto[0, :8]
+    few, yf = _domain(rng, new, 2)
+    test, yt = _domain(rng, new, 30)
+    model = build_model(ReadoutConfig(), 12, 1, 3, 500.0)
+    Trainer(model, TrainConfig(epochs=1)).fit(src, ys)
+    before = float((model.scores(test).argmax(1).numpy() == yt).mean())
+    w0 = model.linear.weight.detach().clone()
+    report = model.finetune(few, torch.from_numpy(yf))
+    after = float((model.scores(test).argmax(1).numpy() == yt).mean())
+    assert report["windows"] == 6 and report["loss_after"] < report["loss_before"]
+    assert after > before
+    moved = float((model.linear.weight - w0).norm())
+    assert moved > 0
+    # a prior 1e6 times stronger: the weights stay where pretraining left them
+    model.linear.weight.data.copy_(w0)
+    model.finetune_penalty = lambda n: 1e6  # type: ignore[method-assign]
+    model.finetune(few, torch.from_numpy(yf))
+    assert float((model.linear.weight - w0).norm()) < 1e-3 * moved
+    with pytest.raises(ValueError, match="one label each"):
+        model.finetune(few, torch.from_numpy(yf[:-1]))
