@@ -168,6 +168,7 @@ def test_place_pads_recovers_a_known_layout():
         o[live], offset[live], atol=1e-6
     )
     gl, ol = bf.fit_levels(joined[truth], means)
+    assert np.allclose(ol[live], offset[live], atol=1e-6)
     assert np.allclose(gl[live], gain[live], rtol=1e-6)
 
 
@@ -184,7 +185,7 @@ def test_spreads_recover_a_known_width_and_keep_unseen_defaults():
     X = np.repeat(X, 2, axis=-1)  # back to the full rate (each frame twice)
     y = np.repeat(np.arange(3), 4)
     defaults = {"position_mm": 0.5, "force_spread": 0.2, "gain_spread": 0.25, "speed_spread": 0.1}
-    w, left, on = bf.fit_spreads(values, pads, gain, offset, "abc", X, y, fs, np.zeros(12),
+    w, _left, on = bf.fit_spreads(values, pads, gain, offset, "abc", X, y, fs, np.zeros(12),
                                  defaults, draws=6)  # fmt: skip
     assert on == "about the class means"
     assert 0.04 < w["force_spread"] < 0.16
@@ -199,7 +200,7 @@ def test_task_renders_a_fit_file_and_refuses_another_task(tmp_path):
     task = get_task("braille", calibration=str(path), n_samples=6, fs_frames_hz=93.3,
                     duration_s=2.0)  # fmt: skip
     assert np.allclose(task.sensor.taxels_mm[:, 0], [3.5 * (i % 4) - 5.25 for i in range(12)])
-    x, label, info = task.sample(0)
+    x, _, _ = task.sample(0)
     assert x.shape == (12, round(2.0 * 93.3)) and np.isfinite(x).all() and x.max() > 0
     assert x.min() >= 0 and x.max() <= 255 and np.allclose(x, np.round(x))
     other = _fit(task="texture")
