@@ -383,8 +383,10 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
     p.add_argument("--out", required=True, help="the fit file to write (JSON)")
     p.add_argument("--recordings", type=int, nargs="+",
                    help="fit on these recordings only (indices in file order; default all)")  # fmt: skip
-    p.add_argument("--budget-s", type=float, default=240.0,
-                   help="seconds the optimiser may search (default 240)")  # fmt: skip
+    p.add_argument("--evaluations", type=int, default=400,
+                   help="the optimiser's evaluations (default 400, ~1 min on one core)")  # fmt: skip
+    p.add_argument("--budget-s", type=float, default=600.0,
+                   help="at most this many seconds of search, whatever --evaluations says")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="the optimiser's seed")
     p.add_argument("--fs", type=float, help="sampling rate (Hz) for recordings without one")
     p.add_argument("--plot", help="also write the statistics picture (PNG): real, the model's "
@@ -399,7 +401,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .app.calibrate import calibrate
 
     lines = calibrate(Path(args.data), args.task, Path(args.out), args.recordings,
-                      budget_s=args.budget_s, seed=args.seed,
+                      budget_s=args.budget_s, evaluations=args.evaluations, seed=args.seed,
                       plot=Path(args.plot) if args.plot else None, overwrite=args.overwrite,
                       fs_hz=args.fs, progress=not args.quiet)  # fmt: skip
     print("\n".join(lines))

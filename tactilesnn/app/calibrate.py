@@ -49,7 +49,8 @@ def render_like(task_name: str, fs_hz: float, samples: int, class_names: tuple[s
 
 
 def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = None,
-              budget_s: float = 240.0, seed: int = 0, plot: Path | None = None,
+              budget_s: float = 600.0, evaluations: int = 400, seed: int = 0,
+              plot: Path | None = None,
               overwrite: bool = False, fs_hz: float | None = None, progress: bool = True
               ) -> list[str]:  # fmt: skip
     """Fit, write ``out`` (and ``plot``); the lines to print."""
@@ -63,6 +64,8 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
         raise FileExistsError(f"{plot} exists; pass --overwrite to replace it")
     if not (np.isfinite(budget_s) and budget_s > 0):
         raise ValueError(f"--budget-s must be a positive number of seconds, got {budget_s}")
+    if evaluations < 10:
+        raise ValueError(f"--evaluations must be >= 10, got {evaluations}")
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; available tasks: {', '.join(TASKS)}")
     X, y, fs, names = load_recordings(data, fs_hz)
@@ -77,7 +80,9 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
             raise ValueError(f"--recordings must be distinct indices in 0..{len(X) - 1}")
         X, y = X[idx], y[idx]
     t0 = time.perf_counter()
-    fit = TASKS[task].calibrate(X, y, fs, names, budget_s=budget_s, seed=seed, progress=progress)
+    fit = TASKS[task].calibrate(
+        X, y, fs, names, budget_s=budget_s, seed=seed, progress=progress, max_evals=evaluations
+    )
     fit.fitted_on.update(data=str(Path(data).name), recordings=None if recordings is None
                          else [int(i) for i in recordings])  # fmt: skip
     fit.save(out, overwrite=overwrite)

@@ -129,14 +129,24 @@ class BrailleTask(TrialTask):
 
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
-                  budget_s: float = 240.0, seed: int = 0, progress: bool = False) -> SensorFit:  # fmt: skip
+                  budget_s: float = 240.0, seed: int = 0, progress: bool = False,
+                  max_evals: int | None = None) -> SensorFit:  # fmt: skip
         """Fit the fingertip and the scene to real slides ``X [N, 12, samples]`` of the letters
         ``class_names[y]`` (see :mod:`.braille_fit`)."""
         from . import braille_fit
 
         letters = "".join(str(c).strip().lower() for c in class_names)
         task = cls(letters=letters, fs_frames_hz=fs_hz, duration_s=X.shape[-1] / fs_hz)
-        return braille_fit.fit(task, X, y, fs_hz, budget_s=budget_s, seed=seed, progress=progress)
+        return braille_fit.fit(
+            task,
+            X,
+            y,
+            fs_hz,
+            budget_s=budget_s,
+            seed=seed,
+            progress=progress,
+            max_evals=max_evals or braille_fit.MAX_EVALS,
+        )
 
     @property
     def class_names(self) -> tuple[str, ...]:  # type: ignore[override]
@@ -223,7 +233,8 @@ class BrailleTask(TrialTask):
         shift = speed * (t - t_mid)
         bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]
         fs = min(knob("force_spread", rz["force_spread"]), 0.9)
-        force = sc["force_N"] * np.exp(fs * rng.uniform(-1, 1)) * (
+        letter = self.class_names[label]
+        force = sc["force_N"] * sc.get(f"force_scale_{letter}", 1.0) * np.exp(fs * rng.uniform(-1, 1)) * (
             1 + sc["force_ramp"] * t / (n / self.fs_hz))  # fmt: skip
         gain = np.asarray(ch["gain"]) * np.exp(
             knob("gain_spread", rz["gain_spread"]) * rng.standard_normal(12))  # fmt: skip
