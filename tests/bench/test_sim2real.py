@@ -124,3 +124,20 @@ def test_calibrated_summary_has_the_documented_keys():
     assert set(s["shots"]) == {"1", "2"}
     assert np.isclose(s["shots"]["1"]["pretrained_per_window"], 0.65)
     assert s["shots"]["2"]["real_only_per_window"] == 0.5 and s["shots"]["2"]["draws"] == 2
+
+
+def test_page_states_before_and_after(tmp_path):
+    cal = [{"k": k, "draw": d, "synthetic_only": 0.5, "synthetic_only_per_slide": 0.7,
+            "real_only": 0.5, "real_only_per_slide": 0.6, "pretrained": 0.62 + 0.01 * d,
+            "pretrained_per_slide": 0.7, "calibration_s": 70.0, "objective": 0.4,
+            "encoder": "lif"} for k in (1, 2) for d in range(3)]  # fmt: skip
+    before = [{"k": k, "draw": d, "arm": arm, "accuracy": 0.45, "per_slide": 0.5}
+              for k in (1, 2) for d in range(3) for arm in ("real only", "synthetic + real")]  # fmt: skip
+    r = {"seconds": 600.0, "calibrated": cal, "few_shot": before,
+         "synthetic_only": [{"taxels": "file order", "accuracy": 0.36, "per_slide": 0.34}]}  # fmt: skip
+    fits = {"k = 1, draw 0": {"params": {"cover_spread_mm": 3.2}, "scene": {"force_N": 1.6},
+                              "randomisation": {"position_mm": 0.1}}}  # fmt: skip
+    text = sim2real.page(r, fits, "tactilesnn bench sim2real --out DIR")
+    assert "| 1 | 3 | synthetic only | 36.0 / 34.0 (all 45) | 50.0" in text
+    assert "pretrained + fine-tuned (after)" in text and "+13.0" in text
+    assert "`cover_spread_mm` | mm | 3.2 |" in text and "`force_N` | N | 1.6 |" in text
