@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from ..calibration import SensorFit, rest_level, slide_statistics, statistic_distances
+from ..scenes.braille_cell import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
 from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 
 log = logging.getLogger("tactilesnn")
@@ -148,8 +149,6 @@ def letter_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames:
     pad's disc (a correlation with the disc's kernel), then converted."""
     from scipy.ndimage import correlate
 
-    from .braille import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
-
     sensor = CapacitiveFingertip(sensor_params(values, grid_mm=grid_mm))
     kern = _disc_kernel(CANDIDATE_STEP_MM, sensor.params.pad_diameter_mm)
     half = kern.shape[0] // 2
@@ -178,8 +177,6 @@ def pad_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames: in
               centres_mm: np.ndarray) -> np.ndarray:  # fmt: skip
     """As the task renders them: codes ``[letters, C, n_frames]`` of the pads at
     ``centres_mm [C, 2]`` (the sensor's own pad quadrature and force balance grid)."""
-    from .braille import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
-
     sensor = CapacitiveFingertip(
         sensor_params(values, grid_mm=FIT_GRID_MM, pad_rings=FIT_PAD_RINGS)
     )
@@ -312,8 +309,6 @@ def render_counts(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarra
                   grid_mm: float = SEARCH_GRID_MM, pad_rings: int = 1) -> np.ndarray:  # fmt: skip
     """One noise-free slide ``[C, n_frames]`` (counts) with the randomisation of ``jitter``
     (widths of :data:`SPREAD_SOURCES`, absent = 0) drawn as the task draws it."""
-    from .braille import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
-
     w = {k: float(jitter.get(k, 0.0)) for k in SPREAD_SOURCES}
     sensor = CapacitiveFingertip(sensor_params(values, grid_mm=grid_mm, pad_rings=pad_rings))
     duration = n_frames / fs_hz
