@@ -391,6 +391,9 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
     p.add_argument("--fs", type=float, help="sampling rate (Hz) for recordings without one")
     p.add_argument("--plot", help="also write the statistics picture (PNG): real, the model's "
                    "defaults and the fit")  # fmt: skip
+    p.add_argument("--statistics-only", action="store_true",
+                   help="no fit: the recordings' statistics next to the task's model at its "
+                   "defaults (--out: JSON), for a sensor the task cannot be fitted to")  # fmt: skip
     p.add_argument("--overwrite", action="store_true", help="replace --out / --plot")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     p.set_defaults(func=cmd_calibrate)
@@ -398,8 +401,13 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .app.calibrate import calibrate
+    from .app.calibrate import calibrate, compare
 
+    if args.statistics_only:
+        print("\n".join(compare(Path(args.data), args.task, Path(args.out),
+                                Path(args.plot) if args.plot else None,
+                                overwrite=args.overwrite, fs_hz=args.fs, seed=args.seed)))  # fmt: skip
+        return 0
     lines = calibrate(Path(args.data), args.task, Path(args.out), args.recordings,
                       budget_s=args.budget_s, evaluations=args.evaluations, seed=args.seed,
                       plot=Path(args.plot) if args.plot else None, overwrite=args.overwrite,

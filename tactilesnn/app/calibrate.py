@@ -105,3 +105,46 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
                         title=f"{Path(data).name}: real against the {task} task's sensor model")  # fmt: skip
         lines.append(f"wrote {plot}")
     return lines
+
+
+def compare(data: Path, task: str, out: Path, plot: Path | None = None, n: int = 240,
+            overwrite: bool = False, fs_hz: float | None = None, seed: int = 0) -> list[str]:  # fmt: skip
+    """``calibrate --statistics-only``: the recordings' statistics next to the task's sensor model
+    at its defaults (no fit: for a sensor the task cannot be fitted to, as FabricSlide's
+    16-taxel finger through the ``texture`` task's capacitive stack), written as JSON (and the
+    picture), with what the model cannot express."""
+    from ..core.files import write_json_atomic
+    from ..datasets_synth import TASKS, get_task
+    from ..datasets_synth.calibration import compare_statistics, plot_comparison, slide_statistics
+
+    out = Path(out)
+    for path in (out, plot):
+        if path is not None and Path(path).exists() and not overwrite:
+            raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; available tasks: {', '.join(TASKS)}")
+    X, y, fs, names = load_recordings(data, fs_hz)
+    t = get_task(task, seed=seed)
+    model_names = tuple(t.class_names)
+    Xm = np.empty((n, len(t.channel_names), t.window))
+    ym = np.arange(n) % len(model_names)
+    for i in range(n):
+        Xm[i], ym[i], _ = t.sample(i)
+    real = slide_statistics(X, y, fs, len(names))
+    model = slide_statistics(Xm, ym, t.fs_hz, len(model_names))
+    result = compare_statistics(real, model, names, model_names, fs, t.fs_hz)
+    result.update(data=Path(data).name, task=task, recordings=len(X), model_samples=n,
+                  real={k: real[k] for k in ("rest", "range", "noise", "spectrum")},
+                  model={k: model[k] for k in ("rest", "range", "noise", "spectrum")},
+                  spectrum_bands_hz=real["spectrum_bands_hz"])  # fmt: skip
+    write_json_atomic(out, result)
+    lines = [f"{Path(data).name} ({len(X)} recordings, {X.shape[1]} channels, {fs:.4g} Hz) against "
+             f"the {task} task's sensor model ({n} samples, {Xm.shape[1]} channels, "
+             f"{t.fs_hz:.4g} Hz): spectrum shapes {result['spectrum_shape_rms_decades']:.2f} "
+             "decades apart (rms)", *(f"the model cannot express: {g}" for g in
+                                     result["cannot_express"]), f"wrote {out}"]  # fmt: skip
+    if plot is not None:
+        plot_comparison(real, model, names, model_names, fs, t.fs_hz, Path(plot),
+                        title=f"{Path(data).name} against the {task} task's sensor model")  # fmt: skip
+        lines.append(f"wrote {plot}")
+    return lines

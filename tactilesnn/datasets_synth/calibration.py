@@ -231,3 +231,110 @@ def plot_statistics(real: dict, fits: dict[str, dict], class_names: tuple[str, .
     fig.savefig(tmp, dpi=100)
     plt.close(fig)
     tmp.replace(path)
+
+
+def spectrum_shape(st: dict, bands: list | None = None) -> np.ndarray:
+    """The band power as fractions of the total over ``bands`` (default: all of the
+    statistics'; log10, NaN where a band is not resolved): unit-free, so recordings and a model
+    in other units (counts against dC/C) compare by the shape of their spectra."""
+    have = {tuple(b): v for b, v in zip(st["spectrum_bands_hz"], st["spectrum"], strict=True)}
+    keys = [tuple(b) for b in (bands if bands is not None else st["spectrum_bands_hz"])]
+    p = np.array([10.0 ** have[b] if b in have and np.isfinite(have[b]) else np.nan for b in keys])
+    return np.log10(np.maximum(p / np.nansum(p), 1e-12))
+
+
+def common_bands(a: dict, b: dict) -> list:
+    """The spectrum bands both statistics resolve."""
+
+    def ok(st: dict) -> set:
+        return {tuple(x) for x, v in zip(st["spectrum_bands_hz"], st["spectrum"], strict=True)
+                if np.isfinite(v)}  # fmt: skip
+
+    return sorted(ok(a) & ok(b))
+
+
+def compare_statistics(real: dict, model: dict, real_classes: tuple[str, ...],
+                       model_classes: tuple[str, ...], real_fs_hz: float,
+                       model_fs_hz: float) -> dict:  # fmt: skip
+    """What can be compared between recordings and a sensor model that need not share channels,
+    classes or rate (:func:`slide_statistics` of each), and what the model cannot express."""
+    bands = common_bands(real, model)
+    shape = spectrum_shape(real, bands) - spectrum_shape(model, bands)
+    cr, cm = real["correlation"], model["correlation"]
+
+    def mean_offdiag(c: np.ndarray) -> float:
+        off = ~np.eye(c.shape[0], dtype=bool)
+        return float(c[off].mean()) if off.any() else float("nan")
+
+    shared = sorted({c.lower() for c in real_classes} & {c.lower() for c in model_classes})
+    gaps = []
+    if real["rest"].size != model["rest"].size:
+        gaps.append(f"{real['rest'].size} channels in the recordings, {model['rest'].size} in the "
+                    "model: no channel-to-pad map to fit")  # fmt: skip
+    if len(shared) < len(real_classes):
+        missing = sorted({c.lower() for c in real_classes} - {c.lower() for c in model_classes})
+        gaps.append(f"classes the model does not render: {', '.join(missing)}")
+    if abs(real_fs_hz - model_fs_hz) > 1e-6 * real_fs_hz:
+        gaps.append(
+            f"rate {real_fs_hz:.4g} Hz in the recordings, {model_fs_hz:.4g} Hz in the model"
+        )
+    return {"spectrum_shape_rms_decades": float(np.sqrt(np.nanmean(shape**2))),
+            "spectrum_shape_bands_hz": [list(b) for b in bands],
+            "spectrum_shape_real": spectrum_shape(real, bands).tolist(),
+            "spectrum_shape_model": spectrum_shape(model, bands).tolist(),
+            "mean_cross_channel_correlation": {"real": mean_offdiag(cr), "model": mean_offdiag(cm)},
+            "shared_classes": shared, "cannot_express": gaps}  # fmt: skip
+
+
+def plot_comparison(real: dict, model: dict, real_classes: tuple[str, ...],
+                    model_classes: tuple[str, ...], real_fs_hz: float, model_fs_hz: float,
+                    path: Path, title: str = "") -> None:  # fmt: skip
+    """The statistics picture for recordings and a model that need not share channels, classes
+    or rate: per-channel rest and range, both correlation matrices, the spectra's shapes, and
+    each one's mean activity per class (summed |change from rest| over channels)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8.4))
+    for ax, st, label in ((axes[0, 0], real, "recordings"), (axes[1, 0], model, "model")):
+        x = np.arange(st["rest"].size)
+        ax.bar(x, st["range"], 0.6, label="range (99th - 1st percentile)")
+        ax.plot(x, st["rest"], "o", color="k", mfc="none", label="rest level")
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.set_title(f"per-channel rest and range: {label}")
+        ax.set_xlabel("channel")
+        ax.legend(fontsize=7)
+    for ax, st, label in ((axes[0, 1], real, "recordings"), (axes[1, 1], model, "model")):
+        ax.imshow(st["correlation"], vmin=-1, vmax=1, cmap="RdBu_r")
+        ax.set_title(f"cross-channel correlation: {label}")
+    ax = axes[0, 2]
+    bands = common_bands(real, model)
+    mids = [np.sqrt(lo * hi) for lo, hi in bands]
+    for st, label, m in ((real, "recordings", "o-"), (model, "model", "s--")):
+        ax.semilogx(mids, spectrum_shape(st, bands), m, label=label)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("log10 share of the power")
+    ax.set_title("the spectra's shapes over the bands both resolve")
+    ax.legend()
+    ax = axes[1, 2]
+    for st, names, fs, style in ((real, real_classes, real_fs_hz, "-"),
+                                 (model, model_classes, model_fs_hz, "--")):  # fmt: skip
+        for k, name in enumerate(names):
+            m = st["mean"][k]
+            if not np.isfinite(m).all():
+                continue
+            act = np.abs(m - np.median(m[:, : max(2, m.shape[-1] // 10)], -1, keepdims=True)).sum(0)
+            ax.plot(np.arange(act.size) / fs, act / max(act.max(), 1e-12), style, lw=1, label=name)
+    ax.set_xlabel("time in the window (s)")
+    ax.set_ylabel("mean activity (normalised)")
+    ax.set_title("mean activity per class: recordings (solid), model (dashed)")
+    ax.legend(fontsize=6, ncol=2)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    tmp = Path(path).with_name(Path(path).name + ".partial.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    tmp.replace(path)
