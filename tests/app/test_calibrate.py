@@ -23,7 +23,7 @@ def test_errors_before_work(tmp_path):
     (tmp_path / "fit.json").write_text("{}")
     with pytest.raises(FileExistsError, match="--overwrite"):
         cal.calibrate(data, "braille", tmp_path / "fit.json")
-    with pytest.raises(ValueError, match="distinct indices in 0..5"):
+    with pytest.raises(ValueError, match=r"distinct indices in 0\.\.5"):
         cal.calibrate(data, "braille", tmp_path / "new.json", recordings=[0, 9])
     with pytest.raises(ValueError, match="unknown task"):
         cal.calibrate(data, "nope", tmp_path / "new.json")
