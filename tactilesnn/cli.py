@@ -388,6 +388,9 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
     p.add_argument("--budget-s", type=float, default=600.0,
                    help="at most this many seconds of search, whatever --evaluations says")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="the optimiser's seed")
+    p.add_argument("--optimiser", default="cma", choices=("cma", "optuna-tpe", "random"),
+                   help="the black-box search (cma: CMA-ES, the default; optuna-tpe needs optuna, "
+                   "installed with .[bench])")  # fmt: skip
     p.add_argument("--fs", type=float, help="sampling rate (Hz) for recordings without one")
     p.add_argument("--plot", help="also write the statistics picture (PNG): real, the model's "
                    "defaults and the fit")  # fmt: skip
@@ -410,6 +413,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 0
     lines = calibrate(Path(args.data), args.task, Path(args.out), args.recordings,
                       budget_s=args.budget_s, evaluations=args.evaluations, seed=args.seed,
+                      optimiser=args.optimiser,
                       plot=Path(args.plot) if args.plot else None, overwrite=args.overwrite,
                       fs_hz=args.fs, progress=not args.quiet)  # fmt: skip
     print("\n".join(lines))

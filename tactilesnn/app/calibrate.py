@@ -50,7 +50,7 @@ def render_like(task_name: str, fs_hz: float, samples: int, class_names: tuple[s
 
 def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = None,
               budget_s: float = 600.0, evaluations: int = 400, seed: int = 0,
-              plot: Path | None = None,
+              plot: Path | None = None, optimiser: str = "cma",
               overwrite: bool = False, fs_hz: float | None = None, progress: bool = True
               ) -> list[str]:  # fmt: skip
     """Fit, write ``out`` (and ``plot``); the lines to print."""
@@ -81,7 +81,15 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
         X, y = X[idx], y[idx]
     t0 = time.perf_counter()
     fit = TASKS[task].calibrate(
-        X, y, fs, names, budget_s=budget_s, seed=seed, progress=progress, max_evals=evaluations
+        X,
+        y,
+        fs,
+        names,
+        budget_s=budget_s,
+        seed=seed,
+        progress=progress,
+        max_evals=evaluations,
+        optimiser=optimiser,
     )
     fit.fitted_on.update(data=str(Path(data).name), recordings=None if recordings is None
                          else [int(i) for i in recordings])  # fmt: skip

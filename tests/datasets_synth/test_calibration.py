@@ -219,3 +219,21 @@ def test_calibrate_checks_its_input():
         BrailleTask.calibrate(X, np.zeros(3, np.int64), 93.3, ("A", "B", "C"))
     with pytest.raises(ValueError, match="cannot be calibrated; tasks that can: braille"):
         get_task("texture").calibrate(X, np.arange(3), 93.3, ("a", "b", "c"))
+
+
+@pytest.mark.parametrize("kind", ["cma", "optuna-tpe", "random"])
+def test_every_optimiser_finds_a_quadratic_minimum(kind):
+    if kind == "optuna-tpe":
+        pytest.importorskip("optuna")
+    target = np.array([0.2, 0.7, 0.5])
+    best = np.inf
+    for i, rnd in enumerate(bf.ask_tell(kind, np.full(3, 0.5), seed=1)):
+        losses = [float(((np.asarray(u) - target) ** 2).sum()) for u in rnd.points]
+        assert all(0 <= v <= 1 for u in rnd.points for v in np.asarray(u))
+        rnd.tell(losses)
+        best = min(best, *losses)
+        if i == 29 or rnd.done:
+            break
+    assert best < (0.05 if kind == "random" else 0.01)
+    with pytest.raises(ValueError, match="unknown optimiser"):
+        next(bf.ask_tell("nelder", np.zeros(3), 0))

@@ -247,6 +247,61 @@ def response_lag_s(values: dict[str, float], letters: str, fs_hz: float, n: int,
     return float(lags[int(np.argmax(score))] / fs_hz)
 
 
+#: the black-box optimisers :func:`fit` can use (``calibrate --optimiser``), measured against
+#: each other in docs/sim2real.md: CMA-ES is the default
+OPTIMISERS = {"cma": "cma-es (cma)", "optuna-tpe": "tpe (optuna)", "random": "uniform random"}
+
+
+class _Round:
+    """One round of an ask / tell search: ``points`` (unit-box vectors), :meth:`tell` the losses."""
+
+    def __init__(self, points: list, tell: Any, done: bool = False) -> None:
+        self.points, self._tell, self.done = points, tell, done
+
+    def tell(self, losses: list[float]) -> None:
+        self._tell(losses)
+
+
+def ask_tell(kind: str, x0: np.ndarray, seed: int, popsize: int = 10):
+    """Rounds of ``popsize`` points in the unit box from the optimiser ``kind``
+    (:data:`OPTIMISERS`), started at ``x0``; the caller stops when its budget is spent."""
+    if kind not in OPTIMISERS:
+        raise ValueError(f"unknown optimiser {kind!r}; choose from {', '.join(OPTIMISERS)}")
+    if kind == "cma":
+        import cma
+
+        es = cma.CMAEvolutionStrategy(x0, 0.25, {"bounds": [0.0, 1.0], "seed": int(seed) + 1,
+                                                 "verbose": -9, "popsize": popsize})  # fmt: skip
+        while True:
+            xs = es.ask()
+            yield _Round(xs, lambda losses, xs=xs: es.tell(xs, losses), bool(es.stop()))
+    elif kind == "optuna-tpe":
+        import optuna
+
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=int(seed)))
+        names = [f"x{i}" for i in range(len(x0))]
+        study.enqueue_trial(dict(zip(names, map(float, x0), strict=True)))
+        while True:
+            trials = [study.ask({n: optuna.distributions.FloatDistribution(0.0, 1.0)
+                                 for n in names}) for _ in range(popsize)]  # fmt: skip
+            points = [np.array([t.params[n] for n in names]) for t in trials]
+
+            def tell(losses: list[float], trials: list = trials) -> None:
+                for t, v in zip(trials, losses, strict=True):
+                    study.tell(t, v)
+
+            yield _Round(points, tell)
+    else:
+        rng = np.random.default_rng(seed)
+        first = True
+        while True:
+            pts = [rng.random(len(x0)) for _ in range(popsize)]
+            if first:
+                pts[0], first = np.asarray(x0), False
+            yield _Round(pts, lambda losses: None)
+
+
 def fit_levels(codes: np.ndarray, means: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per channel gain (>= 0, counts per code LSB) and offset (counts) of ``codes [C, T]`` that
     best fit ``means [C, T]`` (least squares)."""
@@ -407,11 +462,10 @@ def rest_spreads(X: np.ndarray, y: np.ndarray, fs_hz: float) -> dict[str, Any]:
 
 
 def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 240.0,
-        max_evals: int = MAX_EVALS, seed: int = 0, progress: bool = False) -> SensorFit:  # fmt: skip
+        max_evals: int = MAX_EVALS, seed: int = 0, progress: bool = False,
+        optimiser: str = "cma") -> SensorFit:  # fmt: skip
     """The Braille scene's fingertip fitted to slides ``X [N, 12, samples]`` of the letters
     ``task.letters[y]`` (see the module doc); stops at ``budget_s`` seconds or ``max_evals``."""
-    import cma
-
     X = np.asarray(X, np.float64)
     if X.ndim != 3 or X.shape[1] != 12:
         raise ValueError(f"the Braille fingertip has 12 taxels: X must be [N, 12, samples], "
@@ -420,6 +474,8 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
         raise ValueError("X holds NaN or Inf")
     letters = task.letters
     y = np.asarray(y, np.int64)
+    if y.shape != (len(X),) or y.min(initial=0) < 0 or y.max(initial=0) >= len(letters):
+        raise ValueError(f"y must hold one label in 0..{len(letters) - 1} per recording")
     missing = [letters[k] for k in range(len(letters)) if not (y == k).any()]
     if missing:
         raise ValueError(f"no recording of letter(s) {', '.join(missing)}: each class needs one")
@@ -434,30 +490,25 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     bounds = bounds_for(letters)
     start = {**start_values(task, n / fs_hz), **{f"force_scale_{c}": 1.0 for c in letters}}
     start["t_mid_offset_s"] = response_lag_s(start, letters, fs, n_dec, real_dec)
-    es = cma.CMAEvolutionStrategy(
-        _to_unit(start, bounds), 0.25,
-        {"bounds": [0.0, 1.0], "seed": int(seed) + 1, "verbose": -9, "popsize": 10},
-    )  # fmt: skip
     t0 = time.perf_counter()
-    best = (np.inf, start, None)
+    best: tuple = (np.inf, start, None)
     evals = 0
-    history = []
-    while not es.stop():
-        xs = es.ask()
+    history: list[float] = []
+    for us in ask_tell(optimiser, _to_unit(start, bounds), seed):
         losses = []
-        for u in xs:
+        for u in us.points:
             v = _from_unit(np.asarray(u), bounds)
             loss, extra = _objective(v, letters, fs, n_dec, cands, real_dec)
             losses.append(loss)
             evals += 1
             if loss < best[0]:
                 best = (loss, v, extra)
-        es.tell(xs, losses)
-        history.append(float(min(losses)))
+        us.tell(losses)
+        history.append(float(best[0]))
         elapsed = time.perf_counter() - t0
         if progress:
             log.info("calibrate: %d evaluations, best %.4f, %.0f s", evals, best[0], elapsed)
-        if elapsed > budget_s or evals >= max_evals:
+        if elapsed > budget_s or evals >= max_evals or us.done:
             break
     values = best[1]
     # the layout chosen on the search's grid, then the pads' gains and offsets again as the
@@ -490,7 +541,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
         task="braille", sensor="capacitive_fingertip", params=params, channels=channels,
         scene=scene, randomisation=randomisation,
         objective={"value": float(best[0]), "evaluations": evals,
-                   "seconds": time.perf_counter() - t0, "optimiser": "cma-es (cma)",
+                   "seconds": time.perf_counter() - t0, "optimiser": OPTIMISERS[optimiser],
                    "history": history, "distances": dist, "seed": int(seed),
                    "spreads_from": spread_on},
         fitted_on={"recordings": len(X), "per_class": np.bincount(y).tolist(),

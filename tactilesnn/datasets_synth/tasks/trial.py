@@ -59,7 +59,7 @@ class TrialTask(ABC):
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
                   budget_s: float = 240.0, seed: int = 0, progress: bool = False,
-                  max_evals: int | None = None):  # fmt: skip
+                  max_evals: int | None = None, optimiser: str = "cma"):  # fmt: skip
         """Fit the task's sensor model to real recordings ``X [N, channels, samples]`` of the
         classes ``class_names[y]``: a :class:`~..calibration.SensorFit`. A task that knows its
         scene well enough to fit it overrides this."""
