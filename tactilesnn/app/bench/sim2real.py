@@ -275,6 +275,32 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     return row
 
 
+def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: tuple[str, ...],
+                       seeds: int = 2, budget_s: float = 900.0) -> list[dict]:  # fmt: skip
+    """The calibration's optimisers side by side: the objective each reaches in the same number
+    of evaluations on the training slides of each ``k``'s first draw, per seed."""
+    from ...datasets_synth.tasks.braille import BrailleTask
+
+    rows = []
+    for k in shots:
+        tr, _ = few_shot_split(real, k, np.random.default_rng([31, k, 0]))
+        sub = real.subset(np.isin(np.arange(real.y.size), tr))
+        for name in optimisers:
+            for seed in range(seeds):
+                t0 = time.perf_counter()
+                fit = BrailleTask.calibrate(np.asarray(sub.X, np.float64), sub.y, real.fs_hz,
+                                            real.class_names, budget_s=budget_s, seed=seed,
+                                            optimiser=name)  # fmt: skip
+                rows.append({"k": k, "optimiser": name, "seed": seed,
+                             "objective": fit.objective["value"],
+                             "evaluations": fit.objective["evaluations"],
+                             "seconds": time.perf_counter() - t0,
+                             "history": fit.objective["history"]})  # fmt: skip
+                log.info("optimiser %s, k=%d, seed %d: objective %.4f (%.0f s)", name, k, seed,
+                         rows[-1]["objective"], rows[-1]["seconds"])  # fmt: skip
+    return rows
+
+
 def summarise_calibrated(rows: list[dict]) -> dict:
     """The calibrated section's summary: means (fractions) over draws, per ``k``."""
     out: dict = {"synthetic_only_per_slide": float(np.mean([r["synthetic_only_per_slide"]
@@ -300,7 +326,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
         progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 300.0,
-        calibrated_synthetic: int = 200) -> dict:  # fmt: skip
+        calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = ()) -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
@@ -397,6 +423,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
     result["calibrated"] = cal_rows
     if cal_rows:
         result.update(summarise_calibrated(cal_rows))
+    if optimisers:
+        result["optimisers"] = compare_optimisers(real, shots, optimisers)
     result["seconds"] = time.perf_counter() - t_start
 
     (out / "sim2real.json").write_text(json.dumps(result, indent=2))
@@ -555,6 +583,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "evaluations before, on a quiet core)")  # fmt: skip
     p.add_argument("--calibrated-synthetic", type=int, default=200,
                    help="slides rendered by each calibrated model")  # fmt: skip
+    p.add_argument("--optimisers", nargs="*", default=[], choices=("cma", "optuna-tpe", "random"),
+                   help="also compare these calibration optimisers (2 seeds on each k's first "
+                   "draw; optuna-tpe needs .[bench])")  # fmt: skip
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
     p.add_argument("--from-json", default=None,
@@ -659,6 +690,19 @@ def page(r: dict, fits: dict[str, dict], command: str) -> str:
                   + ", ".join(f"k = {k}: real only {v['real_only_per_window']:.3f}, pretrained "
                               f"{v['pretrained_per_window']:.3f}"
                               for k, v in summary["shots"].items()) + " (per window)."]  # fmt: skip
+    opt = r.get("optimisers") or []
+    if opt:
+        lines += ["", "## Which optimiser", "",
+                  "The objective (lower is better) each reaches in the same 400 evaluations on the "
+                  "training slides of each k's first draw (seeds 0, 1; the same start):", "",
+                  "| k | optimiser | objective per seed | seconds (median) |",
+                  "|---|---|---|---|"]  # fmt: skip
+        for k in sorted({x["k"] for x in opt}):
+            for name in dict.fromkeys(x["optimiser"] for x in opt):
+                sel = [x for x in opt if x["k"] == k and x["optimiser"] == name]
+                if sel:
+                    lines.append(f"| {k} | {name} | " + ", ".join(f"{x['objective']:.3f}" for x in sel)
+                                 + f" | {np.median([x['seconds'] for x in sel]):.0f} |")  # fmt: skip
     if fits:
         merged = [{**f.get("params", {}), **f.get("scene", {}), **f.get("randomisation", {})}
                   for f in fits.values()]  # fmt: skip
@@ -709,6 +753,7 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         f"{options.seeds} --draws {options.draws} --shots {' '.join(map(str, options.shots))} "
         f"--knobs {' '.join(options.knobs)} --calibrated-draws {options.calibrated_draws} "
         f"--calibrated-synthetic {options.calibrated_synthetic}"
+        + (f" --optimisers {' '.join(options.optimisers)}" if options.optimisers else "")
     ).replace("--knobs  ", "--knobs ")
     result = run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
         synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
@@ -716,7 +761,8 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         epochs=options.epochs, level_neurons=options.level_neurons,
         progress=not options.quiet, calibrated_draws=options.calibrated_draws,
         calibration_budget_s=options.calibration_budget_s,
-        calibrated_synthetic=options.calibrated_synthetic)  # fmt: skip
+        calibrated_synthetic=options.calibrated_synthetic,
+        optimisers=tuple(options.optimisers))  # fmt: skip
     import os
 
     result["command"] = command
