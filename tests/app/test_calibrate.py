@@ -37,13 +37,14 @@ def test_calibrate_writes_a_fit_a_task_reads(tmp_path, capsys):
     data = _braille_file(tmp_path / "b.npz")
     rc = main(["calibrate", "--data", str(data), "--task", "braille", "--out",
                str(tmp_path / "fit.json"), "--recordings", "0", "1", "2", "--evaluations", "20",
-               "--plot", str(tmp_path / "fit.png"), "--quiet"])  # fmt: skip
+               "--plot", str(tmp_path / "fit.png"), "--optimiser", "random", "--quiet"])  # fmt: skip
     assert rc == 0
     out = capsys.readouterr().out
     assert "calibrated braille on 3 recordings" in out and "wrote" in out
     assert (tmp_path / "fit.png").stat().st_size > 0
     fit = json.loads((tmp_path / "fit.json").read_text())
     assert fit["fitted_on"]["recordings"] == [0, 1, 2] and fit["objective"]["evaluations"] >= 20
+    assert fit["objective"]["optimiser"] == "uniform random"  # the choice reaches the search
     task = get_task("braille", calibration=str(tmp_path / "fit.json"), n_samples=6,
                     fs_frames_hz=90.0, duration_s=2.0)  # fmt: skip
     x, _, _ = task.sample(0)

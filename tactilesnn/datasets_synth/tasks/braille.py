@@ -132,6 +132,7 @@ class BrailleTask(TrialTask):
             seed=seed,
             progress=progress,
             max_evals=max_evals or braille_fit.MAX_EVALS,
+            optimiser=optimiser,
         )
 
     @property
