@@ -139,7 +139,8 @@ def finetune_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool =
     """Pretrain, then fine-tune: a fitted pipeline adapted to a few windows of a new domain
     (``data``: real recordings after synthetic pretraining). The encoder keeps what it
     calibrated on the pretraining data (its levels, its scaling) and codes ``data``; the model
-    re-fits its read-out with a prior centred on the pretrained weights
+    re-fits its read-out with a prior centred on the pretrained weights, its strength chosen by
+    leave-one-recording-out cross-validation on ``data``
     (:meth:`~.models.base.SpikeModel.finetune`). Returns the model's report."""
     if tuple(data.class_names) != tuple(pipe.class_names):
         raise ValueError(f"fine-tuning data has classes {data.class_names}, the pipeline "
@@ -147,7 +148,7 @@ def finetune_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool =
     spikes = pipe.encode(data.X, progress=progress)
     pipe.model.train()
     try:
-        return pipe.model.finetune(spikes, torch.as_tensor(data.y, dtype=torch.int64))
+        return pipe.model.finetune(spikes, torch.as_tensor(data.y, dtype=torch.int64), data.scan)
     finally:
         pipe.model.eval()
 

@@ -24,6 +24,7 @@ from abc import abstractmethod
 from collections.abc import Callable
 from typing import ClassVar
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -45,6 +46,10 @@ def seeded(seed: int):
 def register_model(name: str, config: type) -> Callable[[type], type]:
     """Class decorator: register a :class:`SpikeModel` under ``name`` with its config class."""
     return MODELS.register(name, config)
+
+
+#: the factors of :meth:`SpikeModel.finetune_penalty` a fine-tune chooses from
+FINETUNE_FACTORS = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
 
 
 class SpikeModel(nn.Module):
@@ -151,12 +156,17 @@ class SpikeModel(nn.Module):
         """The data term :meth:`finetune` minimises (default: :meth:`loss`)."""
         return self.loss(spikes, y)
 
-    def finetune(self, spikes: Tensor, y: Tensor, max_iter: int = 200) -> dict:
+    def finetune(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None,
+                 factors: tuple[float, ...] = FINETUNE_FACTORS, max_iter: int = 200) -> dict:  # fmt: skip
         """Adapt a trained model to a few windows of a new domain (pretrain, then fine-tune):
         :meth:`finetune_parameters` re-fitted by full-batch L-BFGS to :meth:`finetune_loss`
-        plus :meth:`finetune_penalty` times their squared distance from the trained values (a
-        prior centred on what pretraining learnt, not on zero; biases free). Spikes ``[N, A,
-        k]``, labels ``y [N]`` int64. Returns the penalty and the data term before and after."""
+        plus a penalty times their squared distance from the trained values (a prior centred on
+        what pretraining learnt, not on zero; biases free). The penalty is
+        :meth:`finetune_penalty` times one of ``factors``, chosen by leave-one-recording-out
+        cross-validation over ``groups`` (recording ids ``[N]``; the held-out recordings'
+        cross-entropy; ties: the stronger prior) where there are two recordings or more, else
+        the factor 1. Spikes ``[N, A, k]``, labels ``y [N]`` int64. Returns the penalty, the
+        cross-validation's table and the data term before and after."""
         params = self.finetune_parameters()
         if not params:
             raise NotImplementedError(f"{type(self).__name__} does not fine-tune")
@@ -165,28 +175,56 @@ class SpikeModel(nn.Module):
             raise ValueError(
                 f"fine-tuning needs windows and one label each, got {n} / {y.shape[0]}"
             )
-        lam = self.finetune_penalty(n)
+        if groups is not None and len(groups) != n:
+            raise ValueError(f"groups must name the recording of each of the {n} windows")
         anchors = [q.detach().clone() for q in params]
         named = {id(q): name for name, q in self.named_parameters()}
         pulled = [not named.get(id(q), "").endswith("bias") for q in params]
+
+        def fit(idx: np.ndarray, lam: float, iters: int) -> None:
+            with torch.no_grad():
+                for q, a in zip(params, anchors, strict=True):
+                    q.copy_(a)
+            sx, sy = spikes[torch.from_numpy(idx)], y[torch.from_numpy(idx)]
+            opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iters, history_size=20,
+                                    tolerance_grad=1e-7, line_search_fn="strong_wolfe")  # fmt: skip
+
+            def closure() -> Tensor:
+                opt.zero_grad()
+                loss = self.finetune_loss(sx, sy) + lam * sum(
+                    (q - a).pow(2).sum()
+                    for q, a, pull in zip(params, anchors, pulled, strict=True) if pull
+                )  # fmt: skip
+                loss.backward()
+                return loss
+
+            opt.step(closure)
+
         with torch.no_grad():
             before = float(self.finetune_loss(spikes, y))
-        opt = torch.optim.LBFGS(params, lr=1.0, max_iter=max_iter, history_size=20,
-                                tolerance_grad=1e-7, line_search_fn="strong_wolfe")  # fmt: skip
-
-        def closure() -> Tensor:
-            opt.zero_grad()
-            loss = self.finetune_loss(spikes, y) + lam * sum(
-                (q - a).pow(2).sum() for q, a, pull in zip(params, anchors, pulled, strict=True)
-                if pull
-            )  # fmt: skip
-            loss.backward()
-            return loss
-
-        opt.step(closure)
+        everything = np.arange(n)
+        ids = np.unique(groups) if groups is not None else np.zeros(0)
+        table = []
+        factor = 1.0
+        if ids.size >= 2 and len(factors) > 1:
+            for f in factors:
+                lam = self.finetune_penalty(n) * f
+                held = []
+                for g in ids:
+                    out = np.asarray(groups) == g
+                    fit(everything[~out], lam, max_iter // 2)
+                    at = torch.from_numpy(everything[out])
+                    with torch.no_grad():
+                        held.append(float(self.finetune_loss(spikes[at], y[at])))
+                table.append({"factor": f, "penalty": lam, "held_out_loss": float(np.mean(held))})
+            best = min(r["held_out_loss"] for r in table)
+            factor = max(r["factor"] for r in table if r["held_out_loss"] <= best + 1e-9)
+        lam = self.finetune_penalty(n) * factor
+        fit(everything, lam, max_iter)
         with torch.no_grad():
             after = float(self.finetune_loss(spikes, y))
-        return {"penalty": lam, "windows": n, "loss_before": before, "loss_after": after}
+        return {"penalty": lam, "factor": factor, "windows": n, "cross_validation": table,
+                "loss_before": before, "loss_after": after}  # fmt: skip
 
     def rule_update(self, spikes: Tensor, y: Tensor, epoch: int) -> None:
         """Apply the model's learning rule for one mini-batch (models that learn by rule)."""

@@ -274,3 +274,24 @@ def test_finetune_adapts_near_the_pretrained_weights():
     assert float((model.linear.weight - w0).norm()) < 1e-3 * moved
     with pytest.raises(ValueError, match="one label each"):
         model.finetune(few, torch.from_numpy(yf[:-1]))
+
+
+def test_finetune_chooses_its_prior_by_leaving_recordings_out():
+    from tactilesnn.config import TrainConfig
+
+    rng = np.random.default_rng(5)
+    proto = rng.uniform(50, 450, (3, 12, 1))
+    src, ys = _domain(rng, proto, 40)
+    model = build_model(ReadoutConfig(), 12, 1, 3, 500.0)
+    Trainer(model, TrainConfig(epochs=1)).fit(src, ys)
+    few, yf = _domain(rng, proto, 4)
+    groups = np.arange(yf.size) // 2  # two windows per recording
+    report = model.finetune(few, torch.from_numpy(yf), groups, factors=(0.3, 3.0, 30.0))
+    assert [r["factor"] for r in report["cross_validation"]] == [0.3, 3.0, 30.0]
+    best = min(r["held_out_loss"] for r in report["cross_validation"])
+    chosen = next(r for r in report["cross_validation"] if r["factor"] == report["factor"])
+    assert chosen["held_out_loss"] == best
+    assert np.isclose(report["penalty"], model.finetune_penalty(yf.size) * report["factor"])
+    # one recording: nothing to leave out, the prior's own strength
+    solo = model.finetune(few, torch.from_numpy(yf), np.zeros(yf.size, np.int64))
+    assert solo["factor"] == 1.0 and solo["cross_validation"] == []
