@@ -214,9 +214,12 @@ def _accuracy(pipe, test: WindowDataset) -> tuple[float, float]:
 
 def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
-                    fit_path: Path | None = None, plot_path: Path | None = None) -> dict:  # fmt: skip
+                    fit_path: Path | None = None, plot_path: Path | None = None,
+                    reuse: Path | None = None) -> dict:  # fmt: skip
     """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
-    synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``."""
+    synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``. ``reuse``:
+    a fit file an earlier run wrote for this very draw (its training slides checked), read
+    instead of fitting again."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
     from ...training import finetune_pipeline, fit_pipeline
@@ -226,9 +229,20 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     train_real = real.subset(np.isin(np.arange(real.y.size), train_idx))
     test_real = real.subset(np.isin(np.arange(real.y.size), test_idx))
     t0 = time.perf_counter()
-    fit = BrailleTask.calibrate(np.asarray(train_real.X, np.float64), train_real.y, real.fs_hz,
-                                real.class_names, budget_s=budget_s, seed=seed)  # fmt: skip
-    t_cal = time.perf_counter() - t0
+    if reuse is not None:
+        from ...datasets_synth.calibration import SensorFit
+
+        fit = SensorFit.load(reuse)
+        if fit.fitted_on.get("train_slides") not in (None, train_idx.tolist()) or (
+            fit.fitted_on.get("recordings") != train_idx.size
+        ):
+            raise ValueError(f"{reuse} was fitted to other slides than this draw's")
+        t_cal = float(fit.objective.get("seconds", float("nan")))
+    else:
+        fit = BrailleTask.calibrate(np.asarray(train_real.X, np.float64), train_real.y,
+                                    real.fs_hz, real.class_names, budget_s=budget_s, seed=seed)  # fmt: skip
+        fit.fitted_on["train_slides"] = train_idx.tolist()
+        t_cal = time.perf_counter() - t0
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -326,7 +340,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
         progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 300.0,
-        calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = ()) -> dict:  # fmt: skip
+        calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = (),
+        reuse_fits: Path | None = None) -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
@@ -411,9 +426,11 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         for d in range(calibrated_draws):
             tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
             t0 = time.perf_counter()
+            old = None if reuse_fits is None else Path(reuse_fits) / "fits" / f"k{k}_d{d}.json"
             row = calibrated_draw(real, tr, te, calibrated_synthetic, calibration_budget_s, d,
                                   epochs, out / "fits" / f"k{k}_d{d}.json",
-                                  out / "fits" / f"k{k}_d{d}.png" if d == 0 else None)  # fmt: skip
+                                  out / "fits" / f"k{k}_d{d}.png" if d == 0 else None,
+                                  reuse=old)  # fmt: skip
             row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
             cal_rows.append(row)
             log.info("calibrated k=%d draw %d: synthetic only %.3f / %.3f, real only %.3f, "
@@ -586,6 +603,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--optimisers", nargs="*", default=[], choices=("cma", "optuna-tpe", "random"),
                    help="also compare these calibration optimisers (2 seeds on each k's first "
                    "draw; optuna-tpe needs .[bench])")  # fmt: skip
+    p.add_argument("--reuse-fits", default=None,
+                   help="an earlier run's --out: its fit files of the same draws are read instead "
+                   "of fitting again (the downstream arms only)")  # fmt: skip
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
     p.add_argument("--from-json", default=None,
@@ -762,7 +782,8 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         progress=not options.quiet, calibrated_draws=options.calibrated_draws,
         calibration_budget_s=options.calibration_budget_s,
         calibrated_synthetic=options.calibrated_synthetic,
-        optimisers=tuple(options.optimisers))  # fmt: skip
+        optimisers=tuple(options.optimisers),
+        reuse_fits=Path(options.reuse_fits) if options.reuse_fits else None)  # fmt: skip
     import os
 
     result["command"] = command
