@@ -658,8 +658,32 @@ def ci95_t(v: np.ndarray) -> tuple[float, float]:
     return float(v.mean() - half), float(v.mean() + half)
 
 
-def page(r: dict, fits: dict[str, dict], command: str) -> str:
-    """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values)."""
+def _fabric_section(fab: dict) -> list[str]:
+    sh = fab["spectrum_shape_bands_hz"]
+    return ["", "## A second sensor: FabricSlide against the `texture` task's capacitive stack", "",
+            "`tactilesnn calibrate --statistics-only --task texture --data "
+            "../shared/data/fabric_slide/fabric --out docs/sim2real_fabric.json --plot "
+            "docs/sim2real_fabric.png` (15 s): the CPM-Finger's recordings "
+            f"({fab['recordings']} windows) next to the stack model at its defaults "
+            f"({fab['model_samples']} windows). There is nothing to fit: "
+            + "; ".join(fab["cannot_express"]) + ". What compares is unit-free: the spectra's "
+            f"shapes over the bands both resolve ({sh[0][0]:g}-{sh[-1][1]:g} Hz) are "
+            f"{fab['spectrum_shape_rms_decades']:.2f} decades apart (rms; the fabric's power "
+            "falls off with frequency, "
+            + ", ".join(f"{v:.2f}" for v in fab["spectrum_shape_real"])
+            + " log10 shares per octave band, the model's is flatter: "
+            + ", ".join(f"{v:.2f}" for v in fab["spectrum_shape_model"])
+            + "), and the mean cross-channel correlation is "
+            f"{fab['mean_cross_channel_correlation']['real']:.2f} (recordings) against "
+            f"{fab['mean_cross_channel_correlation']['model']:.2f} (the model's two channels). A "
+            "calibration of this sensor needs a finger model with 16 taxels and a fabric scene "
+            "(the fingertip model reads dots, not weaves).", "",
+            "![FabricSlide against the texture task's stack](sim2real_fabric.png)"]  # fmt: skip
+
+
+def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = None) -> str:
+    """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values,
+    ``fabric``: the second sensor's statistics-only comparison)."""
     lines = [PAGE_HEAD, f"Command: `{command}` ({r['seconds'] / 60:.0f} min, "
              f"{r.get('machine', 'this machine')}). Chance is 33.3 %; means over draws with 95 % "
              "intervals (t).", ""]  # fmt: skip
@@ -738,6 +762,24 @@ def page(r: dict, fits: dict[str, dict], command: str) -> str:
                 )
                 cells.append("-" if v is None else f"{v:.3g}")
             lines.append(f"| `{n}` | {FIT_UNITS[n]} | " + " | ".join(cells) + " |")
+    if cal:
+        lines += ["", "## Which statistic still differs", "",
+                  "Distances between the k training slides and the fitted model's mean "
+                  "responses at the end of each fit (medians over draws; 0 = equal; "
+                  "`calibration.statistic_distances`):", "",
+                  "| k | mean response (share of variance unexplained) | correlation (mean abs "
+                  "difference) | rest (share of the largest range) | range |",
+                  "|---|---|---|---|---|"]  # fmt: skip
+        for k in ks:
+            d = [x["distances"] for x in cal if x["k"] == k and "distances" in x]
+            if d:
+                lines.append(f"| {k} | " + " | ".join(
+                    f"{np.median([x[key] for x in d]):.3f}"
+                    for key in ("mean_response", "correlation", "rest", "range")) + " |")  # fmt: skip
+    if fabric:
+        lines += _fabric_section(fabric)
+    if r.get("tail"):
+        lines += ["", r["tail"]]
     return "\n".join(lines) + "\n"
 
 
@@ -754,7 +796,12 @@ def write_page(result: dict, out_dir: Path | None, docs: Path, command: str) -> 
                 fits[f"k = {k}, draw 0"] = json.loads(f.read_text())
     result = {**result, "fits_first_draw": fits}
     write_result(docs.parent, docs.with_suffix(".json").name, result)
-    docs.write_text(page(result, fits, command))
+    docs.write_text(page(result, fits, command, _fabric(docs)))
+
+
+def _fabric(docs: Path) -> dict | None:
+    f = Path(docs).parent / "sim2real_fabric.json"
+    return json.loads(f.read_text()) if f.is_file() else None
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
@@ -766,7 +813,9 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
             raise ValueError("--from-json only rewrites the page: pass --docs")
         docs = Path(options.docs)
         fits = result.get("fits_first_draw") or {}
-        docs.write_text(page(result, fits, result.get("command", "tactilesnn bench sim2real")))
+        docs.write_text(
+            page(result, fits, result.get("command", "tactilesnn bench sim2real"), _fabric(docs))
+        )
         return 0
     command = (
         f"tactilesnn bench sim2real --out DIR --synthetic {options.synthetic} --seeds "
