@@ -647,6 +647,8 @@ def _cell(values: list[float], scale: float = 100.0, sign: str = "") -> str:
     if v.size < 2:
         return f"{v.mean():{sign}.1f}"
     lo, hi = ci95_t(v)
+    if not sign:  # an accuracy's interval ends at 0 and 100 %
+        lo, hi = max(lo, 0.0), min(hi, scale)
     return f"{v.mean():{sign}.1f} ({lo:{sign}.1f} to {hi:{sign}.1f})"
 
 
