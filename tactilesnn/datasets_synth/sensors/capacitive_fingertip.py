@@ -339,22 +339,11 @@ class CapacitiveFingertip:
 
     def codes_at(self, centres_mm: np.ndarray, state: dict[str, np.ndarray]) -> np.ndarray:
         """Noise-free CDC code above the pad's rest ``[P, frames]`` of pads centred at
-        ``centres_mm [P, 2]`` (mm) in the pose :meth:`contact_state` found."""
-        p = self.params
-        pts = self.pad_points(centres_mm)
-        contact = state["contact"]
-        height = self.height_mm(pts, contact)[None, :] + state["theta"][:, None] * (
-            pts[:, 0] - contact[0]
-        )
-        relief = self.relief_mm(pts, state["bumps"], *state["shape"])
-        c = np.maximum(state["delta"][:, None] - height + relief, 0.0)
-        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
-        cap = self._cap
-        c_sub = cap.capacitance_pF(s) - p.parasitic_pF
+        ``centres_mm [P, 2]`` (mm) in the pose :meth:`contact_state` found: the capacitance
+        field averaged over each pad's quadrature points."""
+        field = self.capacitance_field_pF(self.pad_points(centres_mm), state)
         n_pads = np.asarray(centres_mm).reshape(-1, 2).shape[0]
-        c_pad = (c_sub.reshape(s.shape[0], n_pads, self._n_sub) @ self._pad_w).T + p.parasitic_pF
-        rest = cap.cdc_code(cap.capacitance_pF(np.zeros(1)))
-        return cap.cdc_code(c_pad) - rest
+        return self.code_of((field.reshape(field.shape[0], n_pads, self._n_sub) @ self._pad_w).T)
 
     def read(
         self,

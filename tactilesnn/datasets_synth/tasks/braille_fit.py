@@ -141,6 +141,21 @@ def _disc_kernel(step_mm: float, diameter_mm: float) -> np.ndarray:
     return k / k.sum()
 
 
+def letter_states(sensor: CapacitiveFingertip, values: dict[str, float], letters: str,
+                  fs_hz: float, n_frames: int):  # fmt: skip
+    """The fingertip's pose per frame (:meth:`CapacitiveFingertip.contact_state`) as each letter's
+    cell passes, centred on the track, at the scene ``values`` (no randomisation)."""
+    duration = n_frames / fs_hz
+    t = np.arange(n_frames) / fs_hz
+    shift = values["speed_mm_s"] * (t - duration / 2 - values["t_mid_offset_s"])
+    ramp = 1 + values["force_ramp"] * t / duration
+    for letter in letters:
+        dots = cell_dots_mm(letter) - [0.0, values["row_mm"]]
+        bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
+        yield sensor.contact_state(letter_force(values, letter) * ramp, bumps, DOT_HEIGHT_MM,
+                                   DOT_DIAMETER_MM, np.zeros(2))  # fmt: skip
+
+
 def letter_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames: int,
                  grid_mm: float = SEARCH_GRID_MM) -> np.ndarray:  # fmt: skip
     """Noise-free codes above rest ``[letters, P, n_frames]`` of pads at every candidate centre
@@ -157,16 +172,8 @@ def letter_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames:
     gx = np.arange(x0 - half * step, x1 + half * step + 1e-9, step)
     gy = np.arange(y0 - half * step, y1 + half * step + 1e-9, step)
     pts = np.stack(np.meshgrid(gx, gy, indexing="ij"), -1).reshape(-1, 2)
-    duration = n_frames / fs_hz
-    t = np.arange(n_frames) / fs_hz
-    shift = values["speed_mm_s"] * (t - duration / 2 - values["t_mid_offset_s"])
-    ramp = 1 + values["force_ramp"] * t / duration
     out = []
-    for letter in letters:
-        force = letter_force(values, letter) * ramp
-        dots = cell_dots_mm(letter) - [0.0, values["row_mm"]]
-        bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
-        state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, np.zeros(2))
+    for state in letter_states(sensor, values, letters, fs_hz, n_frames):
         field = sensor.capacitance_field_pF(pts, state).reshape(n_frames, gx.size, gy.size)
         pad = correlate(field, kern[None], mode="constant")[:, half:-half, half:-half]
         out.append(sensor.code_of(pad.reshape(n_frames, -1)).T)
@@ -180,18 +187,8 @@ def pad_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames: in
     sensor = CapacitiveFingertip(
         sensor_params(values, grid_mm=FIT_GRID_MM, pad_rings=FIT_PAD_RINGS)
     )
-    duration = n_frames / fs_hz
-    t = np.arange(n_frames) / fs_hz
-    shift = values["speed_mm_s"] * (t - duration / 2 - values["t_mid_offset_s"])
-    ramp = 1 + values["force_ramp"] * t / duration
-    out = []
-    for letter in letters:
-        force = letter_force(values, letter) * ramp
-        dots = cell_dots_mm(letter) - [0.0, values["row_mm"]]
-        bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
-        state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, np.zeros(2))
-        out.append(sensor.codes_at(centres_mm, state))
-    return np.stack(out)
+    return np.stack([sensor.codes_at(centres_mm, state)
+                     for state in letter_states(sensor, values, letters, fs_hz, n_frames)])  # fmt: skip
 
 
 def place_pads(codes: np.ndarray, means: np.ndarray, centres_mm: np.ndarray
