@@ -143,6 +143,10 @@ def test_pads_override_layout_and_checks():
         FingertipParams(pads_mm=((0.0, 0.0),))
     with pytest.raises(ValueError, match="mount_N_per_mm"):
         FingertipParams(mount_N_per_mm=0.0)
+    with pytest.raises(ValueError, match="grid_mm"):  # a fit file cannot ask for a huge grid
+        FingertipParams(grid_mm=1e-4)
+    with pytest.raises(ValueError, match="pad_rings"):
+        FingertipParams(pad_rings=1000)
 
 
 def test_place_pads_recovers_a_known_layout():
@@ -207,6 +211,15 @@ def test_task_renders_a_fit_file_and_refuses_another_task(tmp_path):
     other.save(tmp_path / "other.json")
     with pytest.raises(ValueError, match="not braille"):
         get_task("braille", calibration=str(tmp_path / "other.json"))
+    short = _fit(scene={"row_mm": 2.0})
+    short.save(tmp_path / "short.json")
+    with pytest.raises(ValueError, match="scene lacks t_mid_offset_s"):
+        get_task("braille", calibration=str(tmp_path / "short.json"))
+    bad = _fit()
+    bad.randomisation["position_mm"] = -1.0
+    bad.save(tmp_path / "bad.json")
+    with pytest.raises(ValueError, match="must be >= 0"):
+        get_task("braille", calibration=str(tmp_path / "bad.json"))
 
 
 def test_calibrate_checks_its_input():

@@ -111,6 +111,12 @@ class FingertipParams:
             )
         if not 0 <= self.shift_bits <= 8:
             raise ValueError(f"shift_bits must be 0..8, got {self.shift_bits}")
+        # a fit file sets these: bounded, so that a hostile one cannot ask for a grid of
+        # billions of points (the force balance holds [frames, grid] arrays)
+        if not 0.05 <= self.grid_mm <= 2.0:
+            raise ValueError(f"grid_mm must be in [0.05, 2] mm, got {self.grid_mm}")
+        if not (isinstance(self.pad_rings, int) and 1 <= self.pad_rings <= 12):
+            raise ValueError(f"pad_rings must be an integer in 1..12, got {self.pad_rings}")
         for name in ("mount_N_per_mm", "tilt_Nmm_per_rad"):
             v = getattr(self, name)
             if not (v > 0) or np.isnan(v):  # inf allowed: rigid

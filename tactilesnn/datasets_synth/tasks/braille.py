@@ -54,6 +54,31 @@ from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 from .base import register_task
 from .trial import TrialTask
 
+#: what a Braille fit file must hold (each channel list: 12 values)
+FIT_SCENE = ("row_mm", "t_mid_offset_s", "speed_mm_s", "force_N", "force_ramp")
+FIT_RANDOMISATION = ("position_mm", "force_spread", "gain_spread", "speed_spread", "drift_counts",
+                     "time_jitter_s")  # fmt: skip
+FIT_CHANNELS = ("pad_x_mm", "pad_y_mm", "gain", "offset", "noise")
+
+
+def check_fit(fit: SensorFit, where: str) -> None:
+    """ValueError unless ``fit`` is a Braille fingertip fit the task can render."""
+    if fit.task != "braille" or fit.sensor != "capacitive_fingertip":
+        raise ValueError(f"{where} fits {fit.task}/{fit.sensor}, not braille")
+    for group, keys in (("scene", FIT_SCENE), ("randomisation", FIT_RANDOMISATION),
+                        ("channels", FIT_CHANNELS)):  # fmt: skip
+        missing = [k for k in keys if k not in getattr(fit, group)]
+        if missing:
+            raise ValueError(f"{where}: {group} lacks {', '.join(missing)}")
+    for k in FIT_CHANNELS:
+        if len(fit.channels[k]) != 12:
+            raise ValueError(f"{where}: channels.{k} must hold 12 values")
+    sc, rz = fit.scene, fit.randomisation
+    if sc["speed_mm_s"] <= 0 or sc["force_N"] <= 0 or sc["force_ramp"] < 0:
+        raise ValueError(f"{where}: speed and force must be > 0 and the ramp >= 0")
+    if min(rz.values()) < 0 or min(fit.channels["noise"]) < 0:
+        raise ValueError(f"{where}: randomisation widths and noise must be >= 0")
+
 
 @register_task
 @dataclass(frozen=True)
@@ -102,11 +127,7 @@ class BrailleTask(TrialTask):
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
         super().__post_init__()
         if self.calibration:
-            fit = self.fit
-            if fit.task != self.name or fit.sensor != "capacitive_fingertip":
-                raise ValueError(f"{self.calibration} fits {fit.task}/{fit.sensor}, not braille")
-            if len(fit.channels.get("gain", ())) != 12:
-                raise ValueError(f"{self.calibration}: 12 channels expected")
+            check_fit(self.fit, str(self.calibration))
 
     @cached_property
     def fit(self) -> SensorFit | None:
