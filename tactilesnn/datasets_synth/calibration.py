@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.files import write_text_atomic
+from ..core.files import replace_atomically, write_text_atomic
 
 #: the file's kind and the version this code writes and reads
 FIT_KIND = "tactilesnn.sensor_fit"
@@ -227,10 +227,8 @@ def plot_statistics(real: dict, fits: dict[str, dict], class_names: tuple[str, .
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    tmp = Path(path).with_name(Path(path).name + ".partial.png")
-    fig.savefig(tmp, dpi=100)
+    replace_atomically(Path(path), lambda tmp: fig.savefig(tmp, dpi=100, format="png"), ".png")
     plt.close(fig)
-    tmp.replace(path)
 
 
 def spectrum_shape(st: dict, bands: list | None = None) -> np.ndarray:
@@ -334,7 +332,5 @@ def plot_comparison(real: dict, model: dict, real_classes: tuple[str, ...],
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    tmp = Path(path).with_name(Path(path).name + ".partial.png")
-    fig.savefig(tmp, dpi=100)
+    replace_atomically(Path(path), lambda tmp: fig.savefig(tmp, dpi=100, format="png"), ".png")
     plt.close(fig)
-    tmp.replace(path)

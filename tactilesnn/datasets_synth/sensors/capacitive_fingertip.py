@@ -221,8 +221,10 @@ class CapacitiveFingertip:
         return p.p_half_Pa * strain / (p.strain_max - strain)
 
     def _strain(self, delta: np.ndarray, height: np.ndarray, relief: np.ndarray) -> np.ndarray:
+        """Foam strain ``[frames, G]`` at approach ``delta [frames]`` over heights ``[G]`` or
+        ``[frames, G]`` (a rolled fingertip) and relief ``[frames, G]`` (mm)."""
         p = self.params
-        c = np.maximum(delta[:, None] - height[None, :] + relief, 0.0)
+        c = np.maximum(delta[:, None] - height + relief, 0.0)
         return np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
 
     def pad_points(self, centres_mm: np.ndarray) -> np.ndarray:
@@ -304,20 +306,13 @@ class CapacitiveFingertip:
                     lo, hi = ref - p.foam_mm * p.strain_max - bump_height_mm, ref.copy()
                     for _ in range(24):  # F_foam(d) + k d grows with d: bisection to ~0.2 um
                         mid = 0.5 * (lo + hi)
-                        c = np.maximum(mid[:, None] - h + r, 0.0)
-                        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
-                        f = self.pressure_Pa(s).sum(1) * p.grid_mm**2 * 1e-6 + k * mid
-                        low = f < target
+                        low = self._foam_force(mid, h, r) + k * mid < target
                         lo, hi = np.where(low, mid, lo), np.where(low, hi, mid)
                     delta[touched] = 0.5 * (lo + hi)
         else:
             delta = self.approach_mm(force_N, grid, height, relief)
-        c = np.maximum(
-            delta[:, None] - height[None, :] - theta[:, None] * (grid[:, 0] - contact_mm[0])
-            + relief, 0.0,
-        )  # fmt: skip
-        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
-        load = self.pressure_Pa(s).sum(1) * p.grid_mm**2 * 1e-6
+        rolled = height[None, :] + theta[:, None] * (grid[:, 0] - contact_mm[0])
+        load = self._foam_force(delta, rolled, relief)
         return {"delta": delta, "theta": theta, "load_N": load, "bumps": bumps_mm,
                 "shape": np.array(shape), "contact": np.asarray(contact_mm, np.float64)}  # fmt: skip
 
@@ -333,8 +328,7 @@ class CapacitiveFingertip:
             points_mm[:, 0] - contact[0]
         )
         relief = self.relief_mm(points_mm, state["bumps"], *state["shape"])
-        c = np.maximum(state["delta"][:, None] - height + relief, 0.0)
-        s = np.minimum(c / p.foam_mm, p.strain_max * (1 - 1e-6))
+        s = self._strain(state["delta"], height, relief)
         return self._cap.capacitance_pF(s) - p.parasitic_pF
 
     def code_of(self, pad_pF: np.ndarray) -> np.ndarray:

@@ -309,9 +309,7 @@ def fit_levels(codes: np.ndarray, means: np.ndarray) -> tuple[np.ndarray, np.nda
     return gain, means.mean(1) - gain * codes.mean(1)
 
 
-def _predict(
-    codes: np.ndarray, gain: np.ndarray, offset: np.ndarray, shift_bits: int
-) -> np.ndarray:
+def _predict(codes: np.ndarray, gain: np.ndarray, offset: np.ndarray) -> np.ndarray:
     """Counts ``[..., C, T]`` of pads' codes ``[..., C, T]`` (gain per code LSB folded)."""
     return np.clip(gain[:, None] * codes + offset[:, None], 0, 255)
 
@@ -322,7 +320,7 @@ def _objective(values: dict[str, float], letters: str, fs: float, n: int, cands:
     joined = codes.transpose(1, 0, 2).reshape(len(cands), -1)
     means = real_dec.transpose(1, 0, 2).reshape(real_dec.shape[1], -1)
     pad, gain, offset = place_pads(joined, means, cands)
-    pred = _predict(codes[:, pad], gain, offset, 0)  # [L, C, T]
+    pred = _predict(codes[:, pad], gain, offset)  # [L, C, T]
     d = _distances(real_dec, pred)
     # 0 counts is the pad's calibrated rest in air: a level the physics leaves to the offset is
     # a level the model does not explain (and a steep gain on a small pressure is fragile)
@@ -436,26 +434,22 @@ def fit_spreads(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarray,
     return widths, left, "rest levels" if rest_only else "about the class means"
 
 
-def rest_spreads(X: np.ndarray, y: np.ndarray, fs_hz: float) -> dict[str, Any]:
-    """The randomisation widths the recordings tell (see the module doc)."""
-    rest = rest_level(X)  # [N, C]
-    out: dict[str, Any] = {"offset_sd": rest.std(0, ddof=1).tolist() if len(X) > 1 else None}
-    jit, gains = [], []
+def timing_jitter_s(X: np.ndarray, y: np.ndarray, fs_hz: float) -> float | None:
+    """The spread (s) of the slides' timing about their letter's mean (each slide's summed rise
+    above rest aligned to the mean's by the lag that best matches it); None without two slides
+    of a letter."""
+    jit = []
     for k in np.unique(y):
         xs = np.asarray(X[y == k], np.float64)
         if len(xs) < 2:
             continue
         rise = (xs - rest_level(xs)[..., None]).clip(0).sum(1)  # [n, T]
         mean = rise.mean(0)
-        for r in rise:  # timing: the lag that best aligns a slide with its letter's mean
+        for r in rise:
             lags = np.arange(-len(r) // 4, len(r) // 4 + 1)
             cc = [np.dot(np.roll(r, -lag), mean) for lag in lags]
             jit.append(lags[int(np.argmax(cc))] / fs_hz)
-            if mean.max() > 0 and r.max() > 0:
-                gains.append(np.log(r.max() / mean.max()))
-    out["time_jitter_s"] = float(np.std(jit, ddof=1)) if len(jit) > 2 else None
-    out["gain_spread"] = float(np.std(gains, ddof=1)) if len(gains) > 2 else None
-    return out
+    return float(np.std(jit, ddof=1)) if len(jit) > 2 else None
 
 
 def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 240.0,
@@ -518,19 +512,18 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     gain, offset = fit_levels(codes.transpose(1, 0, 2).reshape(12, -1), means)
     shift = 2 ** FingertipParams().shift_bits
     real_stats = slide_statistics(X, y, fs_hz, len(letters))
-    spreads = rest_spreads(X, y, fs_hz)
     defaults = {f.name: f.default for f in fields(task)}
     widths, offset_sd, spread_on = fit_spreads(values, cands[pad], gain, offset, letters, X, y,
                                                fs_hz, real_stats["noise"], defaults, seed=seed)  # fmt: skip
     channels = {"pad_x_mm": cands[pad, 0].tolist(), "pad_y_mm": cands[pad, 1].tolist(),
                 "gain": (gain * shift).tolist(), "offset": offset.tolist(),
                 "noise": real_stats["noise"].tolist(), "offset_sd": offset_sd.tolist()}  # fmt: skip
-    pred = _predict(codes, gain, offset, 0)
+    pred = _predict(codes, gain, offset)
     dist = _distances(real_means, pred)
     scene = {k: values[k] for k in ("row_mm", "t_mid_offset_s", "speed_mm_s", "force_N",
                                     "force_ramp", *(f"force_scale_{c}" for c in letters))}  # fmt: skip
     randomisation = {**widths, "drift_counts": 0.0,
-                     "time_jitter_s": spreads["time_jitter_s"] or 0.0}  # fmt: skip
+                     "time_jitter_s": timing_jitter_s(X, y, fs_hz) or 0.0}  # fmt: skip
     params = {k: values[k] for k in SENSOR_FIELDS}
     # the channels' measured noise replaces the model's; the resolution the levels were fitted at
     params.update(noise_lsb=0.0, noise_counts=0.0, grid_mm=FIT_GRID_MM, pad_rings=FIT_PAD_RINGS)
