@@ -155,17 +155,21 @@ def statistic_distances(real: dict, synth: dict) -> dict[str, float]:
     """How far two :func:`slide_statistics` are apart, per statistic (0 = equal):
 
     ``mean_response``: the fraction of the real class means' variance (about each channel's
-    mean) the synthetic class means leave unexplained; ``rest`` and ``range``: rms difference
+    mean) the synthetic class means leave unexplained; ``class_difference``: the same for what
+    tells the classes apart (each class mean less the mean over classes: a response common to
+    every class, such as a slow rise, does not count); ``rest`` and ``range``: rms difference
     over the real channels' range (counts / counts); ``correlation``: mean absolute difference
     of the off-diagonal correlations; ``spectrum``: rms difference in decades."""
     rm, sm = real["mean"], synth["mean"]
     cen = rm - rm.mean(axis=(0, 2), keepdims=True)
     fuv = float(((sm - rm) ** 2).sum() / max((cen**2).sum(), 1e-12))
+    rd, sd = rm - rm.mean(0, keepdims=True), sm - sm.mean(0, keepdims=True)
+    between = float(((sd - rd) ** 2).sum() / max((rd**2).sum(), 1e-12))
     scale = max(float(np.max(real["range"])), 1e-9)
     c = real["correlation"].shape[0]
     off = ~np.eye(c, dtype=bool)
     spec = np.asarray(real["spectrum"]) - np.asarray(synth["spectrum"])
-    return {"mean_response": fuv,
+    return {"mean_response": fuv, "class_difference": between,
             "rest": float(np.sqrt(np.mean((real["rest"] - synth["rest"]) ** 2)) / scale),
             "range": float(np.sqrt(np.mean((real["range"] - synth["range"]) ** 2)) / scale),
             "correlation": float(np.abs(real["correlation"] - synth["correlation"])[off].mean()),

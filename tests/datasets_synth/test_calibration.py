@@ -96,6 +96,12 @@ def test_statistics_closed_form():
     assert all(v == 0 for v in d.values())
     other = dict(st, mean=st["mean"] + 1.0)
     assert statistic_distances(st, other)["mean_response"] > 0
+    # a response common to every class does not tell them apart; swapping the classes does
+    # (closed form: the class differences negated, (2d)^2 / d^2 = 4)
+    assert statistic_distances(st, other)["class_difference"] < 1e-20
+    real = dict(st, mean=np.stack([st["mean"][0], st["mean"][0] + 2.0]))
+    swapped = dict(st, mean=real["mean"][::-1])
+    assert np.isclose(statistic_distances(real, swapped)["class_difference"], 4.0)
 
 
 def _state(sensor, force, x_dot):

@@ -769,15 +769,17 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                   "Distances between the k training slides and the fitted model's mean "
                   "responses at the end of each fit (medians over draws; 0 = equal; "
                   "`calibration.statistic_distances`):", "",
-                  "| k | mean response (share of variance unexplained) | correlation (mean abs "
-                  "difference) | rest (share of the largest range) | range |",
-                  "|---|---|---|---|---|"]  # fmt: skip
+                  "| k | mean response (share of variance unexplained) | what tells the "
+                  "letters apart (share unexplained) | correlation (mean abs difference) | rest "
+                  "(share of the largest range) | range |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
         for k in ks:
             d = [x["distances"] for x in cal if x["k"] == k and "distances" in x]
             if d:
                 lines.append(f"| {k} | " + " | ".join(
-                    f"{np.median([x[key] for x in d]):.3f}"
-                    for key in ("mean_response", "correlation", "rest", "range")) + " |")  # fmt: skip
+                    f"{np.median([x[key] for x in d]):.3f}" if all(key in x for x in d) else "-"
+                    for key in ("mean_response", "class_difference", "correlation", "rest",
+                                "range")) + " |")  # fmt: skip
     if fabric:
         lines += _fabric_section(fabric)
     if r.get("tail"):
