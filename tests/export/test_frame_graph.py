@@ -7,6 +7,7 @@ import torch
 
 from tactilesnn.config import PipelineConfig
 from tactilesnn.export.frames import (
+    BoundFrames,
     FrameGraph,
     build_frame_graph,
     compare_frames,
@@ -61,6 +62,30 @@ def test_the_step_graph_matches_torch_frame_by_frame(trained, exporter, tmp_path
     off = got["decision"] != want["decision"]
     margin = float(pipe.model.decision_margin)
     assert np.all(np.abs(lead[off] - margin) < 1e-4), (lead[off], margin)
+
+
+def test_bound_buffers_step_as_run_does(trained):
+    pipe, X = trained
+    model, graph = build_frame_graph(pipe)
+    sess = frame_session(model)
+    stream = np.concatenate(list(X[:6]), 1)
+    want = run_frames(sess, graph, stream)
+    hop = graph.hop
+    bound = BoundFrames(sess, graph, stream[None, :, :hop])
+    scores, decision, spikes = [], [], []
+    for i in range(stream.shape[1] // hop):
+        bound.step(stream[None, :, i * hop : (i + 1) * hop])
+        scores.append(bound.scores[0].copy())
+        decision.append(int(bound.decision[0]))
+        spikes.append(bound.spikes[0].copy())
+    assert want["spikes"].sum() > 0
+    # the same session, the same arithmetic: equal to the bit, the state carried by the swap
+    assert np.array_equal(np.asarray(spikes), want["spikes"])
+    assert np.array_equal(np.asarray(scores), want["scores"])
+    assert np.array_equal(np.asarray(decision), want["decision"])
+    assert np.array_equal(bound.state, want["state"]["frame_state"])
+    with pytest.raises(ValueError, match="one stream at a time"):
+        BoundFrames(sess, graph, np.repeat(stream[None, :, :hop], 2, 0))
 
 
 def test_the_step_stream_equals_the_window_code_from_rest(trained):

@@ -260,7 +260,7 @@ def realtime_session(
     from ...service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
-    if form.startswith(_F) or form == _FLOOR:  # the continuous code + stream model, hop ~5 ms
+    if form in _FRAME_FORMS:  # the continuous code + stream model, hop ~5 ms
         cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",),
                                        f_lo_hz=5.0, f_hi_hz=800.0, stream_hidden=snn[0],
                                        frame_ms=1000.0 * hop / fs)  # fmt: skip
@@ -287,8 +287,7 @@ def realtime_session(
             "windows_per_s": fs / step}  # fmt: skip
     if form.startswith(_S):
         return _stream_call(pipe, X, form, step), info
-    if form.startswith(_F) or form == _FLOOR:
-        return _frame_call(pipe, X, form, info)
+
     path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
@@ -359,17 +358,25 @@ def _frame_call(pipe: SpikePipeline, X: np.ndarray, form: str, info: dict
     gather of the weight rows of the afferents that fired), ``... 100 streams`` (a skin of
     100 such 12-taxel streams in one call per frame: the real-time factor per stream), or the
     floor (``ort call floor``: a graph of one ``Identity`` node with one input and one output,
-    what any call from Python costs)."""
+    what any call from Python costs); ``... bound``: the step graph or the floor through
+    buffers bound once (:class:`~tactilesnn.export.frames.BoundFrames`: the frame copied in,
+    the state written where the next call reads it)."""
     import onnx
     import onnxruntime as ort
 
     from ...core.graph_contract import WINDOW_INPUT
-    from ...export.frames import STATE, build_frame_graph, frame_session, initial_frame_state
+    from ...export.frames import (
+        STATE,
+        BoundFrames,
+        build_frame_graph,
+        frame_session,
+        initial_frame_state,
+    )
 
     streams = FRAME_STREAMS if form == _FB else 1
     hop = info["step_samples"]
     x = np.ascontiguousarray(np.repeat(X[:1, :, :hop], streams, 0))
-    if form == _FLOOR:
+    if form in (_FLOOR, _FLOORB):
         h = onnx.helper
         v_in = h.make_tensor_value_info(WINDOW_INPUT, onnx.TensorProto.FLOAT, [1, 12, hop])
         v_out = h.make_tensor_value_info("scores", onnx.TensorProto.FLOAT, [1, 12, hop])
@@ -380,12 +387,21 @@ def _frame_call(pipe: SpikePipeline, X: np.ndarray, form: str, info: dict
         opts.intra_op_num_threads = 1
         sess = ort.InferenceSession(model.SerializeToString(), opts,
                                     providers=["CPUExecutionProvider"])  # fmt: skip
+        if form == _FLOORB:
+            bind = sess.io_binding()
+            bind.bind_ortvalue_input(WINDOW_INPUT, ort.OrtValue.ortvalue_from_numpy(x))
+            bind.bind_ortvalue_output("scores", ort.OrtValue.ortvalue_from_numpy(x.copy()))
+            return (lambda: sess.run_with_iobinding(bind)), {**info, "streams": 1}
         return (lambda: sess.run(["scores"], {WINDOW_INPUT: x})), {**info, "streams": 1}
     model, graph = build_frame_graph(pipe, gather=form == _FG)
     sess = frame_session(model)
+    info = {**info, "streams": streams, "nodes": len(model.graph.node)}
+    if form == _FBOUND:
+        bound = BoundFrames(sess, graph, x)
+        bound.step(x)
+        return bound.step, info  # the frame already bound: the call alone, as the floor's
     feeds = {WINDOW_INPUT: x, **initial_frame_state(graph, x)}
     outs = ["scores", "decision", f"{STATE}_out"]  # what a stream's runtime reads
-    info = {**info, "streams": streams, "nodes": len(model.graph.node)}
     return (lambda: sess.run(outs, feeds)), info
 
 
@@ -488,6 +504,10 @@ _SF = "cgwt stream frame"
 #: one stream per call, its input layer as a gather, a skin of FRAME_STREAMS streams per call,
 #: and the floor of any call (one Identity node)
 _F, _FG, _FB, _FLOOR = "frames step", "frames step gather", "frames step streams", "ort call floor"
+#: the step graph and the floor called through buffers bound once (IOBinding: no conversion or
+#: allocation of feeds and outputs per call; :class:`~tactilesnn.export.frames.BoundFrames`)
+_FBOUND, _FLOORB = "frames step bound", "ort call floor bound"
+_FRAME_FORMS = (_F, _FG, _FB, _FLOOR, _FBOUND, _FLOORB)
 FRAME_STREAMS = 100
 RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, True, (64, 5.0), _G), (10, 6, False, (64, 5.0), _G),
@@ -507,7 +527,8 @@ RT_ROWS = ((1, None, False, (64, 5.0), _G), (10, None, False, (64, 5.0), _G),
            (10, None, False, (64, 5.0), _SF), (50, None, False, SMALL_SNN, _SF),
            # the continuous stream model stepping one 5 ms frame per call (latency one frame)
            (10, None, False, (64, 5.0), _F), (10, None, False, (64, 5.0), _FG),
-           (10, None, False, (64, 5.0), _FB), (10, None, False, (64, 5.0), _FLOOR))  # fmt: skip
+           (10, None, False, (64, 5.0), _FB), (10, None, False, (64, 5.0), _FLOOR),
+           (10, None, False, (64, 5.0), _FBOUND), (10, None, False, (64, 5.0), _FLOORB))  # fmt: skip
 
 
 def run(out: Path, task: str = "hook_loop", quick: bool = False, repeats: int = 15,
@@ -590,9 +611,14 @@ def format_rt(rt: dict) -> str:
                  f"({rt.get('snn_hidden', 64)} units), {rt.get('streams')} streams of 12 taxels "
                  "in one call per frame (latency one frame; per stream)",
             _FLOOR: "the floor of any onnxruntime call from Python (one Identity node, one input, "
-                    "one output), one frame per call"}[form]  # fmt: skip
+                    "one output), one frame per call",
+            _FBOUND: f"continuous code (frames, hop {rt['gwt_hop']}) + stream SNN "
+                     f"({rt.get('snn_hidden', 64)} units), one-frame step graph through bound "
+                     "buffers (IOBinding), one frame per call (latency one frame)",
+            _FLOORB: "the floor of any onnxruntime call from Python through bound buffers "
+                     "(IOBinding; one Identity node), one frame per call"}[form]  # fmt: skip
     step = rt.get("step_samples", rt["window_samples"] // 2)
-    if form in (_F, _FG, _FB, _FLOOR):  # no window: a frame per call
+    if form in _FRAME_FORMS:  # no window: a frame per call
         return (f"{name}, 12 taxels @ 2 kHz, a frame every {step} samples "
                 f"({1000 * step / 2000:g} ms), onnxruntime 1 thread: "
                 f"{1000 * rt['ms_per_window']:.1f} us per call, {rt['ms_per_signal_s']:.2f} ms "
