@@ -1,5 +1,6 @@
 """bench pareto's frame rows: the one-frame step graph, its gather form, many streams per call
-and the floor of any call (each also through bound buffers), each timed and printed with its latency and real-time factor."""
+and the floor of any call (each also through bound buffers), each timed and printed with its
+latency and real-time factor."""
 
 import pytest
 

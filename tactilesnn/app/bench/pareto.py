@@ -287,7 +287,6 @@ def realtime_session(
             "windows_per_s": fs / step}  # fmt: skip
     if form.startswith(_S):
         return _stream_call(pipe, X, form, step), info
-
     path = tmp / f"rt{form.replace(' ', '_')}{hop}_{touched}_{int(int8)}_{snn[0]}_{snn[1]:g}.onnx"
     export_pipeline(pipe, path, X)
     if int8:
