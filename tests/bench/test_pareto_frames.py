@@ -7,8 +7,8 @@ import pytest
 from tactilesnn.app.bench.pareto import (
     _F,
     _FB,
-    _FG,
     _FBOUND,
+    _FG,
     _FLOOR,
     _FLOORB,
     FRAME_STREAMS,
