@@ -33,3 +33,41 @@ def run_batched(
         if trim:
             release_memory()
     return [np.concatenate([p[j] for p in parts]) for j in range(len(outputs))]
+
+
+#: onnxruntime's CPU kernels of these operators, with a ``reduction`` other than ``none``, lose
+#: updates that share an output element when the node runs on more than one intra-op thread
+#: (microsoft/onnxruntime#18048 and #23396; measured with 1.32: 20,000 rows added into 426 on
+#: 2 threads, off by up to 5.1 against float64, every run different; on 1 thread 8e-6). A SNN's
+#: window graph adds each spike's weight column into its step with one such ``ScatterND``.
+REDUCING_SCATTERS = ("ScatterND", "ScatterElements")
+
+
+def reducing_scatter(model) -> bool:
+    """Whether the ONNX ``model`` (a ``ModelProto``) holds a :data:`REDUCING_SCATTERS` node with
+    a reduction, in its graph or any subgraph."""
+    from onnx import AttributeProto
+
+    def walk(graph) -> bool:
+        for node in graph.node:
+            for a in node.attribute:
+                if a.type == AttributeProto.GRAPH and walk(a.g):
+                    return True
+                if a.type == AttributeProto.GRAPHS and any(walk(g) for g in a.graphs):
+                    return True
+            if node.op_type in REDUCING_SCATTERS and any(
+                a.name == "reduction" and a.s not in (b"", b"none") for a in node.attribute
+            ):
+                return True
+        return False
+
+    return walk(model.graph)
+
+
+def session_threads(model, threads: int = 0) -> int:
+    """The intra-op threads to run ``model`` on (0 = onnxruntime's default, every core): one
+    when it holds a reducing scatter (:data:`REDUCING_SCATTERS`: more would race), or when the
+    ``onnx`` package is missing and the graph cannot be read; else ``threads``."""
+    if model is None:
+        return 1
+    return 1 if reducing_scatter(model) else int(threads)

@@ -291,15 +291,20 @@ def verify(
     bar = (lambda name: f"verify {name}") if progress else (lambda name: None)
     report: dict = {"n_checked": len(x), "check_batch": batch}
     tol = score_tolerance(ref)
+    flipped = np.zeros(len(x), bool)  # windows whose code flipped a spike (with parts)
     if parts is not None and len(x):
         enc = _session(parts[0])
         got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"), trim=True)[0]
-        tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
+        t_tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         frame_ms = pipe.encoder.frame_period_ms
         if frame_ms is None:
-            dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, tol)
+            dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, t_tol)
         else:  # a code clocked by frames: the same frames must spike
             dt, flips = compare_frame_spikes(got_t, spikes.numpy(), frame_ms)
+        # a window whose code flipped a spike on a rounding boundary (accepted above) may score
+        # differently end to end: the model sees another input there
+        flipped = windows_with_flips(got_t, spikes.numpy(), frame_ms)
+        del got_t
         mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
@@ -323,7 +328,8 @@ def verify(
     feeds = {"window": x, **_zero_states(states, len(x))}
     got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"), trim=True)[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
-    off = int((~(per_window <= tol)).sum())  # a NaN score is off, not within tolerance
+    beyond = ~(per_window <= tol)  # a NaN score is off, not within tolerance
+    off = int((beyond & ~flipped).sum())
     if off > _boundary_allowance(len(x)):
         worst = float(per_window.max())
         raise ExportError(
@@ -337,6 +343,7 @@ def verify(
     report.update(
         max_score_diff=float(per_window.max()) if len(x) else 0.0,
         windows_beyond_atol=off,
+        windows_beyond_atol_after_a_code_flip=int((beyond & flipped).sum()),
         prediction_agreement=float((got.argmax(1) == ref.argmax(1)).mean()) if len(x) else 1.0,
     )
     return report
@@ -355,8 +362,12 @@ def _session(model: onnx.ModelProto):
     """A CPU session without the growing memory arena (verification must stay in budget)."""
     import onnxruntime as ort
 
+    from ..core.onnx_run import session_threads
+
     opts = ort.SessionOptions()
     opts.enable_cpu_mem_arena = False
+    # as every runtime of ours runs it: one thread where a reducing scatter would race
+    opts.intra_op_num_threads = session_threads(model)
     return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
 
 
@@ -369,6 +380,29 @@ def _zero_states(states: list[tuple[str, int]], n: int) -> dict[str, np.ndarray]
 FRAME_FLIP_FRACTION = 1e-4
 
 
+def _frame_raster(t: np.ndarray, frame_ms: float, frames: int) -> np.ndarray:
+    """Spike times ``[N, A, k]`` (ms) -> ``[N, A, frames + 1]`` bool: which frames spike."""
+    n, aff, _ = t.shape
+    idx = np.where(np.isfinite(t), np.floor(t / frame_ms), -1).astype(np.int64)
+    out = np.zeros((n, aff, frames + 1), bool)
+    w, a, _ = np.nonzero(idx >= 0)
+    out[w, a, np.minimum(idx[idx >= 0], frames)] = True
+    return out
+
+
+def windows_with_flips(got: np.ndarray, want: np.ndarray, frame_ms: float | None) -> np.ndarray:
+    """``[N]`` bool: the windows whose encoder spikes differ between the graph and torch as the
+    encoder check accepts them (a frame that spikes in one only; a slot at the code's cutoff
+    that spikes in one only)."""
+    if frame_ms is None:
+        return (np.isfinite(got) != np.isfinite(want)).any(axis=(1, 2))
+    top = max(float(np.max(np.where(np.isfinite(a), a, 0.0), initial=0.0)) for a in (got, want))
+    frames = int(top // frame_ms) + 2
+    return (_frame_raster(got, frame_ms, frames) != _frame_raster(want, frame_ms, frames)).any(
+        axis=(1, 2)
+    )
+
+
 def compare_frame_spikes(got: np.ndarray, want: np.ndarray, frame_ms: float) -> tuple[float, int]:
     """For a code that spikes on a frame clock (at most once per frame and afferent): the
     frames at which each afferent spikes, compared as sets. Returns ``(0.0, flips)``: spikes on
@@ -377,18 +411,12 @@ def compare_frame_spikes(got: np.ndarray, want: np.ndarray, frame_ms: float) -> 
     for name, a in (("the graph", got), ("torch", want)):
         if np.isnan(a).any():
             raise ExportError(f"exported encoder: {name} gives NaN spike times")
-    n, aff, _ = want.shape
     frames = int(np.nanmax(np.where(np.isfinite(want), want, 0.0)) // frame_ms) + 2
     frames = max(frames, int(np.nanmax(np.where(np.isfinite(got), got, 0.0)) // frame_ms) + 2)
 
-    def raster(t: np.ndarray) -> np.ndarray:
-        idx = np.where(np.isfinite(t), np.floor(t / frame_ms), -1).astype(np.int64)
-        out = np.zeros((n, aff, frames + 1), bool)
-        w, a, _ = np.nonzero(idx >= 0)
-        out[w, a, idx[idx >= 0]] = True
-        return out
-
-    flips = int((raster(got) != raster(want)).sum())
+    flips = int(
+        (_frame_raster(got, frame_ms, frames) != _frame_raster(want, frame_ms, frames)).sum()
+    )
     allowed = max(2, int(FRAME_FLIP_FRACTION * np.isfinite(want).sum()))
     if flips > allowed:
         raise ExportError(f"exported encoder: {flips} spikes differ from torch's (at most "

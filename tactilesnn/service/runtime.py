@@ -24,7 +24,7 @@ from ..core.graph_contract import (
     GraphContract,
     state_output,
 )
-from ..core.onnx_run import run_batched
+from ..core.onnx_run import run_batched, session_threads
 
 
 class InputError(ValueError):
@@ -146,6 +146,19 @@ def _plain_graph(path: str, outputs: list[str] | None = None) -> tuple[list[str]
     if not prune_to_outputs(model.graph, outputs):
         return None
     return every, model.SerializeToString()
+
+
+def _onnx_model(path: str):
+    """The ONNX graph at ``path`` (``onnx.load``), None without the ``onnx`` package or when it
+    cannot be read (the session's own load then reports what is wrong)."""
+    try:
+        import onnx
+    except ImportError:
+        return None
+    try:
+        return onnx.load(str(path))
+    except Exception:  # protobuf raises its own types; the session's load says what is wrong
+        return None
 
 
 def _check_weights(path: str) -> None:
@@ -298,10 +311,12 @@ class PipelineSession:
 
     def __init__(self, path: str, threads: int = 0, expose_spikes: bool = False) -> None:
         opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = threads
         if not Path(path).is_file():
             raise FileNotFoundError(f"model file {path} does not exist")
+        # one thread for a graph with a reducing scatter (more would race: core.onnx_run)
+        threads = session_threads(_onnx_model(path), threads)
+        if threads:
+            opts.intra_op_num_threads = threads
         self._opts, self._full, self._lock = opts, None, threading.Lock()
         try:
             self._source = _with_spikes_output(path) if expose_spikes else str(path)
