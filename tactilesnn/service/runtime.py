@@ -161,16 +161,15 @@ def _onnx_model(path: str):
         return None
 
 
-def _check_weights(path: str) -> None:
+def _check_weights(path: str, model) -> None:
     """Refuse a graph whose weights hold NaN (it would give one answer for every input; +inf is
-    a legitimate constant: a silent afferent's spike time). Needs the ``onnx`` package; a
-    deployment without it skips the check."""
-    try:
-        import onnx
-        from onnx import numpy_helper
-    except ImportError:
+    a legitimate constant: a silent afferent's spike time). ``model``: the graph at ``path``
+    (:func:`_onnx_model`); None (no ``onnx`` package) skips the check."""
+    if model is None:
         return
-    model = onnx.load(str(path))
+    import onnx
+    from onnx import numpy_helper
+
     for init in model.graph.initializer:
         if init.data_type in (onnx.TensorProto.FLOAT, onnx.TensorProto.DOUBLE,
                               onnx.TensorProto.FLOAT16):  # fmt: skip
@@ -314,7 +313,8 @@ class PipelineSession:
         if not Path(path).is_file():
             raise FileNotFoundError(f"model file {path} does not exist")
         # one thread for a graph with a reducing scatter (more would race: core.onnx_run)
-        threads = session_threads(_onnx_model(path), threads)
+        graph = _onnx_model(path)
+        threads = session_threads(graph, threads)
         if threads:
             opts.intra_op_num_threads = threads
         self._opts, self._full, self._lock = opts, None, threading.Lock()
@@ -334,7 +334,8 @@ class PipelineSession:
                 )
         except Exception as e:  # onnxruntime / protobuf raise their own types for unreadable graphs
             raise ValueError(f"{path} is not a loadable ONNX model ({e})") from e
-        _check_weights(path)
+        _check_weights(path, graph)
+        del graph
         self.has_spikes = "spikes" in outs
         self.decides_early = set(EARLY_OUTPUTS) <= outs
         meta = self.plain_session.get_modelmeta().custom_metadata_map
