@@ -297,13 +297,14 @@ def verify(
         got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"), trim=True)[0]
         t_tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         frame_ms = pipe.encoder.frame_period_ms
+        # a window whose code flipped a spike on a rounding boundary (what these checks accept)
+        # may score differently end to end: the model sees another input there
+        want_t = spikes.numpy()
         if frame_ms is None:
-            dt, flips = compare_spike_times(got_t, spikes.numpy(), pipe.duration_ms, t_tol)
+            dt, flips = compare_spike_times(got_t, want_t, pipe.duration_ms, t_tol)
+            flipped = (np.isfinite(got_t) != np.isfinite(want_t)).any(axis=(1, 2))
         else:  # a code clocked by frames: the same frames must spike
-            dt, flips = compare_frame_spikes(got_t, spikes.numpy(), frame_ms)
-        # a window whose code flipped a spike on a rounding boundary (accepted above) may score
-        # differently end to end: the model sees another input there
-        flipped = windows_with_flips(got_t, spikes.numpy(), frame_ms)
+            dt, flips, flipped = compare_frame_spikes(got_t, want_t, frame_ms)
         del got_t
         # with the parts checked, scores are held to the spike-time bound (1e-2) where it is the
         # looser: a degenerate file's LI read-out (a channel at +30,000 through the LIF code)
@@ -393,38 +394,26 @@ def _frame_raster(t: np.ndarray, frame_ms: float, frames: int) -> np.ndarray:
     return out
 
 
-def windows_with_flips(got: np.ndarray, want: np.ndarray, frame_ms: float | None) -> np.ndarray:
-    """``[N]`` bool: the windows whose encoder spikes differ between the graph and torch as the
-    encoder check accepts them (a frame that spikes in one only; a slot at the code's cutoff
-    that spikes in one only)."""
-    if frame_ms is None:
-        return (np.isfinite(got) != np.isfinite(want)).any(axis=(1, 2))
-    top = max(float(np.max(np.where(np.isfinite(a), a, 0.0), initial=0.0)) for a in (got, want))
-    frames = int(top // frame_ms) + 2
-    return (_frame_raster(got, frame_ms, frames) != _frame_raster(want, frame_ms, frames)).any(
-        axis=(1, 2)
-    )
-
-
-def compare_frame_spikes(got: np.ndarray, want: np.ndarray, frame_ms: float) -> tuple[float, int]:
+def compare_frame_spikes(
+    got: np.ndarray, want: np.ndarray, frame_ms: float
+) -> tuple[float, int, np.ndarray]:
     """For a code that spikes on a frame clock (at most once per frame and afferent): the
-    frames at which each afferent spikes, compared as sets. Returns ``(0.0, flips)``: spikes on
-    the same frame have the same time; ``flips`` (a spike in one only) may be at most
-    :data:`FRAME_FLIP_FRACTION` of torch's spikes (and at least 2 are allowed)."""
+    frames at which each afferent spikes, compared as sets. Returns ``(0.0, flips, windows)``:
+    spikes on the same frame have the same time; ``flips`` (a spike in one only) may be at most
+    :data:`FRAME_FLIP_FRACTION` of torch's spikes (and at least 2 are allowed); ``windows``
+    ``[N]`` bool: the windows holding a flip."""
     for name, a in (("the graph", got), ("torch", want)):
         if np.isnan(a).any():
             raise ExportError(f"exported encoder: {name} gives NaN spike times")
     frames = int(np.nanmax(np.where(np.isfinite(want), want, 0.0)) // frame_ms) + 2
     frames = max(frames, int(np.nanmax(np.where(np.isfinite(got), got, 0.0)) // frame_ms) + 2)
-
-    flips = int(
-        (_frame_raster(got, frame_ms, frames) != _frame_raster(want, frame_ms, frames)).sum()
-    )
+    diff = _frame_raster(got, frame_ms, frames) != _frame_raster(want, frame_ms, frames)
+    flips = int(diff.sum())
     allowed = max(2, int(FRAME_FLIP_FRACTION * np.isfinite(want).sum()))
     if flips > allowed:
         raise ExportError(f"exported encoder: {flips} spikes differ from torch's (at most "
                           f"{allowed} allowed: threshold crossings on a rounding boundary)")  # fmt: skip
-    return 0.0, flips
+    return 0.0, flips, diff.any(axis=(1, 2))
 
 
 def compare_spike_times(
