@@ -130,6 +130,23 @@ def test_calibrated_summary_has_the_documented_keys():
     assert s["shots"]["2"]["real_only_per_window"] == 0.5 and s["shots"]["2"]["draws"] == 2
 
 
+def test_calibrated_seeds_are_averaged_within_a_draw_first():
+    # draw 0 run with three training seeds, draw 1 with one: each draw weighs the same
+    rows = [{"k": 1, "draw": 0, "seed": s, "synthetic_only_per_slide": v, "synthetic_only": v,
+             "real_only": 0.5, "pretrained": v, "real_only_per_slide": 0.5,
+             "pretrained_per_slide": v} for s, v in enumerate((0.2, 0.4, 0.6))]  # fmt: skip
+    rows.append({**rows[0], "draw": 1, "seed": 1, "synthetic_only_per_slide": 1.0,
+                 "synthetic_only": 1.0, "pretrained": 1.0, "pretrained_per_slide": 1.0})  # fmt: skip
+    assert sim2real.draw_means(rows, "synthetic_only") == pytest.approx([0.4, 1.0])
+    s = sim2real.summarise_calibrated(rows)
+    assert s["synthetic_only_per_slide"] == pytest.approx(0.7)  # not 0.55, the mean of rows
+    assert s["shots"]["1"]["draws"] == 2 and s["shots"]["1"]["runs"] == 4
+    r = {"seconds": 60.0, "calibrated": [{**x, "calibration_s": 1.0, "objective": 0.5,
+                                          "encoder": "lif"} for x in rows[:3]]}  # fmt: skip
+    text = sim2real.page(r, {}, "cmd")
+    assert "| 1 | 1 x 3 seeds | synthetic only | - | 40.0 / 40.0 |" in text
+
+
 def test_page_states_before_and_after(tmp_path):
     cal = [{"k": k, "draw": d, "synthetic_only": 0.5, "synthetic_only_per_slide": 0.7,
             "real_only": 0.5, "real_only_per_slide": 0.6, "pretrained": 0.62 + 0.01 * d,

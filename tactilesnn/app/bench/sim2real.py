@@ -28,7 +28,10 @@ model).
    centred on the pretrained weights), next to the same pipeline trained on the ``k`` real
    slides alone (real only). No test slide is seen by the calibration, the encoder's choice,
    the training or the fine-tune (there is no early stopping); ``tests/bench/test_sim2real.py``
-   checks it.
+   checks it. Each draw's fit is trained on with ``--calibrated-seeds`` seeds (default 3: its
+   synthetic slides rendered and every pipeline trained again; one fit's synthetic-only score
+   spans ~30 points per slide from seed to seed); a draw's figure is the mean over its seeds,
+   the intervals are over draws.
 
 Writes ``sim2real.json`` (the calibrated section as ``synthetic_only_per_slide`` and ``shots:
 {k: {real_only_per_window, pretrained_per_window, ...}}``, means over draws), ``sim2real.md``,
@@ -215,11 +218,12 @@ def _accuracy(pipe, test: WindowDataset) -> tuple[float, float]:
 def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
                     fit_path: Path | None = None, plot_path: Path | None = None,
-                    reuse: Path | None = None) -> dict:  # fmt: skip
+                    reuse: Path | None = None, train_seed: int | None = None) -> dict:  # fmt: skip
     """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
     synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``. ``reuse``:
     a fit file an earlier run wrote for this very draw (its training slides checked), read
-    instead of fitting again."""
+    instead of fitting again. ``seed`` seeds the calibration; ``train_seed`` (default: ``seed``)
+    the synthetic slides' render and every pipeline's training."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
     from ...training import finetune_pipeline, fit_pipeline
@@ -244,6 +248,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
         fit.fitted_on["train_slides"] = train_idx.tolist()
         t_cal = time.perf_counter() - t0
     import tempfile
+
+    seed = seed if train_seed is None else int(train_seed)  # from here on: the training's
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(fit_path) if fit_path is not None else Path(tmp) / "fit.json"
@@ -275,6 +281,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     chosen = max(scores, key=lambda n: scores[n])  # per window, then per slide, then order
     pre, cfg = fitted[chosen], with_seed(candidate_configs(base, synth_w, (chosen,))[chosen], seed)
     row: dict = {"train_slides": train_idx.tolist(), "test_slides": int(test_idx.size),
+                 "seed": seed,
                  "calibration_s": t_cal, "objective": fit.objective["value"],
                  "distances": fit.objective["distances"], "encoder": chosen,
                  "encoder_scores_on_training_slides": scores}  # fmt: skip
@@ -315,16 +322,29 @@ def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: 
     return rows
 
 
+def draw_means(rows: list[dict], key: str | None = None, fn=None) -> list[float]:
+    """Per few-shot draw (rows of one ``k`` grouped by their ``draw``; a row without one is its
+    own), the mean over its training seeds of ``row[key]`` (or of ``fn(row)``): the draws are
+    the independent samples an interval is taken over, the seeds of a draw are not."""
+    groups: dict = {}
+    for i, r in enumerate(rows):
+        groups.setdefault((r.get("k"), r.get("draw", f"row {i}")), []).append(
+            r[key] if fn is None else fn(r)
+        )
+    return [float(np.mean(v)) for v in groups.values()]
+
+
 def summarise_calibrated(rows: list[dict]) -> dict:
-    """The calibrated section's summary: means (fractions) over draws, per ``k``."""
-    out: dict = {"synthetic_only_per_slide": float(np.mean([r["synthetic_only_per_slide"]
-                                                            for r in rows])),
-                 "synthetic_only_per_window": float(np.mean([r["synthetic_only"] for r in rows])),
+    """The calibrated section's summary: means (fractions) over draws (each draw the mean over
+    its training seeds), per ``k``; over every ``k`` for the synthetic-only figures."""
+    out: dict = {"synthetic_only_per_slide": float(np.mean(draw_means(rows,
+                                                                      "synthetic_only_per_slide"))),
+                 "synthetic_only_per_window": float(np.mean(draw_means(rows, "synthetic_only"))),
                  "shots": {}}  # fmt: skip
     for k in sorted({r["k"] for r in rows}):
         sel = [r for r in rows if r["k"] == k]
         out["shots"][str(k)] = {
-            name: float(np.mean([r[key] for r in sel]))
+            name: float(np.mean(draw_means(sel, key)))
             for name, key in (("real_only_per_window", "real_only"),
                               ("pretrained_per_window", "pretrained"),
                               ("synthetic_only_per_window", "synthetic_only"),
@@ -332,7 +352,8 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                               ("pretrained_per_slide", "pretrained_per_slide"),
                               ("synthetic_only_per_slide", "synthetic_only_per_slide"))
         }  # fmt: skip
-        out["shots"][str(k)]["draws"] = len(sel)
+        out["shots"][str(k)]["draws"] = len(draw_means(sel, "k"))
+        out["shots"][str(k)]["runs"] = len(sel)
     return out
 
 
@@ -341,7 +362,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
         progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 300.0,
         calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = (),
-        reuse_fits: Path | None = None) -> dict:  # fmt: skip
+        reuse_fits: Path | None = None, calibrated_seeds: int = 3) -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
@@ -425,18 +446,23 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
     for k in shots:
         for d in range(calibrated_draws):
             tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
-            t0 = time.perf_counter()
+            fit_file = out / "fits" / f"k{k}_d{d}.json"
             old = None if reuse_fits is None else Path(reuse_fits) / "fits" / f"k{k}_d{d}.json"
-            row = calibrated_draw(real, tr, te, calibrated_synthetic, calibration_budget_s, d,
-                                  epochs, out / "fits" / f"k{k}_d{d}.json",
-                                  out / "fits" / f"k{k}_d{d}.png" if d == 0 else None,
-                                  reuse=old)  # fmt: skip
-            row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
-            cal_rows.append(row)
-            log.info("calibrated k=%d draw %d: synthetic only %.3f / %.3f, real only %.3f, "
-                     "pretrained %.3f per window (%.0f s)", k, d, row["synthetic_only"],
-                     row["synthetic_only_per_slide"], row["real_only"], row["pretrained"],
-                     row["seconds"])  # fmt: skip
+            # one fit per draw; its synthetic slides and pipelines drawn again per training
+            # seed (seed to seed, one fit spans ~30 points per slide: one run is not a figure)
+            for s in range(max(1, int(calibrated_seeds))):
+                t0 = time.perf_counter()
+                row = calibrated_draw(real, tr, te, calibrated_synthetic, calibration_budget_s,
+                                      d, epochs, fit_file,
+                                      out / "fits" / f"k{k}_d{d}.png" if d == s == 0 else None,
+                                      reuse=old if s == 0 else fit_file,
+                                      train_seed=d + 100 * s)  # fmt: skip
+                row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
+                cal_rows.append(row)
+                log.info("calibrated k=%d draw %d seed %d: synthetic only %.3f / %.3f, real only "
+                         "%.3f, pretrained %.3f per window (%.0f s)", k, d, row["seed"],
+                         row["synthetic_only"], row["synthetic_only_per_slide"],
+                         row["real_only"], row["pretrained"], row["seconds"])  # fmt: skip
     result["calibrated"] = cal_rows
     if cal_rows:
         result.update(summarise_calibrated(cal_rows))
@@ -513,10 +539,11 @@ def table(r: dict) -> str:
             sel = [x for x in r["calibrated"] if x["k"] == k]
 
             def pair(a: str, b: str, sel: list = sel) -> str:
-                return f"{_ms([x[a] for x in sel])} / {_ms([x[b] for x in sel])}"
+                return f"{_ms(draw_means(sel, a))} / {_ms(draw_means(sel, b))}"
 
             gain = 100 * np.mean([x["pretrained"] - x["real_only"] for x in sel])
-            lines.append(f"| {k} | {len(sel)} | {np.mean([x['calibration_s'] for x in sel]):.0f} | "
+            n = len(draw_means(sel, "k"))
+            lines.append(f"| {k} | {n} | {np.mean([x['calibration_s'] for x in sel]):.0f} | "
                          f"{pair('synthetic_only', 'synthetic_only_per_slide')} | "
                          f"{pair('real_only', 'real_only_per_slide')} | "
                          f"{pair('pretrained', 'pretrained_per_slide')} | {gain:+.1f} |")  # fmt: skip
@@ -600,6 +627,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "evaluations before, on a quiet core)")  # fmt: skip
     p.add_argument("--calibrated-synthetic", type=int, default=200,
                    help="slides rendered by each calibrated model")  # fmt: skip
+    p.add_argument("--calibrated-seeds", type=int, default=3,
+                   help="training seeds per calibrated draw (the fit reused; a draw's figure is "
+                   "the mean over them)")  # fmt: skip
     p.add_argument("--optimisers", nargs="*", default=[], choices=("cma", "optuna-tpe", "random"),
                    help="also compare these calibration optimisers (2 seeds on each k's first "
                    "draw; optuna-tpe needs .[bench])")  # fmt: skip
@@ -688,7 +718,8 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
     ``fabric``: the second sensor's statistics-only comparison)."""
     lines = [PAGE_HEAD, f"Command: `{command}` ({r['seconds'] / 60:.0f} min, "
              f"{r.get('machine', 'this machine')}). Chance is 33.3 %; means over draws with 95 % "
-             "intervals (t).", ""]  # fmt: skip
+             "intervals (t, over draws; a calibrated draw's figure is the mean over its training "
+             "seeds, the fit shared).", ""]  # fmt: skip
     cal = r.get("calibrated") or []
     ks = sorted({x["k"] for x in cal})
     lines += ["![the statistics of the real slides against the model before (defaults) and after "
@@ -705,19 +736,21 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
         sb = ("-" if not synth_before else
               f"{_cell([x['accuracy'] for x in synth_before])} / "
               f"{_cell([x['per_slide'] for x in synth_before])} (all 45)")  # fmt: skip
+        nd = len(draw_means(sel, "k"))
+        n = f"{nd} x {len(sel) // nd} seeds" if len(sel) > nd else f"{nd}"
         lines += [
-            f"| {k} | {len(sel)} | synthetic only | {sb} | "
-            f"{_cell([x['synthetic_only'] for x in sel])} / "
-            f"{_cell([x['synthetic_only_per_slide'] for x in sel])} |",
-            f"| {k} | {len(sel)} | real only | "
+            f"| {k} | {n} | synthetic only | {sb} | "
+            f"{_cell(draw_means(sel, 'synthetic_only'))} / "
+            f"{_cell(draw_means(sel, 'synthetic_only_per_slide'))} |",
+            f"| {k} | {n} | real only | "
             + (f"{_cell([x['accuracy'] for x in rb])} / {_cell([x['per_slide'] for x in rb])}"
-               if rb else "-") + f" | {_cell([x['real_only'] for x in sel])} / "
-            f"{_cell([x['real_only_per_slide'] for x in sel])} |",
-            f"| {k} | {len(sel)} | synthetic + real: joint (before), pretrained + fine-tuned "
+               if rb else "-") + f" | {_cell(draw_means(sel, 'real_only'))} / "
+            f"{_cell(draw_means(sel, 'real_only_per_slide'))} |",
+            f"| {k} | {n} | synthetic + real: joint (before), pretrained + fine-tuned "
             "(after) | "
             + (f"{_cell([x['accuracy'] for x in jb])} / {_cell([x['per_slide'] for x in jb])}"
-               if jb else "-") + f" | {_cell([x['pretrained'] for x in sel])} / "
-            f"{_cell([x['pretrained_per_slide'] for x in sel])} |",
+               if jb else "-") + f" | {_cell(draw_means(sel, 'pretrained'))} / "
+            f"{_cell(draw_means(sel, 'pretrained_per_slide'))} |",
         ]  # fmt: skip
     if cal:
         lines += ["", "| k | pretrained + fine-tuned minus real only, per window (points) | "
@@ -725,7 +758,7 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                   "|---|---|---|---|---|"]  # fmt: skip
         for k in ks:
             sel = [x for x in cal if x["k"] == k]
-            gain = [x["pretrained"] - x["real_only"] for x in sel]
+            gain = draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"])
             enc = ", ".join(sorted({x["encoder"] for x in sel}))
             lines.append(f"| {k} | {_cell(gain, sign='+')} | {enc} | "
                          f"{np.median([x['calibration_s'] for x in sel]):.0f} | "
@@ -825,7 +858,8 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         f"tactilesnn bench sim2real --out DIR --synthetic {options.synthetic} --seeds "
         f"{options.seeds} --draws {options.draws} --shots {' '.join(map(str, options.shots))} "
         f"--knobs {' '.join(options.knobs)} --calibrated-draws {options.calibrated_draws} "
-        f"--calibrated-synthetic {options.calibrated_synthetic}"
+        f"--calibrated-synthetic {options.calibrated_synthetic} --calibrated-seeds "
+        f"{options.calibrated_seeds}"
         + (f" --optimisers {' '.join(options.optimisers)}" if options.optimisers else "")
     ).replace("--knobs  ", "--knobs ")
     result = run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
@@ -835,7 +869,7 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         progress=not options.quiet, calibrated_draws=options.calibrated_draws,
         calibration_budget_s=options.calibration_budget_s,
         calibrated_synthetic=options.calibrated_synthetic,
-        optimisers=tuple(options.optimisers),
+        optimisers=tuple(options.optimisers), calibrated_seeds=options.calibrated_seeds,
         reuse_fits=Path(options.reuse_fits) if options.reuse_fits else None)  # fmt: skip
     import os
 
