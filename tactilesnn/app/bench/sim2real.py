@@ -30,8 +30,8 @@ model).
    the training or the fine-tune (there is no early stopping); ``tests/bench/test_sim2real.py``
    checks it. Each draw's fit is trained on with ``--calibrated-seeds`` seeds (default 3: its
    synthetic slides rendered and every pipeline trained again; one fit's synthetic-only score
-   spans ~30 points per slide from seed to seed); a draw's figure is the mean over its seeds,
-   the intervals are over draws.
+   spans up to 45 points per slide from seed to seed); a draw's figure is the mean over its
+   seeds, the intervals are over draws.
 
 Writes ``sim2real.json`` (the calibrated section as ``synthetic_only_per_slide`` and ``shots:
 {k: {real_only_per_window, pretrained_per_window, ...}}``, means over draws), ``sim2real.md``,
@@ -334,6 +334,11 @@ def draw_means(rows: list[dict], key: str | None = None, fn=None) -> list[float]
     return [float(np.mean(v)) for v in groups.values()]
 
 
+def count_draws(rows: list[dict]) -> int:
+    """How many few-shot draws ``rows`` hold (the groups of :func:`draw_means`)."""
+    return len(draw_means(rows, "k"))
+
+
 def summarise_calibrated(rows: list[dict]) -> dict:
     """The calibrated section's summary: means (fractions) over draws (each draw the mean over
     its training seeds), per ``k``; over every ``k`` for the synthetic-only figures."""
@@ -352,7 +357,7 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                               ("pretrained_per_slide", "pretrained_per_slide"),
                               ("synthetic_only_per_slide", "synthetic_only_per_slide"))
         }  # fmt: skip
-        out["shots"][str(k)]["draws"] = len(draw_means(sel, "k"))
+        out["shots"][str(k)]["draws"] = count_draws(sel)
         out["shots"][str(k)]["runs"] = len(sel)
     return out
 
@@ -449,7 +454,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
             fit_file = out / "fits" / f"k{k}_d{d}.json"
             old = None if reuse_fits is None else Path(reuse_fits) / "fits" / f"k{k}_d{d}.json"
             # one fit per draw; its synthetic slides and pipelines drawn again per training
-            # seed (seed to seed, one fit spans ~30 points per slide: one run is not a figure)
+            # seed (seed to seed, one fit spans up to 45 points per slide: one run is not a figure)
             for s in range(max(1, int(calibrated_seeds))):
                 t0 = time.perf_counter()
                 row = calibrated_draw(real, tr, te, calibrated_synthetic, calibration_budget_s,
@@ -541,9 +546,8 @@ def table(r: dict) -> str:
             def pair(a: str, b: str, sel: list = sel) -> str:
                 return f"{_ms(draw_means(sel, a))} / {_ms(draw_means(sel, b))}"
 
-            gain = 100 * np.mean([x["pretrained"] - x["real_only"] for x in sel])
-            n = len(draw_means(sel, "k"))
-            lines.append(f"| {k} | {n} | {np.mean([x['calibration_s'] for x in sel]):.0f} | "
+            gain = 100 * np.mean(draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"]))
+            lines.append(f"| {k} | {count_draws(sel)} | {np.mean([x['calibration_s'] for x in sel]):.0f} | "
                          f"{pair('synthetic_only', 'synthetic_only_per_slide')} | "
                          f"{pair('real_only', 'real_only_per_slide')} | "
                          f"{pair('pretrained', 'pretrained_per_slide')} | {gain:+.1f} |")  # fmt: skip
@@ -736,7 +740,7 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
         sb = ("-" if not synth_before else
               f"{_cell([x['accuracy'] for x in synth_before])} / "
               f"{_cell([x['per_slide'] for x in synth_before])} (all 45)")  # fmt: skip
-        nd = len(draw_means(sel, "k"))
+        nd = count_draws(sel)
         n = f"{nd} x {len(sel) // nd} seeds" if len(sel) > nd else f"{nd}"
         lines += [
             f"| {k} | {n} | synthetic only | {sb} | "
