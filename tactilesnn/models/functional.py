@@ -180,9 +180,8 @@ def lif_lstm_parameters(
     The cell state ``c`` carries the membrane *before* reset ``v_t`` and the output ``h`` the
     spikes ``s_t``; the input ``x_t`` is the layer's current ``i_t [H]`` (gate order i, o, f, c)::
 
-        i = o = hardsigmoid(30) = 1                   (open gates; hardsigmoid(x) =
-        f = hardsigmoid(beta) = beta                   max(0, min(1, x)): exact, where a
-                                                       sigmoid rounds, see below) (subtract) or
+        i = o = hardsigmoid(30) = 1                   (open gates)
+        f = hardsigmoid(beta) = beta                  (subtract) or
             hardsigmoid(beta - 1e4 s_{t-1})           (zero: a spike empties the membrane)
         g = affine(i_t + R s_{t-1}),  R = -beta theta I (subtract) [+ W_rec]
         c_t = f c_{t-1} + g = beta u_{t-1} + i_t (+ W_rec s_{t-1})   = v_t
@@ -190,11 +189,12 @@ def lif_lstm_parameters(
 
     For ``theta = 1`` the last line is the exact step ``H(v_t - theta)``: ``K c`` is exact (a
     power of two), so the sum is an integer <= 0 below the threshold and >= 1 at or above it.
-    The gates are hard sigmoids with the leak ``beta`` as the forget gate's bias, not sigmoids of
-    ``logit beta``: onnxruntime's vectorised sigmoid is an approximation, and its rounding of
-    ``beta`` made membranes within it of the threshold spike a step apart from torch's (141
-    steps x 64 units x 2,000 windows of random currents: 1-5 spikes flipped in 1-3 windows
-    with sigmoid gates, 0-3 in 0-1 with hard ones; the rest is the sum's order).
+    The gates are hard sigmoids (``hardsigmoid(x) = max(0, min(1, x))``: exact) with the leak
+    ``beta`` as the forget gate's bias, not sigmoids of ``logit beta``: onnxruntime's vectorised
+    sigmoid is an approximation, and its rounding of ``beta`` made membranes within it of the
+    threshold spike a step apart from torch's (141 steps x 64 units x 2,000 windows of random
+    currents: 1-5 spikes flipped in 1-3 windows with sigmoid gates, 0-3 in 0-1 with hard ones;
+    the rest is the sum's order).
     The streaming state maps as ``c_0 = u_0 + theta s_0`` (subtract; ``u_0`` for zero),
     ``h_0 = s_0``, and back as ``u_T = c_T - theta h_T`` (``c_T (1 - h_T)`` for zero).
 
