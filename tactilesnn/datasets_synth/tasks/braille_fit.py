@@ -37,7 +37,12 @@ from typing import Any
 import numpy as np
 
 from ..calibration import SensorFit, rest_level, slide_statistics, statistic_distances
-from ..scenes.braille_cell import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
+from ..scenes.braille_cell import (
+    DOT_HEIGHT_MM,
+    DOT_SPACING_MM,
+    cell_dots_mm,
+    scaled_dot_diameter_mm,
+)
 from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 
 log = logging.getLogger("tactilesnn")
@@ -45,7 +50,11 @@ log = logging.getLogger("tactilesnn")
 #: the black-box values: name -> (low, high, log-scale), physical units in the name's doc above
 BOUNDS: dict[str, tuple[float, float, bool]] = {
     "cover_spread_mm": (0.0, 4.0, False),
-    "row_mm": (-3.0, 5.0, False),
+    # the cell's dot pitch between its columns (along the slide) and its rows (across), mm; the
+    # dots' diameter scales with them (a printed cell need not be the standard's)
+    "dot_spacing_mm": (2.0, 6.0, False),
+    "row_spacing_mm": (1.5, 6.0, False),
+    "row_mm": (-3.0, 7.0, False),
     "t_mid_offset_s": (-1.2, 1.2, False),  # from the recording's middle
     "speed_mm_s": (5.0, 16.0, False),
     "force_N": (0.5, 4.0, False),
@@ -87,6 +96,14 @@ def bounds_for(letters: str) -> dict[str, tuple[float, float, bool]]:
     return {**BOUNDS, **{f"force_scale_{c}": LETTER_FORCE_BOUNDS for c in letters}}
 
 
+def dot_geometry(values: dict[str, float]) -> tuple[float, float, float]:
+    """The cell's column and row pitches and its dots' diameter (mm) at ``values`` (the
+    standard cell without fitted pitches; fitted pitches scale the diameter with them)."""
+    pitch = float(values.get("dot_spacing_mm", DOT_SPACING_MM))
+    rows = float(values.get("row_spacing_mm", pitch))
+    return pitch, rows, scaled_dot_diameter_mm(pitch, rows)
+
+
 def letter_force(values: dict[str, float], letter: str) -> float:
     """The set force (N) under ``letter``'s plate."""
     return values["force_N"] * values.get(f"force_scale_{letter}", 1.0)
@@ -118,7 +135,8 @@ def candidates_mm() -> np.ndarray:
 def start_values(task: Any, duration_s: float) -> dict[str, float]:
     """The task's own values as the search's start."""
     p = FingertipParams()
-    return {"cover_spread_mm": p.cover_spread_mm, "row_mm": task.row_mm, "t_mid_offset_s": 0.0,
+    return {"cover_spread_mm": p.cover_spread_mm, "dot_spacing_mm": task.dot_spacing_mm,
+            "row_spacing_mm": task.dot_spacing_mm, "row_mm": task.row_mm, "t_mid_offset_s": 0.0,
             "speed_mm_s": task.slide_mm / task.duration_s, "force_N": task.force_N,
             "force_ramp": task.force_ramp, "mount_N_per_mm": 30.0, "tilt_Nmm_per_rad": 1000.0,
             "radius_along_mm": p.radius_along_mm, "radius_across_mm": p.radius_across_mm,
@@ -149,11 +167,12 @@ def letter_states(sensor: CapacitiveFingertip, values: dict[str, float], letters
     t = np.arange(n_frames) / fs_hz
     shift = values["speed_mm_s"] * (t - duration / 2 - values["t_mid_offset_s"])
     ramp = 1 + values["force_ramp"] * t / duration
+    pitch, rows, diameter = dot_geometry(values)
     for letter in letters:
-        dots = cell_dots_mm(letter) - [0.0, values["row_mm"]]
+        dots = cell_dots_mm(letter, pitch, rows) - [0.0, values["row_mm"]]
         bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
         yield sensor.contact_state(letter_force(values, letter) * ramp, bumps, DOT_HEIGHT_MM,
-                                   DOT_DIAMETER_MM, np.zeros(2))  # fmt: skip
+                                   diameter, np.zeros(2))  # fmt: skip
 
 
 def letter_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames: int,
@@ -224,24 +243,63 @@ def place_pads(codes: np.ndarray, means: np.ndarray, centres_mm: np.ndarray
 
 
 def activity(means: np.ndarray) -> np.ndarray:
-    """How much the channels move ``[T]``: the summed absolute change from each channel's rest
-    (first 10 %) level, over letters and channels of ``means [L, C, T]``."""
-    rest = np.median(means[..., : max(2, means.shape[-1] // 10)], -1, keepdims=True)
-    return np.abs(means - rest).sum((0, 1))
+    """How much the channels move ``[T]``: the summed absolute change of ``means [L, C, T]``
+    about each channel's baseline, the line through its levels over the first and the last
+    10 % of the frames (a force that grows along the slide raises every pad: a ramp, not the
+    letter)."""
+    t_n = means.shape[-1]
+    q = max(2, t_n // 10)
+    first = np.median(means[..., :q], -1, keepdims=True)
+    last = np.median(means[..., -q:], -1, keepdims=True)
+    frac = (np.arange(t_n) - (q - 1) / 2) / max(t_n - q, 1)
+    return np.abs(means - (first + (last - first) * frac)).sum((0, 1))
 
 
 def response_lag_s(values: dict[str, float], letters: str, fs_hz: float, n: int,
                    real_means: np.ndarray) -> float:  # fmt: skip
     """When the letters pass, as a timing offset (s) for ``values``: the lag that best aligns the
     model's activity (every candidate pad, unit gains) with the recordings' (the search's start:
-    a wrong start leaves the timing in a local optimum)."""
+    a wrong start leaves the timing in a local optimum). The model's activity is shifted, not
+    rolled: what leaves the window does not come back at its other end."""
     model = activity(letter_codes({**values, "t_mid_offset_s": 0.0}, letters, fs_hz, n))
     real = activity(real_means)
-    model, real = model - model.mean(), real - real.mean()
     lo, hi = BOUNDS["t_mid_offset_s"][:2]
     lags = np.arange(int(np.ceil(lo * fs_hz)), int(hi * fs_hz) + 1)
-    score = [float(np.dot(np.roll(model, lag), real)) for lag in lags]
+    score = []
+    for lag in lags:
+        shifted = np.zeros_like(model)
+        if lag >= 0:
+            shifted[lag:] = model[: model.size - lag]
+        else:
+            shifted[:lag] = model[-lag:]
+        a, b = shifted - shifted.mean(), real - real.mean()
+        score.append(float(a @ b) / max(float(np.sqrt((a @ a) * (b @ b))), 1e-12))
     return float(lags[int(np.argmax(score))] / fs_hz)
+
+
+#: the cell pitches (mm) the search's start is chosen from: between columns, between rows
+START_PITCHES_MM = tuple(np.round(np.arange(2.0, 6.01, 0.5), 2))
+START_ROW_PITCHES_MM = (2.0, 2.5, 3.0, 4.0)
+
+
+def pitch_start(values: dict[str, float], letters: str, fs_hz: float, n: int, cands: np.ndarray,
+                real_dec: np.ndarray) -> dict[str, float]:  # fmt: skip
+    """The search's start: ``values`` at the cell pitches (:data:`START_PITCHES_MM` between
+    columns, :data:`START_ROW_PITCHES_MM` between rows; the track on the first row, the timing
+    aligned by :func:`response_lag_s`) whose objective is lowest. The column pitch and the
+    speed trade off in time (a larger cell, a slower slide): the start keeps the task's speed,
+    so that a search started at the wrong pitch does not settle in the slower slide's local
+    optimum; the row pitch sets which pads the second row reaches."""
+    best: tuple[float, dict[str, float]] = (np.inf, values)
+    for pitch in START_PITCHES_MM:
+        for rows in START_ROW_PITCHES_MM:
+            v = {**values, "dot_spacing_mm": float(pitch), "row_spacing_mm": float(rows),
+                 "row_mm": float(rows)}  # fmt: skip
+            v["t_mid_offset_s"] = response_lag_s(v, letters, fs_hz, n, real_dec)
+            loss, _ = _objective(v, letters, fs_hz, n, cands, real_dec)
+            if loss < best[0]:
+                best = (loss, v)
+    return best[1]
 
 
 #: the black-box optimisers :func:`fit` can use (``calibrate --optimiser``), measured against
@@ -369,10 +427,11 @@ def render_counts(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarra
     force = letter_force(values, letter) * np.exp(w["force_spread"] * rng.uniform(-1, 1))
     force = force * (1 + values["force_ramp"] * t / duration)
     g = gain * np.exp(w["gain_spread"] * rng.standard_normal(len(gain)))
-    dots = cell_dots_mm(letter) + place - [0.0, values["row_mm"]]
+    pitch, rows, diameter = dot_geometry(values)
+    dots = cell_dots_mm(letter, pitch, rows) + place - [0.0, values["row_mm"]]
     shift = speed * (t - duration / 2 - values["t_mid_offset_s"])
     bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
-    state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact)
+    state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, diameter, contact)
     return np.clip(g[:, None] * sensor.codes_at(pads_mm, state) + offset[:, None], 0, 255)
 
 
@@ -480,7 +539,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     cands = candidates_mm()
     bounds = bounds_for(letters)
     start = {**start_values(task, n / fs_hz), **{f"force_scale_{c}": 1.0 for c in letters}}
-    start["t_mid_offset_s"] = response_lag_s(start, letters, fs, n_dec, real_dec)
+    start = pitch_start(start, letters, fs, n_dec, cands, real_dec)
     t0 = time.perf_counter()
     best: tuple = (np.inf, start, None)
     evals = 0
@@ -520,8 +579,9 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
                 "noise": real_stats["noise"].tolist(), "offset_sd": offset_sd.tolist()}  # fmt: skip
     pred = _predict(codes, gain, offset)
     dist = _distances(real_means, pred)
-    scene = {k: values[k] for k in ("row_mm", "t_mid_offset_s", "speed_mm_s", "force_N",
-                                    "force_ramp", *(f"force_scale_{c}" for c in letters))}  # fmt: skip
+    scene = {k: values[k] for k in ("dot_spacing_mm", "row_spacing_mm", "row_mm", "t_mid_offset_s",
+                                    "speed_mm_s", "force_N", "force_ramp",
+                                    *(f"force_scale_{c}" for c in letters))}  # fmt: skip
     randomisation = {**widths, "drift_counts": 0.0,
                      "time_jitter_s": timing_jitter_s(X, y, fs_hz) or 0.0}  # fmt: skip
     params = {k: values[k] for k in SENSOR_FIELDS}
