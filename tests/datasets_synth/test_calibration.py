@@ -233,6 +233,21 @@ def test_pitch_start_recovers_a_printed_cells_pitches():
     assert loss["found"] < 0.5 * loss["standard"]
 
 
+@pytest.mark.slow
+def test_fit_is_the_same_on_one_or_two_workers():
+    # a small fit of synthetic slides: the search's points evaluated here or on a pool of two
+    # give the same history, values and channels
+    task = get_task("braille", n_samples=6, duration_s=2.0)
+    X = np.stack([task.sample(i)[0] for i in range(6)])
+    y = np.arange(6) % 3
+    fits = [bf.fit(BrailleTask(letters="abc", duration_s=2.0), X, y, 93.3, max_evals=20, seed=1,
+                   workers=w) for w in (1, 2)]  # fmt: skip
+    assert fits[0].objective["evaluations"] == fits[1].objective["evaluations"] == 20
+    assert fits[0].objective["history"] == fits[1].objective["history"]
+    assert fits[0].scene == fits[1].scene and fits[0].channels == fits[1].channels
+    assert bf.search_workers() >= 1
+
+
 def test_task_renders_a_fit_file_and_refuses_another_task(tmp_path):
     path = _fit().save(tmp_path / "fit.json")
     task = get_task("braille", calibration=str(path), n_samples=6, fs_frames_hz=93.3,

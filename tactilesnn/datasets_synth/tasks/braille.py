@@ -140,7 +140,7 @@ class BrailleTask(TrialTask):
 
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
-                  budget_s: float = 240.0, seed: int = 0, progress: bool = False,
+                  budget_s: float = 540.0, seed: int = 0, progress: bool = False,
                   max_evals: int | None = None, optimiser: str = "cma") -> SensorFit:  # fmt: skip
         """Fit the fingertip and the scene to real slides ``X [N, 12, samples]`` of the letters
         ``class_names[y]`` (see :mod:`.braille_fit`)."""
