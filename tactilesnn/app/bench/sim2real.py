@@ -365,7 +365,7 @@ def summarise_calibrated(rows: list[dict]) -> dict:
 def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
-        progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 600.0,
+        progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 300.0,
         calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = (),
         reuse_fits: Path | None = None, calibrated_seeds: int = 3) -> dict:  # fmt: skip
     t_start = time.perf_counter()
@@ -626,9 +626,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
     p.add_argument("--calibrated-draws", type=int, default=3,
                    help="few-shot draws per k, the sensor model fitted to each (0: skip)")  # fmt: skip
-    p.add_argument("--calibration-budget-s", type=float, default=600.0,
-                   help="at most this many seconds per calibration (it stops at its 1200 "
-                   "evaluations before, on two quiet cores)")  # fmt: skip
+    p.add_argument("--calibration-budget-s", type=float, default=300.0,
+                   help="at most this many seconds per calibration (it stops at its 400 "
+                   "evaluations before, on a quiet core)")  # fmt: skip
     p.add_argument("--calibrated-synthetic", type=int, default=200,
                    help="slides rendered by each calibrated model")  # fmt: skip
     p.add_argument("--calibrated-seeds", type=int, default=3,
