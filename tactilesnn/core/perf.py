@@ -71,6 +71,14 @@ def other_runnable(
     return max(0, int(statistics.median(counts)) - 1)  # the reader itself is running
 
 
+def usable_cpus() -> int:
+    """CPUs this process may run on (affinity mask; the count where the platform has none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def fit_threads(cpus: int | None = None, others: int | None = None) -> int | None:
     """Size torch's intra-op threads to the CPUs left by processes already running: ``cpus``
     (default: this process's affinity) minus ``others`` (default: :func:`other_runnable`), at
@@ -91,10 +99,7 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
         n = int(wanted)
     else:
         if cpus is None:
-            try:
-                cpus = len(os.sched_getaffinity(0))
-            except AttributeError:
-                cpus = os.cpu_count() or 1
+            cpus = usable_cpus()
         others = other_runnable() if others is None else others
         if others is None:
             return None
@@ -102,11 +107,11 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
     if n == torch.get_num_threads():
         return None
     torch.set_num_threads(n)
-    _limit_blas(n)
+    limit_blas(n)
     return n
 
 
-def _limit_blas(n: int) -> None:
+def limit_blas(n: int) -> None:
     """NumPy's and SciPy's BLAS pools (OpenBLAS spins its threads at every call) to ``n``
     threads too, as torch's: beside a busy process, a FabricSlide run's evaluation after the
     readout's solve took 38 s with BLAS at 2 threads on the 1 CPU left, 4 s alone."""

@@ -24,18 +24,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from ...core.perf import usable_cpus
+
 HELP = "the default training alone and beside CPU-bound neighbours: wall times and their ratio"
 
 #: a CPU-bound neighbour: a pure-Python loop (holds its core, no threads)
 NEIGHBOUR = [sys.executable, "-c", "while True:\n    pass"]
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (affinity mask; the count where the platform has none)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def train_command(out: Path, epochs: int | None = None) -> list[str]:

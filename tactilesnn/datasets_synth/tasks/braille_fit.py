@@ -460,21 +460,9 @@ def timing_jitter_s(X: np.ndarray, y: np.ndarray, fs_hz: float) -> float | None:
 def search_workers() -> int:
     """Processes the search evaluates its points on: the CPUs this process may use less those
     other processes keep busy now (:func:`~tactilesnn.core.perf.other_runnable`), 1 to 4."""
-    from ...core.perf import other_runnable
+    from ...core.perf import other_runnable, usable_cpus
 
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cpus = os.cpu_count() or 1
-    return int(np.clip(cpus - (other_runnable() or 0), 1, 4))
-
-
-def _one_thread() -> None:
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return
-    threadpool_limits(limits=1)
+    return int(np.clip(usable_cpus() - (other_runnable() or 0), 1, 4))
 
 
 @contextmanager
@@ -487,8 +475,11 @@ def _pool(workers: int):
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    from ...core.perf import limit_blas
+
     ctx = multiprocessing.get_context("fork" if os.name == "posix" else "spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_one_thread) as pool:
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=limit_blas,
+                             initargs=(1,)) as pool:  # fmt: skip
         yield pool
 
 
