@@ -371,6 +371,17 @@ def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     return p
 
 
+def _name_value(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` (a number) of ``calibrate --known``."""
+    name, sep, value = text.partition("=")
+    try:
+        if not sep or not name.strip():
+            raise ValueError
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME=NUMBER, got {text!r}") from None
+
+
 def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     from .app.commands import task_names
 
@@ -391,6 +402,9 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
     p.add_argument("--optimiser", default="cma", choices=("cma", "optuna-tpe", "random"),
                    help="the black-box search (cma: CMA-ES, the default; optuna-tpe needs optuna, "
                    "installed with .[bench])")  # fmt: skip
+    p.add_argument("--known", type=_name_value, nargs="+", metavar="NAME=VALUE",
+                   help="values you measured, held fixed instead of fitted, in the fit's units "
+                   "(e.g. speed_mm_s=10.07 from the arm's encoder, force_N=1.5)")  # fmt: skip
     p.add_argument("--fs", type=float, help="sampling rate (Hz) for recordings without one")
     p.add_argument("--plot", help="also write the statistics picture (PNG): real, the model's "
                    "defaults and the fit")  # fmt: skip
@@ -415,7 +429,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                       budget_s=args.budget_s, evaluations=args.evaluations, seed=args.seed,
                       optimiser=args.optimiser,
                       plot=Path(args.plot) if args.plot else None, overwrite=args.overwrite,
-                      fs_hz=args.fs, progress=not args.quiet)  # fmt: skip
+                      fs_hz=args.fs, progress=not args.quiet,
+                      known=dict(args.known) if args.known else None)  # fmt: skip
     print("\n".join(lines))
     return 0
 

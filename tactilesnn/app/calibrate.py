@@ -51,8 +51,8 @@ def render_like(task_name: str, fs_hz: float, samples: int, class_names: tuple[s
 def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = None,
               budget_s: float = 600.0, evaluations: int = 400, seed: int = 0,
               plot: Path | None = None, optimiser: str = "cma",
-              overwrite: bool = False, fs_hz: float | None = None, progress: bool = True
-              ) -> list[str]:  # fmt: skip
+              overwrite: bool = False, fs_hz: float | None = None, progress: bool = True,
+              known: dict[str, float] | None = None) -> list[str]:  # fmt: skip
     """Fit, write ``out`` (and ``plot``); the lines to print."""
     from ..datasets_synth import TASKS
     from ..datasets_synth.calibration import plot_statistics, slide_statistics, statistic_distances
@@ -90,6 +90,7 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
         progress=progress,
         max_evals=evaluations,
         optimiser=optimiser,
+        known=known,
     )
     fit.fitted_on.update(data=str(Path(data).name), recordings=None if recordings is None
                          else [int(i) for i in recordings])  # fmt: skip

@@ -29,7 +29,19 @@ def test_errors_before_work(tmp_path):
         cal.calibrate(data, "nope", tmp_path / "new.json")
     with pytest.raises(ValueError, match="cannot be calibrated"):
         cal.calibrate(data, "texture", tmp_path / "new.json")
+    with pytest.raises(ValueError, match="unknown fitted value 'speed'"):
+        cal.calibrate(data, "braille", tmp_path / "new.json", known={"speed": 10.0})
     assert json.loads((tmp_path / "fit.json").read_text()) == {}  # left as it was
+    assert not (tmp_path / "new.json").exists()
+
+
+def test_known_flag_parses_name_value_pairs(capsys):
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--data", "x.npz", "--out", "f.json", "--known", "speed_mm_s"])
+    assert "expected NAME=NUMBER, got 'speed_mm_s'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--data", "x.npz", "--out", "f.json", "--known", "force_N=a"])
+    assert "expected NAME=NUMBER" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -37,7 +49,8 @@ def test_calibrate_writes_a_fit_a_task_reads(tmp_path, capsys):
     data = _braille_file(tmp_path / "b.npz")
     rc = main(["calibrate", "--data", str(data), "--task", "braille", "--out",
                str(tmp_path / "fit.json"), "--recordings", "0", "1", "2", "--evaluations", "20",
-               "--plot", str(tmp_path / "fit.png"), "--optimiser", "random", "--quiet"])  # fmt: skip
+               "--plot", str(tmp_path / "fit.png"), "--optimiser", "random", "--quiet",
+               "--known", "speed_mm_s=10.07"])  # fmt: skip
     assert rc == 0
     out = capsys.readouterr().out
     assert "calibrated braille on 3 recordings" in out and "wrote" in out
@@ -45,6 +58,7 @@ def test_calibrate_writes_a_fit_a_task_reads(tmp_path, capsys):
     fit = json.loads((tmp_path / "fit.json").read_text())
     assert fit["fitted_on"]["recordings"] == [0, 1, 2] and fit["objective"]["evaluations"] >= 20
     assert fit["objective"]["optimiser"] == "uniform random"  # the choice reaches the search
+    assert fit["scene"]["speed_mm_s"] == 10.07  # --known reaches the fit
     task = get_task("braille", calibration=str(tmp_path / "fit.json"), n_samples=6,
                     fs_frames_hz=90.0, duration_s=2.0)  # fmt: skip
     x, _, _ = task.sample(0)

@@ -271,3 +271,28 @@ def test_every_optimiser_finds_a_quadratic_minimum(kind):
     assert best < (0.05 if kind == "random" else 0.01)
     with pytest.raises(ValueError, match="unknown optimiser"):
         next(bf.ask_tell("nelder", np.zeros(3), 0))
+
+
+def test_known_values_are_held_and_checked():
+    # a measured value is not searched: the fit keeps it exactly and the search moves the rest
+    task = get_task("braille", n_samples=6, duration_s=2.0)
+    X = np.stack([task.sample(i)[0] for i in range(6)])
+    y = np.arange(6) % 3
+    fit = bf.fit(BrailleTask(letters="abc", duration_s=2.0), X, y, 93.3, max_evals=20, seed=1,
+                 workers=1, known={"speed_mm_s": 10.07, "force_scale_b": 1.2})  # fmt: skip
+    assert fit.scene["speed_mm_s"] == 10.07 and fit.scene["force_scale_b"] == 1.2
+    assert fit.objective["held_fixed"] == {"speed_mm_s": 10.07, "force_scale_b": 1.2}
+    free = bf.fit(BrailleTask(letters="abc", duration_s=2.0), X, y, 93.3, max_evals=20, seed=1,
+                  workers=1)  # fmt: skip
+    assert free.scene["speed_mm_s"] != 10.07 and free.objective["held_fixed"] == {}
+    with pytest.raises(ValueError, match=r"unknown fitted value 'speed'.*speed_mm_s"):
+        bf.check_known({"speed": 10.0}, "abc")
+    with pytest.raises(ValueError, match=r"outside the model's range \[5, 16\]"):
+        bf.check_known({"speed_mm_s": 40.0}, "abc")
+    with pytest.raises(ValueError, match="outside"):
+        bf.check_known({"force_N": float("nan")}, "abc")
+    with pytest.raises(ValueError, match="unknown fitted value 'force_scale_d'"):
+        bf.check_known({"force_scale_d": 1.0}, "abc")
+    everything = {k: lo for k, (lo, _, _) in bf.bounds_for("abc").items()}
+    with pytest.raises(ValueError, match="nothing is left to search"):
+        bf.check_known(everything, "abc")

@@ -137,9 +137,10 @@ class BrailleTask(TrialTask):
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
                   budget_s: float = 240.0, seed: int = 0, progress: bool = False,
-                  max_evals: int | None = None, optimiser: str = "cma") -> SensorFit:  # fmt: skip
+                  max_evals: int | None = None, optimiser: str = "cma",
+                  known: dict[str, float] | None = None) -> SensorFit:  # fmt: skip
         """Fit the fingertip and the scene to real slides ``X [N, 12, samples]`` of the letters
-        ``class_names[y]`` (see :mod:`.braille_fit`)."""
+        ``class_names[y]`` (see :mod:`.braille_fit`); ``known``: measured values held fixed."""
         from . import braille_fit
 
         letters = "".join(str(c).strip().lower() for c in class_names)
@@ -154,6 +155,7 @@ class BrailleTask(TrialTask):
             progress=progress,
             max_evals=max_evals or braille_fit.MAX_EVALS,
             optimiser=optimiser,
+            known=known,
         )
 
     @property

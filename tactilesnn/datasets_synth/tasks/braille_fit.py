@@ -483,13 +483,36 @@ def _pool(workers: int):
         yield pool
 
 
+def check_known(known: dict[str, float] | None, letters: str) -> dict[str, float]:
+    """``known`` (values the user measured, held fixed: name -> value in the unit of
+    :data:`BOUNDS`) checked: a searched name, a finite value within its bounds."""
+    bounds = bounds_for(letters)
+    out = {}
+    for name, v in (known or {}).items():
+        if name not in bounds:
+            raise ValueError(f"unknown fitted value {name!r}; values that can be held fixed: "
+                             f"{', '.join(bounds)}")  # fmt: skip
+        lo, hi, _ = bounds[name]
+        v = float(v)
+        if not (np.isfinite(v) and lo <= v <= hi):
+            raise ValueError(f"{name} = {v} is outside the model's range [{lo:g}, {hi:g}]")
+        out[name] = v
+    if len(out) == len(bounds):
+        raise ValueError("every fitted value is held fixed: nothing is left to search")
+    return out
+
+
 def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 240.0,
         max_evals: int = MAX_EVALS, seed: int = 0, progress: bool = False,
-        optimiser: str = "cma", workers: int | None = None) -> SensorFit:  # fmt: skip
+        optimiser: str = "cma", workers: int | None = None,
+        known: dict[str, float] | None = None) -> SensorFit:  # fmt: skip
     """The Braille scene's fingertip fitted to slides ``X [N, 12, samples]`` of the letters
     ``task.letters[y]`` (see the module doc); stops at ``budget_s`` seconds or ``max_evals``.
     ``workers``: processes each round's points are evaluated on (default
-    :func:`search_workers`); the fit is the same for any number."""
+    :func:`search_workers`); the fit is the same for any number. ``known``: values of
+    :data:`BOUNDS` (or a letter's force scale) the user measured, held fixed and not searched
+    (e.g. ``{"speed_mm_s": 10.07}`` from the arm's encoder: the speed trades against the
+    contact's width in time, which one or two slides per letter cannot tell apart)."""
     X = np.asarray(X, np.float64)
     if X.ndim != 3 or X.shape[1] != 12:
         raise ValueError(f"the Braille fingertip has 12 taxels: X must be [N, 12, samples], "
@@ -510,9 +533,11 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     real_dec = (
         real_means[..., : n_dec * DECIMATE].reshape(len(letters), 12, n_dec, DECIMATE).mean(-1)
     )
+    known = check_known(known, letters)
     cands = candidates_mm()
-    bounds = bounds_for(letters)
-    start = {**start_values(task, n / fs_hz), **{f"force_scale_{c}": 1.0 for c in letters}}
+    bounds = {k: b for k, b in bounds_for(letters).items() if k not in known}
+    start = {**start_values(task, n / fs_hz), **{f"force_scale_{c}": 1.0 for c in letters},
+             **known}  # fmt: skip
     start["t_mid_offset_s"] = response_lag_s(start, letters, fs, n_dec, real_dec)
     t0 = time.perf_counter()
     best: tuple = (np.inf, start, None)
@@ -521,7 +546,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     n_workers = search_workers() if workers is None else max(1, int(workers))
     with _pool(n_workers) as pool:
         for us in ask_tell(optimiser, _to_unit(start, bounds), seed):
-            vs = [_from_unit(np.asarray(u), bounds) for u in us.points]
+            vs = [{**known, **_from_unit(np.asarray(u), bounds)} for u in us.points]
             args = [(v, letters, fs, n_dec, cands, real_dec) for v in vs]
             done = list(pool.map(_objective, *zip(*args, strict=True)) if pool else
                         (_objective(*a) for a in args))  # fmt: skip
@@ -567,7 +592,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
         scene=scene, randomisation=randomisation,
         objective={"value": float(best[0]), "evaluations": evals,
                    "seconds": time.perf_counter() - t0, "optimiser": OPTIMISERS[optimiser],
-                   "history": history, "distances": dist, "seed": int(seed),
+                   "history": history, "distances": dist, "seed": int(seed), "held_fixed": known,
                    "spreads_from": spread_on},
         fitted_on={"recordings": len(X), "per_class": np.bincount(y).tolist(),
                    "letters": letters, "fs_hz": float(fs_hz), "samples": int(n)},

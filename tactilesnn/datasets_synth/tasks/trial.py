@@ -59,9 +59,11 @@ class TrialTask(ABC):
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
                   budget_s: float = 240.0, seed: int = 0, progress: bool = False,
-                  max_evals: int | None = None, optimiser: str = "cma"):  # fmt: skip
+                  max_evals: int | None = None, optimiser: str = "cma",
+                  known: dict[str, float] | None = None):  # fmt: skip
         """Fit the task's sensor model to real recordings ``X [N, channels, samples]`` of the
-        classes ``class_names[y]``: a :class:`~..calibration.SensorFit`. A task that knows its
+        classes ``class_names[y]``: a :class:`~..calibration.SensorFit`; ``known``: values the
+        user measured (name -> value in the fit's units), held fixed. A task that knows its
         scene well enough to fit it overrides this."""
         base = TrialTask.calibrate.__func__
         able = sorted(n for n, c in _tasks().items()
