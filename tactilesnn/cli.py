@@ -394,8 +394,9 @@ def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser
     p.add_argument("--out", required=True, help="the fit file to write (JSON)")
     p.add_argument("--recordings", type=int, nargs="+",
                    help="fit on these recordings only (indices in file order; default all)")  # fmt: skip
-    p.add_argument("--evaluations", type=int, default=400,
-                   help="the optimiser's evaluations (default 400, ~1 min on one core)")  # fmt: skip
+    p.add_argument("--evaluations", type=int, default=1200,
+                   help="the optimiser's evaluations (default 1200: ~6 min on one free core, "
+                   "~3 on two; each round's points run on the cores other work leaves free)")  # fmt: skip
     p.add_argument("--budget-s", type=float, default=600.0,
                    help="at most this many seconds of search, whatever --evaluations says")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="the optimiser's seed")

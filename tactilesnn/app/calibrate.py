@@ -49,7 +49,7 @@ def render_like(task_name: str, fs_hz: float, samples: int, class_names: tuple[s
 
 
 def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = None,
-              budget_s: float = 600.0, evaluations: int = 400, seed: int = 0,
+              budget_s: float = 600.0, evaluations: int = 1200, seed: int = 0,
               plot: Path | None = None, optimiser: str = "cma",
               overwrite: bool = False, fs_hz: float | None = None, progress: bool = True,
               known: dict[str, float] | None = None) -> list[str]:  # fmt: skip

@@ -20,6 +20,7 @@ def _stand_in(root, n=30):
     robot = np.zeros((n, 350, 9))
     robot[..., 8] = -1.5
     robot[:, 170:190, 8] = -2.5  # a 1 N rise over the letter
+    robot[..., 1] = 0.3 - (0.01 + 0.0001 * np.arange(n))[:, None] * t  # slides at 10 + 0.1 i mm/s
     (root / "braille_icub_abc").mkdir(parents=True)
     np.savez(root / "braille_icub_abc" / "braille_abc_icub.npz", X=X.transpose(0, 2, 1), y=y,
              t=t, robot_state=robot, class_names=np.array(["A", "B", "C"]))  # fmt: skip
@@ -75,6 +76,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     def spy_calibrate(cls, X, y, *a, **kw):
         seen["calibrate"].append(np.asarray(X).copy())
+        seen["known"] = kw.get("known")
         kw["budget_s"] = 1.0
         return calibrate(cls, X, y, *a, **kw)
 
@@ -98,7 +100,10 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
     monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
     monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
-    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3)
+    speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
+    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
+                                   known={"speed_mm_s": speed})  # fmt: skip
+    assert seen["known"] == {"speed_mm_s": speed}  # the arm's measured speed, held
     # the calibration saw the three training slides, as they are in the file
     assert len(seen["calibrate"]) == 1
     assert np.array_equal(seen["calibrate"][0], real.X[tr].astype(np.float64))
@@ -117,6 +122,22 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         assert 0.0 <= row[key] <= 1.0
     with pytest.raises(ValueError, match="both the training and the test"):
         sim2real.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
+
+
+def test_arm_speed_is_the_median_slope_of_the_training_slides(tmp_path):
+    """The stand-in's slide i moves at 10 + 0.1 i mm/s (robot state column 1, in m, falling):
+    the speed over slides is the median of theirs; a file without robot state gives None."""
+    _stand_in(tmp_path / "data", n=9)
+    speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([0, 4, 8]), 94.0)
+    assert speed == pytest.approx(10.4, rel=1e-9)
+    assert sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([2]), 94.0) == pytest.approx(
+        10.2, rel=1e-9
+    )
+    f = tmp_path / "data" / "braille_icub_abc" / "braille_abc_icub.npz"
+    with np.load(f) as z:
+        arrays = {k: z[k] for k in z.files if k != "robot_state"}
+    np.savez(f, **arrays)
+    assert sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([0]), 94.0) is None
 
 
 def test_calibrated_summary_has_the_documented_keys():

@@ -5,16 +5,17 @@ import numpy as np
 import pytest
 
 from tactilesnn.datasets_synth import get_task
-from tactilesnn.datasets_synth.sensors.capacitive_fingertip import (
-    CapacitiveFingertip,
-    FingertipParams,
-    icub_fingertip_layout,
-)
-from tactilesnn.datasets_synth.tasks.braille import (
+from tactilesnn.datasets_synth.scenes.braille_cell import (
     BRAILLE_DOTS,
     DOT_DIAMETER_MM,
     DOT_HEIGHT_MM,
     cell_dots_mm,
+    scaled_dot_diameter_mm,
+)
+from tactilesnn.datasets_synth.sensors.capacitive_fingertip import (
+    CapacitiveFingertip,
+    FingertipParams,
+    icub_fingertip_layout,
 )
 
 
@@ -29,6 +30,11 @@ def test_cell_geometry():
     assert full.shape == (5, 2) and np.allclose(np.abs(full).max(0), [1.17, 2.34])
     with pytest.raises(ValueError, match="unknown Braille letter"):
         cell_dots_mm("!")
+    # a printed cell: its own pitch between columns (along the slide) and between rows
+    wide = cell_dots_mm("y", 4.4, 2.6)
+    assert np.allclose(wide, full * [4.4 / 2.34, 2.6 / 2.34])
+    assert np.isclose(scaled_dot_diameter_mm(2.34), DOT_DIAMETER_MM)
+    assert np.isclose(scaled_dot_diameter_mm(4.68, 4.68), 2 * DOT_DIAMETER_MM)
 
 
 def test_layout():

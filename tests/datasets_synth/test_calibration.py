@@ -14,12 +14,13 @@ from tactilesnn.datasets_synth.calibration import (
     slide_statistics,
     statistic_distances,
 )
+from tactilesnn.datasets_synth.scenes.braille_cell import DOT_DIAMETER_MM, DOT_HEIGHT_MM
 from tactilesnn.datasets_synth.sensors.capacitive_fingertip import (
     CapacitiveFingertip,
     FingertipParams,
 )
 from tactilesnn.datasets_synth.tasks import braille_fit as bf
-from tactilesnn.datasets_synth.tasks.braille import DOT_DIAMETER_MM, DOT_HEIGHT_MM, BrailleTask
+from tactilesnn.datasets_synth.tasks.braille import BrailleTask
 
 
 def _fit(**over) -> SensorFit:
@@ -205,6 +206,33 @@ def test_spreads_recover_a_known_width_and_keep_unseen_defaults():
     assert on1 == "rest levels" and w1["speed_spread"] == defaults["speed_spread"]
 
 
+def test_pitch_start_recovers_a_printed_cells_pitches():
+    # class means of a cell printed larger along the slide than across it (4.5 / 2.5 mm): the
+    # search's start finds both pitches from the standard cell's values
+    task = get_task("braille")
+    truth = {**bf.start_values(task, 3.75), "dot_spacing_mm": 4.5, "row_spacing_mm": 2.5,
+             "row_mm": 2.5, "t_mid_offset_s": 0.2}  # fmt: skip
+    fs, n = 93.3 / 2, 175
+    cands = bf.candidates_mm()
+    pads = cands[[cands.tolist().index(list(c)) for c in
+                  [(-3.5, 2.5), (0.0, 2.5), (3.5, 2.5), (-1.5, 0.0), (1.5, 0.0), (-1.5, 5.0),
+                   (1.5, 5.0), (5.0, 0.0), (-5.0, 0.0), (0.0, -3.0), (4.0, 5.0),
+                   (-4.0, 5.0)]]]  # fmt: skip
+    codes = bf.pad_codes(truth, "abc", fs, n, pads)  # [3, 12, T]
+    means = 0.02 * codes + 2.0
+    start = {**truth, "dot_spacing_mm": 2.34, "row_spacing_mm": 2.34, "row_mm": 2.34,
+             "t_mid_offset_s": 0.0}  # fmt: skip
+    found = bf.pitch_start(start, "abc", fs, n, cands, means)
+    # the column pitch is timing (C's second dot follows its first), the row pitch which pads
+    # see B's second dot with its first
+    assert found["dot_spacing_mm"] == 4.5 and found["row_spacing_mm"] == 2.5
+    assert abs(found["t_mid_offset_s"] - 0.2) <= 1.5 / fs
+    standard = {**start, "t_mid_offset_s": bf.response_lag_s(start, "abc", fs, n, means)}
+    loss = {k: bf._objective(v, "abc", fs, n, cands, means)[0]
+            for k, v in (("found", found), ("standard", standard))}  # fmt: skip
+    assert loss["found"] < 0.5 * loss["standard"]
+
+
 @pytest.mark.slow
 def test_fit_is_the_same_on_one_or_two_workers():
     # a small fit of synthetic slides: the search's points evaluated here or on a pool of two
@@ -236,6 +264,11 @@ def test_task_renders_a_fit_file_and_refuses_another_task(tmp_path):
     short.save(tmp_path / "short.json")
     with pytest.raises(ValueError, match="scene lacks t_mid_offset_s"):
         get_task("braille", calibration=str(tmp_path / "short.json"))
+    huge = _fit()
+    huge.scene["dot_spacing_mm"] = 1e6  # a hostile file: a cell larger than the slide
+    huge.save(tmp_path / "huge.json")
+    with pytest.raises(ValueError, match=r"dot_spacing_mm must be in \[1, 10\] mm"):
+        get_task("braille", calibration=str(tmp_path / "huge.json"))
     bad = _fit()
     bad.randomisation["position_mm"] = -1.0
     bad.save(tmp_path / "bad.json")

@@ -21,7 +21,8 @@ model).
    their defaults), synthetic-only accuracy on the real file, the change against the defaults.
 5. **Calibrated** (``--calibrated-draws``, default 3 per ``k``): for each few-shot draw, the
    sensor model is fitted (:meth:`~tactilesnn.datasets_synth.tasks.braille.BrailleTask.calibrate`,
-   ``--calibration-budget-s``) to the ``k`` training slides per class *only*; ``--calibrated-
+   ``--calibration-budget-s``) to the ``k`` training slides per class *only*, the arm's speed
+   held at its measured value (:func:`real_arm_speed_mm_s` over those slides); ``--calibrated-
    synthetic`` slides of the fitted model then train the pipeline (the encoder chosen on them),
    which is scored on the other real slides (synthetic only) and fine-tuned on the ``k`` real
    slides (:func:`~tactilesnn.training.finetune_pipeline`: the read-out re-fitted with a prior
@@ -107,6 +108,19 @@ def real_force_rise(root: Path) -> np.ndarray | None:
         return None
     norm = np.linalg.norm(r[..., 6:9], axis=-1)
     return norm.max(1) - np.median(norm[:, : max(2, norm.shape[1] // 10)], 1)
+
+
+def real_arm_speed_mm_s(root: Path, slides: np.ndarray, fs_hz: float) -> float | None:
+    """The arm's sliding speed (mm/s) over ``slides``: the median over those slides of the
+    least-squares slope of robot state column 1 (the fingertip's position along the slide, m),
+    one sample per frame at ``fs_hz``. ``None`` when the file has no robot state."""
+    with np.load(Path(root) / REAL_FILE, allow_pickle=False) as f:
+        if "robot_state" not in f.files:
+            return None
+        r = np.asarray(f["robot_state"], np.float64)[np.asarray(slides), :, 1]
+    t = np.arange(r.shape[1]) / float(fs_hz)
+    slopes = np.polyfit(t, 1000.0 * r.T, 1)[0]
+    return float(np.median(np.abs(slopes)))
 
 
 # ---------------------------------------------------------------- signal statistics
@@ -218,12 +232,14 @@ def _accuracy(pipe, test: WindowDataset) -> tuple[float, float]:
 def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
                     fit_path: Path | None = None, plot_path: Path | None = None,
-                    reuse: Path | None = None, train_seed: int | None = None) -> dict:  # fmt: skip
+                    reuse: Path | None = None, train_seed: int | None = None,
+                    known: dict[str, float] | None = None) -> dict:  # fmt: skip
     """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
     synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``. ``reuse``:
     a fit file an earlier run wrote for this very draw (its training slides checked), read
     instead of fitting again. ``seed`` seeds the calibration; ``train_seed`` (default: ``seed``)
-    the synthetic slides' render and every pipeline's training."""
+    the synthetic slides' render and every pipeline's training. ``known``: values the
+    calibration holds fixed (measured, e.g. the arm's speed over the training slides)."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
     from ...training import finetune_pipeline, fit_pipeline
@@ -244,7 +260,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
         t_cal = float(fit.objective.get("seconds", float("nan")))
     else:
         fit = BrailleTask.calibrate(np.asarray(train_real.X, np.float64), train_real.y,
-                                    real.fs_hz, real.class_names, budget_s=budget_s, seed=seed)  # fmt: skip
+                                    real.fs_hz, real.class_names, budget_s=budget_s, seed=seed,
+                                    known=known)  # fmt: skip
         fit.fitted_on["train_slides"] = train_idx.tolist()
         t_cal = time.perf_counter() - t0
     import tempfile
@@ -365,7 +382,7 @@ def summarise_calibrated(rows: list[dict]) -> dict:
 def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
-        progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 300.0,
+        progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 600.0,
         calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = (),
         reuse_fits: Path | None = None, calibrated_seeds: int = 3) -> dict:  # fmt: skip
     t_start = time.perf_counter()
@@ -452,6 +469,10 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         for d in range(calibrated_draws):
             tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
             fit_file = out / "fits" / f"k{k}_d{d}.json"
+            # the arm's speed, measured by its encoder on the training slides, held fixed: it
+            # trades against the contact's width in time, which k slides cannot tell apart
+            speed = real_arm_speed_mm_s(data_root, tr, real.fs_hz)
+            known = None if speed is None else {"speed_mm_s": speed}
             old = None if reuse_fits is None else Path(reuse_fits) / "fits" / f"k{k}_d{d}.json"
             # one fit per draw; its synthetic slides and pipelines drawn again per training
             # seed (seed to seed, one fit spans up to 45 points per slide: one run is not a figure)
@@ -461,7 +482,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                                       d, epochs, fit_file,
                                       out / "fits" / f"k{k}_d{d}.png" if d == s == 0 else None,
                                       reuse=old if s == 0 else fit_file,
-                                      train_seed=d + 100 * s)  # fmt: skip
+                                      train_seed=d + 100 * s, known=known)  # fmt: skip
                 row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
                 cal_rows.append(row)
                 log.info("calibrated k=%d draw %d seed %d: synthetic only %.3f / %.3f, real only "
@@ -626,9 +647,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=None, help="epochs (default: the model's own)")
     p.add_argument("--calibrated-draws", type=int, default=3,
                    help="few-shot draws per k, the sensor model fitted to each (0: skip)")  # fmt: skip
-    p.add_argument("--calibration-budget-s", type=float, default=300.0,
-                   help="at most this many seconds per calibration (it stops at its 400 "
-                   "evaluations before, on a quiet core)")  # fmt: skip
+    p.add_argument("--calibration-budget-s", type=float, default=600.0,
+                   help="at most this many seconds per calibration (it stops at its 1200 "
+                   "evaluations before, on two quiet cores)")  # fmt: skip
     p.add_argument("--calibrated-synthetic", type=int, default=200,
                    help="slides rendered by each calibrated model")  # fmt: skip
     p.add_argument("--calibrated-seeds", type=int, default=3,
@@ -651,6 +672,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 #: the sensor and scene values of a fit file the page states, with their units
 FIT_UNITS = {"cover_spread_mm": "mm", "mount_N_per_mm": "N/mm", "tilt_Nmm_per_rad": "N mm/rad",
              "radius_along_mm": "mm", "radius_across_mm": "mm", "p_half_Pa": "Pa",
+             "dot_spacing_mm": "mm (the cell's columns)", "row_spacing_mm": "mm (its rows)",
              "row_mm": "mm", "t_mid_offset_s": "s", "speed_mm_s": "mm/s", "force_N": "N",
              "force_ramp": "(relative)", "force_scale_a": "(relative)", "force_scale_b": "(relative)",
              "force_scale_c": "(relative)", "position_mm": "mm (randomisation sd)",

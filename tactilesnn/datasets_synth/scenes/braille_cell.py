@@ -18,9 +18,21 @@ DOT_HEIGHT_MM = 0.48
 DOT_SPACING_MM = 2.34
 
 
-def cell_dots_mm(letter: str, spacing_mm: float = DOT_SPACING_MM) -> np.ndarray:
-    """Dot centres ``[k, 2]`` (mm; x along the slide, y across; the cell's centre at 0)."""
+def scaled_dot_diameter_mm(spacing_mm: float, row_spacing_mm: float | None = None) -> float:
+    """The dots' base diameter (mm) of a cell printed at dot pitch ``spacing_mm`` between its
+    columns and ``row_spacing_mm`` (default: the same) between its rows (mm): the standard
+    dot scaled with the cell (by the geometric mean of the two pitches' scales)."""
+    rows = spacing_mm if row_spacing_mm is None else row_spacing_mm
+    return DOT_DIAMETER_MM * float(np.sqrt(spacing_mm * rows)) / DOT_SPACING_MM
+
+
+def cell_dots_mm(
+    letter: str, spacing_mm: float = DOT_SPACING_MM, row_spacing_mm: float | None = None
+) -> np.ndarray:
+    """Dot centres ``[k, 2]`` (mm; x along the slide, y across; the cell's centre at 0):
+    columns ``spacing_mm`` apart, rows ``row_spacing_mm`` (default: the same) apart."""
     if letter not in BRAILLE_DOTS:
         raise ValueError(f"unknown Braille letter {letter!r}; letters: {''.join(BRAILLE_DOTS)}")
+    rows = spacing_mm if row_spacing_mm is None else row_spacing_mm
     pos = {d: ((d > 3) - 0.5, 1 - (d - 1) % 3) for d in range(1, 7)}  # (column, row)
-    return np.array([pos[d] for d in BRAILLE_DOTS[letter]], np.float64) * spacing_mm
+    return np.array([pos[d] for d in BRAILLE_DOTS[letter]], np.float64) * [spacing_mm, rows]

@@ -44,10 +44,10 @@ import numpy as np
 from ..calibration import SensorFit
 from ..scenes.braille_cell import (
     BRAILLE_DOTS,
-    DOT_DIAMETER_MM,
     DOT_HEIGHT_MM,
     DOT_SPACING_MM,
     cell_dots_mm,
+    scaled_dot_diameter_mm,
 )
 from ..scenes.inputs import FingertipPress
 from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
@@ -74,6 +74,9 @@ def check_fit(fit: SensorFit, where: str) -> None:
         if len(fit.channels[k]) != 12:
             raise ValueError(f"{where}: channels.{k} must hold 12 values")
     sc, rz = fit.scene, fit.randomisation
+    for k in ("dot_spacing_mm", "row_spacing_mm"):
+        if not 1.0 <= sc.get(k, DOT_SPACING_MM) <= 10.0:
+            raise ValueError(f"{where}: {k} must be in [1, 10] mm")
     if sc["speed_mm_s"] <= 0 or sc["force_N"] <= 0 or sc["force_ramp"] < 0:
         raise ValueError(f"{where}: speed and force must be > 0 and the ramp >= 0")
     if min(rz.values()) < 0 or min(fit.channels["noise"]) < 0:
@@ -101,6 +104,7 @@ class BrailleTask(TrialTask):
     drift_counts: float = 2.0
     speed_spread: float = 0.1
     force_spread: float = 0.2
+    dot_spacing_mm: float = DOT_SPACING_MM  # the cell's dot pitch (a printed cell may be larger)
     row_mm: float = DOT_SPACING_MM  # the track's offset from the cell's middle row (to dots 1, 4)
     position_mm: float = 0.5
     taxel_noise: float = 1.0
@@ -121,7 +125,7 @@ class BrailleTask(TrialTask):
                 raise ValueError(f"{knob} must be a finite number >= 0, got {v}")
         if not 0 <= self.force_spread < 1:
             raise ValueError(f"force_spread must be in [0, 1), got {self.force_spread}")
-        for name in ("fs_frames_hz", "duration_s", "slide_mm", "force_N"):
+        for name in ("fs_frames_hz", "duration_s", "slide_mm", "force_N", "dot_spacing_mm"):
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {v}")
@@ -136,7 +140,7 @@ class BrailleTask(TrialTask):
 
     @classmethod
     def calibrate(cls, X: np.ndarray, y: np.ndarray, fs_hz: float, class_names: tuple[str, ...],
-                  budget_s: float = 240.0, seed: int = 0, progress: bool = False,
+                  budget_s: float = 540.0, seed: int = 0, progress: bool = False,
                   max_evals: int | None = None, optimiser: str = "cma",
                   known: dict[str, float] | None = None) -> SensorFit:  # fmt: skip
         """Fit the fingertip and the scene to real slides ``X [N, 12, samples]`` of the letters
@@ -194,7 +198,9 @@ class BrailleTask(TrialTask):
         )
         place = self.position_mm * d * rng.standard_normal(2)  # cell: along, across the slide
         contact = self.position_mm * d * rng.standard_normal(2)  # the fingertip's lowest point
-        dots = cell_dots_mm(self.class_names[label]) + place - [0.0, self.row_mm]  # mid-slide
+        pitch = self.dot_spacing_mm
+        diameter = scaled_dot_diameter_mm(pitch)
+        dots = cell_dots_mm(self.class_names[label], pitch) + place - [0.0, self.row_mm]
         shift = speed * (t - self.duration_s / 2)  # the plate moves towards -x
 
         bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]  # [frames, k, 2]
@@ -208,7 +214,7 @@ class BrailleTask(TrialTask):
         gain = np.exp(self.gain_spread * d * rng.standard_normal(12))
         offset = self.offset_counts * d * rng.standard_normal(12)
         drift = np.cumsum(rng.standard_normal((12, n)), 1) * (self.drift_counts * d / np.sqrt(n))
-        press = FingertipPress(force * ripple, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
+        press = FingertipPress(force * ripple, bumps, DOT_HEIGHT_MM, diameter, contact, gain,
                                offset[:, None] + drift, self.fs_hz)  # fmt: skip
         counts = sensor.read_scene(press, rng)
         load = sensor.last_force_N
@@ -239,7 +245,10 @@ class BrailleTask(TrialTask):
             "speed_spread", rz["time_jitter_s"]) * rng.standard_normal()  # fmt: skip
         place = knob("position_mm", rz["position_mm"]) * rng.standard_normal(2)
         contact = knob("position_mm", rz["position_mm"]) * rng.standard_normal(2)
-        dots = cell_dots_mm(self.class_names[label]) + place - [0.0, sc["row_mm"]]
+        pitch = float(sc.get("dot_spacing_mm", DOT_SPACING_MM))
+        rows = float(sc.get("row_spacing_mm", pitch))
+        diameter = scaled_dot_diameter_mm(pitch, rows)
+        dots = cell_dots_mm(self.class_names[label], pitch, rows) + place - [0.0, sc["row_mm"]]
         shift = speed * (t - t_mid)
         bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]
         fs = min(knob("force_spread", rz["force_spread"]), 0.9)
@@ -256,7 +265,7 @@ class BrailleTask(TrialTask):
         noise = (
             np.asarray(ch["noise"])[:, None] * self.taxel_noise * d * rng.standard_normal((12, n))
         )
-        press = FingertipPress(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact, gain,
+        press = FingertipPress(force, bumps, DOT_HEIGHT_MM, diameter, contact, gain,
                                offset[:, None] + drift + noise, self.fs_hz)  # fmt: skip
         counts = sensor.read_scene(press, rng)
         load = sensor.last_force_N

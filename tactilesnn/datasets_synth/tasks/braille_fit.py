@@ -3,13 +3,17 @@
 What is fitted, from the recordings alone (a file as ``train --data`` reads it: whole slides
 ``X [N, 12, samples]`` of known letters):
 
-* **Black-box (CMA-ES, the ``cma`` package)**, 11 values in physical units within stated bounds
-  (:data:`BOUNDS`): the cover's spread (mm), the track's offset from the cell's middle row
-  (mm), when the cell's centre passes the contact point (s) and the slide's speed (mm/s), the
-  set force (N) and its ramp along the slide, the mount's normal and rotational stiffness
-  (N/mm, N mm/rad: the dip), the fingertip's two radii of curvature (mm) and the foam's
-  half-strain pressure (Pa). Each round's points are evaluated on the CPUs other work leaves
-  free (:func:`search_workers`; the same fit on any number).
+* **Black-box (CMA-ES, the ``cma`` package)**, 13 values in physical units within stated bounds
+  (:data:`BOUNDS`) and one force scale per letter: the cell's dot pitch between its columns and
+  between its rows (mm: a printed cell need not be the standard's 2.34 mm; the real iCub
+  file's C is its A twice, 0.44 s apart at the arm's 10.07 mm/s), the cover's spread (mm), the
+  track's offset from the cell's middle row (mm), when the cell's centre passes the contact
+  point (s) and the slide's speed (mm/s), the set force (N) and its ramp along the slide, the
+  mount's normal and rotational stiffness (N/mm, N mm/rad: the dip), the fingertip's two radii
+  of curvature (mm) and the foam's half-strain pressure (Pa). The search starts from the best
+  of a grid of pitches at the task's speed (:func:`pitch_start`) and evaluates each round's
+  points on the CPUs other work leaves free (:func:`search_workers`; the same fit on any
+  number).
 * **Exactly, inside every evaluation**: the taxel layout and channel map (each channel's pad
   centre, from 1,053 candidate centres 0.5 mm apart over the fingertip: the one whose response
   to the letters best correlates with the channel's, pads kept >= ``MIN_PAD_SEPARATION_MM``
@@ -40,7 +44,12 @@ from typing import Any
 import numpy as np
 
 from ..calibration import SensorFit, rest_level, slide_statistics, statistic_distances
-from ..scenes.braille_cell import DOT_DIAMETER_MM, DOT_HEIGHT_MM, cell_dots_mm
+from ..scenes.braille_cell import (
+    DOT_HEIGHT_MM,
+    DOT_SPACING_MM,
+    cell_dots_mm,
+    scaled_dot_diameter_mm,
+)
 from ..sensors.capacitive_fingertip import CapacitiveFingertip, FingertipParams
 
 log = logging.getLogger("tactilesnn")
@@ -48,7 +57,11 @@ log = logging.getLogger("tactilesnn")
 #: the black-box values: name -> (low, high, log-scale), physical units in the name's doc above
 BOUNDS: dict[str, tuple[float, float, bool]] = {
     "cover_spread_mm": (0.0, 4.0, False),
-    "row_mm": (-3.0, 5.0, False),
+    # the cell's dot pitch between its columns (along the slide) and its rows (across), mm; the
+    # dots' diameter scales with them (a printed cell need not be the standard's)
+    "dot_spacing_mm": (2.0, 6.0, False),
+    "row_spacing_mm": (1.5, 6.0, False),
+    "row_mm": (-3.0, 7.0, False),
     "t_mid_offset_s": (-1.2, 1.2, False),  # from the recording's middle
     "speed_mm_s": (5.0, 16.0, False),
     "force_N": (0.5, 4.0, False),
@@ -72,10 +85,10 @@ SILENT_COUNTS = 0.05
 #: the objective's weight on the offsets (squared, relative to the largest mean level)
 OFFSET_WEIGHT = 1.0
 #: the search's evaluations (a fit is reproducible for a seed; the seconds budget only caps it
-#: on a slow machine): ~0.15 s each on one core. More did not transfer better: 1200 (with the
-#: cell's pitches fitted too) reached objectives 0.39-0.42 against 0.45-0.51 at k = 1, and
-#: scored lower synthetic only and pretrained (docs/sim2real.md, "Tried")
-MAX_EVALS = 400
+#: on a slow machine): ~0.3 s each on one core. On k = 2 real slides per letter, two seeds'
+#: best objective after 400 / 1200 evaluations: 0.635 / 0.459 and 0.573 / 0.313 (not
+#: converged at 400)
+MAX_EVALS = 1200
 #: the evaluation renders every ``DECIMATE``-th frame
 DECIMATE = 2
 #: quadrature of the force balance during the search (mm; the fit file keeps the default 0.25)
@@ -90,6 +103,14 @@ LETTER_FORCE_BOUNDS = (0.6, 1.6, True)
 def bounds_for(letters: str) -> dict[str, tuple[float, float, bool]]:
     """:data:`BOUNDS` and one force scale per letter (``force_scale_<letter>``)."""
     return {**BOUNDS, **{f"force_scale_{c}": LETTER_FORCE_BOUNDS for c in letters}}
+
+
+def dot_geometry(values: dict[str, float]) -> tuple[float, float, float]:
+    """The cell's column and row pitches and its dots' diameter (mm) at ``values`` (the
+    standard cell without fitted pitches; fitted pitches scale the diameter with them)."""
+    pitch = float(values.get("dot_spacing_mm", DOT_SPACING_MM))
+    rows = float(values.get("row_spacing_mm", pitch))
+    return pitch, rows, scaled_dot_diameter_mm(pitch, rows)
 
 
 def letter_force(values: dict[str, float], letter: str) -> float:
@@ -123,7 +144,8 @@ def candidates_mm() -> np.ndarray:
 def start_values(task: Any, duration_s: float) -> dict[str, float]:
     """The task's own values as the search's start."""
     p = FingertipParams()
-    return {"cover_spread_mm": p.cover_spread_mm, "row_mm": task.row_mm, "t_mid_offset_s": 0.0,
+    return {"cover_spread_mm": p.cover_spread_mm, "dot_spacing_mm": task.dot_spacing_mm,
+            "row_spacing_mm": task.dot_spacing_mm, "row_mm": task.row_mm, "t_mid_offset_s": 0.0,
             "speed_mm_s": task.slide_mm / task.duration_s, "force_N": task.force_N,
             "force_ramp": task.force_ramp, "mount_N_per_mm": 30.0, "tilt_Nmm_per_rad": 1000.0,
             "radius_along_mm": p.radius_along_mm, "radius_across_mm": p.radius_across_mm,
@@ -154,11 +176,12 @@ def letter_states(sensor: CapacitiveFingertip, values: dict[str, float], letters
     t = np.arange(n_frames) / fs_hz
     shift = values["speed_mm_s"] * (t - duration / 2 - values["t_mid_offset_s"])
     ramp = 1 + values["force_ramp"] * t / duration
+    pitch, rows, diameter = dot_geometry(values)
     for letter in letters:
-        dots = cell_dots_mm(letter) - [0.0, values["row_mm"]]
+        dots = cell_dots_mm(letter, pitch, rows) - [0.0, values["row_mm"]]
         bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
         yield sensor.contact_state(letter_force(values, letter) * ramp, bumps, DOT_HEIGHT_MM,
-                                   DOT_DIAMETER_MM, np.zeros(2))  # fmt: skip
+                                   diameter, np.zeros(2))  # fmt: skip
 
 
 def letter_codes(values: dict[str, float], letters: str, fs_hz: float, n_frames: int,
@@ -229,24 +252,66 @@ def place_pads(codes: np.ndarray, means: np.ndarray, centres_mm: np.ndarray
 
 
 def activity(means: np.ndarray) -> np.ndarray:
-    """How much the channels move ``[T]``: the summed absolute change from each channel's rest
-    (first 10 %) level, over letters and channels of ``means [L, C, T]``."""
-    rest = np.median(means[..., : max(2, means.shape[-1] // 10)], -1, keepdims=True)
-    return np.abs(means - rest).sum((0, 1))
+    """How much the channels move ``[T]``: the summed absolute change of ``means [L, C, T]``
+    about each channel's baseline, the line through its levels over the first and the last
+    10 % of the frames (a force that grows along the slide raises every pad: a ramp, not the
+    letter)."""
+    t_n = means.shape[-1]
+    q = max(2, t_n // 10)
+    first = np.median(means[..., :q], -1, keepdims=True)
+    last = np.median(means[..., -q:], -1, keepdims=True)
+    frac = (np.arange(t_n) - (q - 1) / 2) / max(t_n - q, 1)
+    return np.abs(means - (first + (last - first) * frac)).sum((0, 1))
 
 
 def response_lag_s(values: dict[str, float], letters: str, fs_hz: float, n: int,
                    real_means: np.ndarray) -> float:  # fmt: skip
     """When the letters pass, as a timing offset (s) for ``values``: the lag that best aligns the
     model's activity (every candidate pad, unit gains) with the recordings' (the search's start:
-    a wrong start leaves the timing in a local optimum)."""
+    a wrong start leaves the timing in a local optimum). The model's activity is shifted, not
+    rolled: what leaves the window does not come back at its other end."""
     model = activity(letter_codes({**values, "t_mid_offset_s": 0.0}, letters, fs_hz, n))
     real = activity(real_means)
-    model, real = model - model.mean(), real - real.mean()
     lo, hi = BOUNDS["t_mid_offset_s"][:2]
     lags = np.arange(int(np.ceil(lo * fs_hz)), int(hi * fs_hz) + 1)
-    score = [float(np.dot(np.roll(model, lag), real)) for lag in lags]
+    score = []
+    for lag in lags:
+        shifted = np.zeros_like(model)
+        if lag >= 0:
+            shifted[lag:] = model[: model.size - lag]
+        else:
+            shifted[:lag] = model[-lag:]
+        a, b = shifted - shifted.mean(), real - real.mean()
+        score.append(float(a @ b) / max(float(np.sqrt((a @ a) * (b @ b))), 1e-12))
     return float(lags[int(np.argmax(score))] / fs_hz)
+
+
+#: the cell pitches (mm) the search's start is chosen from: between columns, between rows
+START_PITCHES_MM = tuple(np.round(np.arange(2.0, 6.01, 0.5), 2))
+START_ROW_PITCHES_MM = (2.0, 2.5, 3.0, 4.0)
+
+
+def _start_candidate(values: dict[str, float], letters: str, fs_hz: float, n: int,
+                     cands: np.ndarray, real_dec: np.ndarray) -> tuple[float, dict[str, float]]:  # fmt: skip
+    v = {**values, "t_mid_offset_s": response_lag_s(values, letters, fs_hz, n, real_dec)}
+    return _objective(v, letters, fs_hz, n, cands, real_dec)[0], v
+
+
+def pitch_start(values: dict[str, float], letters: str, fs_hz: float, n: int, cands: np.ndarray,
+                real_dec: np.ndarray, pool: Any = None) -> dict[str, float]:  # fmt: skip
+    """The search's start: ``values`` at the cell pitches (:data:`START_PITCHES_MM` between
+    columns, :data:`START_ROW_PITCHES_MM` between rows; the track on the first row, the timing
+    aligned by :func:`response_lag_s`) whose objective is lowest. The column pitch and the
+    speed trade off in time (a larger cell, a slower slide): the start keeps the task's speed,
+    so that a search started at the wrong pitch does not settle in the slower slide's local
+    optimum; the row pitch sets which pads the second row reaches. ``pool``: an executor the
+    candidates are evaluated on (the same answer as without)."""
+    grid = [{**values, "dot_spacing_mm": float(p), "row_spacing_mm": float(r), "row_mm": float(r)}
+            for p in START_PITCHES_MM for r in START_ROW_PITCHES_MM]  # fmt: skip
+    args = [(v, letters, fs_hz, n, cands, real_dec) for v in grid]
+    tried = list(pool.map(_start_candidate, *zip(*args, strict=True)) if pool else
+                 (_start_candidate(*a) for a in args))  # fmt: skip
+    return tried[int(np.argmin([loss for loss, _ in tried]))][1]
 
 
 #: the black-box optimisers :func:`fit` can use (``calibrate --optimiser``), measured against
@@ -374,10 +439,11 @@ def render_counts(values: dict[str, float], pads_mm: np.ndarray, gain: np.ndarra
     force = letter_force(values, letter) * np.exp(w["force_spread"] * rng.uniform(-1, 1))
     force = force * (1 + values["force_ramp"] * t / duration)
     g = gain * np.exp(w["gain_spread"] * rng.standard_normal(len(gain)))
-    dots = cell_dots_mm(letter) + place - [0.0, values["row_mm"]]
+    pitch, rows, diameter = dot_geometry(values)
+    dots = cell_dots_mm(letter, pitch, rows) + place - [0.0, values["row_mm"]]
     shift = speed * (t - duration / 2 - values["t_mid_offset_s"])
     bumps = dots[None] - np.stack([shift, np.zeros(n_frames)], 1)[:, None]
-    state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, DOT_DIAMETER_MM, contact)
+    state = sensor.contact_state(force, bumps, DOT_HEIGHT_MM, diameter, contact)
     return np.clip(g[:, None] * sensor.codes_at(pads_mm, state) + offset[:, None], 0, 255)
 
 
@@ -467,8 +533,8 @@ def search_workers() -> int:
 
 @contextmanager
 def _pool(workers: int):
-    """A process pool of ``workers`` single-threaded processes (so that two on two CPUs do not
-    oversubscribe them); None for one worker: the evaluations then run in this process."""
+    """A process pool of ``workers`` (None for one: the evaluations run here); each worker
+    single-threaded, so that two workers on two CPUs do not oversubscribe them."""
     if workers <= 1:
         yield None
         return
@@ -502,7 +568,7 @@ def check_known(known: dict[str, float] | None, letters: str) -> dict[str, float
     return out
 
 
-def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 240.0,
+def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 540.0,
         max_evals: int = MAX_EVALS, seed: int = 0, progress: bool = False,
         optimiser: str = "cma", workers: int | None = None,
         known: dict[str, float] | None = None) -> SensorFit:  # fmt: skip
@@ -538,13 +604,13 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     bounds = {k: b for k, b in bounds_for(letters).items() if k not in known}
     start = {**start_values(task, n / fs_hz), **{f"force_scale_{c}": 1.0 for c in letters},
              **known}  # fmt: skip
-    start["t_mid_offset_s"] = response_lag_s(start, letters, fs, n_dec, real_dec)
     t0 = time.perf_counter()
-    best: tuple = (np.inf, start, None)
-    evals = 0
-    history: list[float] = []
     n_workers = search_workers() if workers is None else max(1, int(workers))
     with _pool(n_workers) as pool:
+        start = pitch_start(start, letters, fs, n_dec, cands, real_dec, pool)
+        best: tuple = (np.inf, start, None)
+        evals = 0
+        history: list[float] = []
         for us in ask_tell(optimiser, _to_unit(start, bounds), seed):
             vs = [{**known, **_from_unit(np.asarray(u), bounds)} for u in us.points]
             args = [(v, letters, fs, n_dec, cands, real_dec) for v in vs]
@@ -580,8 +646,9 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
                 "noise": real_stats["noise"].tolist(), "offset_sd": offset_sd.tolist()}  # fmt: skip
     pred = _predict(codes, gain, offset)
     dist = _distances(real_means, pred)
-    scene = {k: values[k] for k in ("row_mm", "t_mid_offset_s", "speed_mm_s", "force_N",
-                                    "force_ramp", *(f"force_scale_{c}" for c in letters))}  # fmt: skip
+    scene = {k: values[k] for k in ("dot_spacing_mm", "row_spacing_mm", "row_mm", "t_mid_offset_s",
+                                    "speed_mm_s", "force_N", "force_ramp",
+                                    *(f"force_scale_{c}" for c in letters))}  # fmt: skip
     randomisation = {**widths, "drift_counts": 0.0,
                      "time_jitter_s": timing_jitter_s(X, y, fs_hz) or 0.0}  # fmt: skip
     params = {k: values[k] for k in SENSOR_FIELDS}
