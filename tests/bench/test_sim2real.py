@@ -100,9 +100,18 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
     monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
     monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
+    from tactilesnn.app.bench import real as bench_real
+
+    references = bench_real.references
+
+    def spy_references(train, test, pipe, seed):
+        seen.setdefault("references", []).append((train.scan.copy(), test.scan.copy()))
+        return references(train, test, pipe, seed)
+
+    monkeypatch.setattr(bench_real, "references", spy_references)
     speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
     row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
-                                   known={"speed_mm_s": speed})  # fmt: skip
+                                   known={"speed_mm_s": speed}, references=True)  # fmt: skip
     assert seen["known"] == {"speed_mm_s": speed}  # the arm's measured speed, held
     # the calibration saw the three training slides, as they are in the file
     assert len(seen["calibrate"]) == 1
@@ -120,6 +129,14 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     assert all(set(s.tolist()) in (test_ids, train_ids) for s in seen["scored"])
     for key in ("synthetic_only", "real_only", "pretrained", "synthetic_only_per_slide"):
         assert 0.0 <= row[key] <= 1.0
+    # the non-spiking references: trained on synthetic windows, then on the training slides,
+    # each scored on the test slides; the waveform ones only (no spike MLP)
+    (syn_tr, syn_te), (real_tr, real_te) = seen["references"]
+    assert syn_tr.min() >= 10**6 and set(real_tr.tolist()) == train_ids
+    assert set(syn_te.tolist()) == set(real_te.tolist()) == test_ids
+    assert set(row["references"]) == {"synthetic", "real"}
+    assert "mlp_spikes" not in row["references"]["real"] and len(row["references"]["real"]) == 5
+    assert all(0.0 <= s <= 1.0 for acc in row["references"]["real"].values() for s in acc)
     with pytest.raises(ValueError, match="both the training and the test"):
         sim2real.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
 
@@ -138,6 +155,20 @@ def test_arm_speed_is_the_median_slope_of_the_training_slides(tmp_path):
         arrays = {k: z[k] for k in z.files if k != "robot_state"}
     np.savez(f, **arrays)
     assert sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([0]), 94.0) is None
+
+
+def test_page_reports_the_references_next_to_the_spike_pipeline():
+    """The references' section: per slide, means over draws per k and over all, the spike
+    pipeline's row from the same (first) training seed."""
+    refs = [{"k": k, "draw": d, "seed": d,
+             "synthetic": {"rf": [0.4, 0.5 + 0.1 * d]}, "real": {"rf": [0.6, 0.7]}}
+            for k in (1, 2) for d in range(2)]  # fmt: skip
+    cal = [{"k": k, "draw": d, "seed": d + 100 * s, "synthetic_only_per_slide": 0.2 + 0.5 * s,
+            "real_only_per_slide": 0.3} for k in (1, 2) for d in range(2) for s in range(2)]  # fmt: skip
+    lines = sim2real._references_section(refs, cal)
+    assert "| synthetic slides | rf | 55.0 | 55.0 | 55.0 |" in lines
+    assert "| synthetic slides | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
+    assert "| k real slides | **spike pipeline** | 30.0 | 30.0 | 30.0 |" in lines
 
 
 def test_calibrated_summary_has_the_documented_keys():

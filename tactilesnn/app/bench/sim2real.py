@@ -233,13 +233,15 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
                     fit_path: Path | None = None, plot_path: Path | None = None,
                     reuse: Path | None = None, train_seed: int | None = None,
-                    known: dict[str, float] | None = None) -> dict:  # fmt: skip
+                    known: dict[str, float] | None = None, references: bool = False) -> dict:  # fmt: skip
     """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
     synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``. ``reuse``:
     a fit file an earlier run wrote for this very draw (its training slides checked), read
     instead of fitting again. ``seed`` seeds the calibration; ``train_seed`` (default: ``seed``)
     the synthetic slides' render and every pipeline's training. ``known``: values the
-    calibration holds fixed (measured, e.g. the arm's speed over the training slides)."""
+    calibration holds fixed (measured, e.g. the arm's speed over the training slides).
+    ``references``: also the non-spiking references on the identical split
+    (:func:`reference_scores`), as ``row["references"]``."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
     from ...training import finetune_pipeline, fit_pipeline
@@ -310,7 +312,50 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     with seeded(seed):
         alone = fit_pipeline(cfg, train_w, with_past=False).pipeline
     row["real_only"], row["real_only_per_slide"] = _accuracy(alone, test_w)
+    if references:
+        row["references"] = reference_scores(synth_w, train_w, test_w, seed)
     return row
+
+
+def reference_scores(synth_w: WindowDataset, train_w: WindowDataset, test_w: WindowDataset,
+                     seed: int) -> dict[str, dict[str, list]]:  # fmt: skip
+    """The non-spiking references of ``bench real`` (:func:`.real.references`, the waveform
+    ones: no spikes) trained on a draw's synthetic windows and, apart, on its real training
+    windows; each scored on the draw's test windows -> ``{"synthetic" | "real": {name: [per
+    window, per slide]}}``."""
+    from .real import references
+
+    return {arm: {name: list(acc) for name, acc in references(train, test_w, None, seed).items()}
+            for arm, train in (("synthetic", synth_w), ("real", train_w))}  # fmt: skip
+
+
+def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> list[dict]:
+    """The non-spiking references for an earlier run's calibrated draws (``run_dir/fits/
+    k{k}_d{d}.json``; each fit's own training slides, the draw's split recomputed and checked),
+    on its first training seed's synthetic slides (render seed = the draw): one row per draw,
+    also written into ``run_dir/sim2real.json`` as ``references``."""
+    from ...datasets_synth.calibration import SensorFit
+
+    run_dir = Path(run_dir)
+    result = json.loads((run_dir / "sim2real.json").read_text())
+    rows = []
+    for x in result.get("calibrated", []):
+        if x["seed"] != x["draw"]:  # the draw's first training seed only
+            continue
+        k, d = x["k"], x["draw"]
+        tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
+        path = run_dir / "fits" / f"k{k}_d{d}.json"
+        if SensorFit.load(path).fitted_on.get("train_slides") != tr.tolist():
+            raise ValueError(f"{path} was fitted to other slides than draw {d} of k = {k}")
+        synth, _ = render_synthetic(real, synthetic, d, False, calibration=str(path))
+        train_w = cut(real.subset(np.isin(np.arange(real.y.size), tr)))
+        test_w = cut(real.subset(np.isin(np.arange(real.y.size), te)))
+        rows.append({"k": k, "draw": d, "seed": d,
+                     **reference_scores(cut(synth), train_w, test_w, d)})  # fmt: skip
+        log.info("references k=%d draw %d done", k, d)
+    result["references"] = rows
+    (run_dir / "sim2real.json").write_text(json.dumps(result, indent=2))
+    return rows
 
 
 def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: tuple[str, ...],
@@ -482,7 +527,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                                       d, epochs, fit_file,
                                       out / "fits" / f"k{k}_d{d}.png" if d == s == 0 else None,
                                       reuse=old if s == 0 else fit_file,
-                                      train_seed=d + 100 * s, known=known)  # fmt: skip
+                                      train_seed=d + 100 * s, known=known,
+                                      references=s == 0)  # fmt: skip
                 row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
                 cal_rows.append(row)
                 log.info("calibrated k=%d draw %d seed %d: synthetic only %.3f / %.3f, real only "
@@ -490,6 +536,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                          row["synthetic_only"], row["synthetic_only_per_slide"],
                          row["real_only"], row["pretrained"], row["seconds"])  # fmt: skip
     result["calibrated"] = cal_rows
+    result["references"] = [{"k": x["k"], "draw": x["draw"], "seed": x["seed"],
+                             **x.pop("references")} for x in cal_rows if "references" in x]  # fmt: skip
     if cal_rows:
         result.update(summarise_calibrated(cal_rows))
     if optimisers:
@@ -663,6 +711,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "of fitting again (the downstream arms only)")  # fmt: skip
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
+    p.add_argument("--references-from", default=None,
+                   help="an earlier run's --out: add the non-spiking references on its calibrated "
+                   "draws to its sim2real.json (no run)")  # fmt: skip
     p.add_argument("--from-json", default=None,
                    help="only rewrite --docs from a run's sim2real.json (no run)")  # fmt: skip
     p.add_argument("--level-neurons", type=int, default=None,
@@ -714,6 +765,35 @@ def ci95_t(v: np.ndarray) -> tuple[float, float]:
 
     half = stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / np.sqrt(v.size)
     return float(v.mean() - half), float(v.mean() + half)
+
+
+def _references_section(refs: list[dict], cal: list[dict]) -> list[str]:
+    """Per slide (%), means over draws: each non-spiking reference trained on the synthetic
+    slides and on the k real ones, next to the spike pipeline on the same seeds."""
+    ks = sorted({x["k"] for x in refs})
+    first = {(x["k"], x["draw"]): x for x in cal if x["seed"] == x["draw"]}
+
+    def cells(get) -> str:
+        per_k = [[get(x) for x in refs if x["k"] == k] for k in ks]
+        every = [v for vs in per_k for v in vs]
+        return " | ".join(f"{100 * np.mean(v):.1f}" for v in [*per_k, every])
+
+    lines = ["", "## Non-spiking references on the identical draws", "",
+             "Per slide (%), means over the draws: the waveform references of `bench real` "
+             "trained on each draw's synthetic slides (its first training seed's, render seed = "
+             "the draw) or on its k real slides, scored on the same test slides, next to the "
+             "spike pipeline of the same seed.", "",
+             "| trained on | classifier | " + " | ".join(f"k = {k}" for k in ks) + " | all |",
+             "|---|---|" + "---|" * (len(ks) + 1)]  # fmt: skip
+    for arm, own, label in (("synthetic", "synthetic_only_per_slide", "synthetic slides"),
+                            ("real", "real_only_per_slide", "k real slides")):  # fmt: skip
+        for name in refs[0][arm]:
+            lines.append(
+                f"| {label} | {name} | " + cells(lambda x, a=arm, n=name: x[a][n][1]) + " |"
+            )
+        lines.append(f"| {label} | **spike pipeline** | "
+                     + cells(lambda x, o=own: first[(x["k"], x["draw"])][o]) + " |")  # fmt: skip
+    return lines
 
 
 def _fabric_section(fab: dict) -> list[str]:
@@ -840,6 +920,8 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                     f"{np.median([x[key] for x in d]):.3f}" if all(key in x for x in d) else "-"
                     for key in ("mean_response", "class_difference", "correlation", "rest",
                                 "range")) + " |")  # fmt: skip
+    if r.get("references"):
+        lines += _references_section(r["references"], cal)
     if fabric:
         lines += _fabric_section(fabric)
     if r.get("tail"):
@@ -871,6 +953,10 @@ def _fabric(docs: Path) -> dict | None:
 def main(out: Path | None, options: argparse.Namespace) -> int:
     from . import require_out
 
+    if options.references_from:
+        add_references(Path(options.references_from), load_real(Path(options.data_root)),
+                       options.calibrated_synthetic)  # fmt: skip
+        return 0
     if options.from_json:
         result = json.loads(Path(options.from_json).read_text())
         if not options.docs:
