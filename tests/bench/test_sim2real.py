@@ -70,7 +70,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     _stand_in(tmp_path / "data", n=18)
     real = sim2real.load_real(tmp_path / "data")
-    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng(0))
+    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng([31, 1, 0]))  # the bench's
     seen: dict[str, list] = {"calibrate": [], "fit": [], "finetune": [], "scored": []}
     calibrate = BrailleTask.calibrate.__func__
 
@@ -110,7 +110,10 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     monkeypatch.setattr(bench_real, "references", spy_references)
     speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
+    run_dir = tmp_path / "run"
+    (run_dir / "fits").mkdir(parents=True)
     row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
+                                   fit_path=run_dir / "fits" / "k1_d0.json",
                                    known={"speed_mm_s": speed}, references=True)  # fmt: skip
     assert seen["known"] == {"speed_mm_s": speed}  # the arm's measured speed, held
     # the calibration saw the three training slides, as they are in the file
@@ -137,6 +140,14 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     assert set(row["references"]) == {"synthetic", "real"}
     assert "mlp_spikes" not in row["references"]["real"] and len(row["references"]["real"]) == 5
     assert all(0.0 <= s <= 1.0 for acc in row["references"]["real"].values() for s in acc)
+    # --references-from: the same references for a run's saved fit, into its JSON
+    (run_dir / "sim2real.json").write_text(json.dumps({"calibrated": [{"k": 1, "draw": 0,
+                                                                       "seed": 0}]}))  # fmt: skip
+    seen["references"] = []
+    rows = sim2real.add_references(run_dir, real, synthetic=12)
+    assert rows[0]["real"] == row["references"]["real"]  # the same split, the same references
+    assert json.loads((run_dir / "sim2real.json").read_text())["references"] == rows
+    assert all(set(te_.tolist()) == test_ids for _, te_ in seen["references"])
     with pytest.raises(ValueError, match="both the training and the test"):
         sim2real.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
 

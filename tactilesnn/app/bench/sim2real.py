@@ -334,6 +334,7 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
     k{k}_d{d}.json``; each fit's own training slides, the draw's split recomputed and checked),
     on its first training seed's synthetic slides (render seed = the draw): one row per draw,
     also written into ``run_dir/sim2real.json`` as ``references``."""
+    from ...core.files import write_json_atomic
     from ...datasets_synth.calibration import SensorFit
 
     run_dir = Path(run_dir)
@@ -354,7 +355,7 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
                      **reference_scores(cut(synth), train_w, test_w, d)})  # fmt: skip
         log.info("references k=%d draw %d done", k, d)
     result["references"] = rows
-    (run_dir / "sim2real.json").write_text(json.dumps(result, indent=2))
+    write_json_atomic(run_dir / "sim2real.json", result)
     return rows
 
 
