@@ -306,6 +306,28 @@ def test_every_optimiser_finds_a_quadratic_minimum(kind):
         next(bf.ask_tell("nelder", np.zeros(3), 0))
 
 
+def test_the_start_keeps_held_values(monkeypatch):
+    """The search's start grids the cell's pitches unless they are held; held values (a pitch,
+    the timing) stay in every candidate, whatever the grid or the timing's alignment sets."""
+    tried = []
+
+    def spy(values, letters, fs_hz, n, cands, real_dec, known):
+        v = {**values, "t_mid_offset_s": 0.3, **known}
+        tried.append(v)
+        return -v["row_spacing_mm"], v
+
+    monkeypatch.setattr(bf, "_start_candidate", spy)
+    start = {"dot_spacing_mm": 2.34, "row_spacing_mm": 2.34, "row_mm": 2.34, "t_mid_offset_s": 0.0}
+    held = {"dot_spacing_mm": 4.4, "t_mid_offset_s": -0.1}
+    got = bf.pitch_start(start, "abc", 93.3, 10, None, None, None, held)
+    assert len(tried) == len(bf.START_ROW_PITCHES_MM)
+    assert all(v["dot_spacing_mm"] == 4.4 and v["t_mid_offset_s"] == -0.1 for v in tried)
+    assert got["row_spacing_mm"] == max(bf.START_ROW_PITCHES_MM)
+    tried.clear()
+    bf.pitch_start(start, "abc", 93.3, 10, None, None)
+    assert len(tried) == len(bf.START_PITCHES_MM) * len(bf.START_ROW_PITCHES_MM)
+
+
 def test_known_values_are_held_and_checked():
     # a measured value is not searched: the fit keeps it exactly and the search moves the rest
     task = get_task("braille", n_samples=6, duration_s=2.0)

@@ -292,23 +292,29 @@ START_ROW_PITCHES_MM = (2.0, 2.5, 3.0, 4.0)
 
 
 def _start_candidate(values: dict[str, float], letters: str, fs_hz: float, n: int,
-                     cands: np.ndarray, real_dec: np.ndarray) -> tuple[float, dict[str, float]]:  # fmt: skip
-    v = {**values, "t_mid_offset_s": response_lag_s(values, letters, fs_hz, n, real_dec)}
+                     cands: np.ndarray, real_dec: np.ndarray,
+                     known: dict[str, float]) -> tuple[float, dict[str, float]]:  # fmt: skip
+    v = {**values, "t_mid_offset_s": response_lag_s(values, letters, fs_hz, n, real_dec), **known}
     return _objective(v, letters, fs_hz, n, cands, real_dec)[0], v
 
 
 def pitch_start(values: dict[str, float], letters: str, fs_hz: float, n: int, cands: np.ndarray,
-                real_dec: np.ndarray, pool: Any = None) -> dict[str, float]:  # fmt: skip
+                real_dec: np.ndarray, pool: Any = None,
+                known: dict[str, float] | None = None) -> dict[str, float]:  # fmt: skip
     """The search's start: ``values`` at the cell pitches (:data:`START_PITCHES_MM` between
     columns, :data:`START_ROW_PITCHES_MM` between rows; the track on the first row, the timing
     aligned by :func:`response_lag_s`) whose objective is lowest. The column pitch and the
     speed trade off in time (a larger cell, a slower slide): the start keeps the task's speed,
     so that a search started at the wrong pitch does not settle in the slower slide's local
     optimum; the row pitch sets which pads the second row reaches. ``pool``: an executor the
-    candidates are evaluated on (the same answer as without)."""
+    candidates are evaluated on (the same answer as without). ``known``: held values (see
+    :func:`fit`), kept in every candidate; a held pitch is not gridded."""
+    known = dict(known or {})
+    cols = [known["dot_spacing_mm"]] if "dot_spacing_mm" in known else START_PITCHES_MM
+    rows = [known["row_spacing_mm"]] if "row_spacing_mm" in known else START_ROW_PITCHES_MM
     grid = [{**values, "dot_spacing_mm": float(p), "row_spacing_mm": float(r), "row_mm": float(r)}
-            for p in START_PITCHES_MM for r in START_ROW_PITCHES_MM]  # fmt: skip
-    args = [(v, letters, fs_hz, n, cands, real_dec) for v in grid]
+            for p in cols for r in rows]  # fmt: skip
+    args = [(v, letters, fs_hz, n, cands, real_dec, known) for v in grid]
     tried = list(pool.map(_start_candidate, *zip(*args, strict=True)) if pool else
                  (_start_candidate(*a) for a in args))  # fmt: skip
     return tried[int(np.argmin([loss for loss, _ in tried]))][1]
@@ -607,7 +613,7 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     t0 = time.perf_counter()
     n_workers = search_workers() if workers is None else max(1, int(workers))
     with _pool(n_workers) as pool:
-        start = pitch_start(start, letters, fs, n_dec, cands, real_dec, pool)
+        start = pitch_start(start, letters, fs, n_dec, cands, real_dec, pool, known)
         best: tuple = (np.inf, start, None)
         evals = 0
         history: list[float] = []
