@@ -135,6 +135,15 @@ def fit_pipeline(
                   t_enc, time.perf_counter() - t0 - t_enc)  # fmt: skip
 
 
+def adapt_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool = False) -> dict:
+    """A fitted pipeline's model re-estimates its input statistics on a new domain's windows
+    (:meth:`~.models.base.SpikeModel.adapt`; labels unused): after synthetic pretraining, the
+    user's few real windows. The encoder keeps its calibration. Returns the model's report."""
+    if data.X.shape[0] < 2:
+        raise ValueError(f"adapting needs two windows or more, got {data.X.shape[0]}")
+    return pipe.model.adapt(pipe.encode(data.X, progress=progress))
+
+
 def finetune_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool = False,
                       choose_prior: bool = False) -> dict:  # fmt: skip
     """Pretrain, then fine-tune: a fitted pipeline adapted to a few windows of a new domain

@@ -144,6 +144,12 @@ class SpikeModel(nn.Module):
         """Differentiable training loss (models that learn by gradient)."""
         raise NotImplementedError(f"{type(self).__name__} learns by a rule, not by gradient")
 
+    def adapt(self, spikes: Tensor) -> dict:
+        """Re-estimate the model's input statistics on a new domain's unlabelled spikes
+        ``[N, A, k]`` (after training on another: synthetic pretraining, then the user's
+        sensor), leaving what it learnt alone. Default: the model has none to re-estimate."""
+        raise NotImplementedError(f"{type(self).__name__} has no input statistics to adapt")
+
     def finetune_parameters(self) -> list[nn.Parameter]:
         """The parameters :meth:`finetune` adapts (the read-out layer); default: none."""
         return []

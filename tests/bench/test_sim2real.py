@@ -71,7 +71,8 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     _stand_in(tmp_path / "data", n=18)
     real = sim2real.load_real(tmp_path / "data")
     tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng([31, 1, 0]))  # the bench's
-    seen: dict[str, list] = {"calibrate": [], "fit": [], "finetune": [], "scored": []}
+    seen: dict[str, list] = {"calibrate": [], "fit": [], "finetune": [], "adapt": [],
+                             "scored": []}  # fmt: skip
     calibrate = BrailleTask.calibrate.__func__
 
     def spy_calibrate(cls, X, y, *a, **kw):
@@ -90,6 +91,12 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         seen["finetune"].append(data.scan.copy())
         return finetune_pipeline(pipe, data, *a, **kw)
 
+    adapt_pipeline = training.adapt_pipeline
+
+    def spy_adapt(pipe, data, *a, **kw):
+        seen["adapt"].append(data.scan.copy())
+        return adapt_pipeline(pipe, data, *a, **kw)
+
     accuracy = sim2real._accuracy
 
     def spy_accuracy(pipe, test):
@@ -99,6 +106,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     monkeypatch.setattr(BrailleTask, "calibrate", classmethod(spy_calibrate))
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
     monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
+    monkeypatch.setattr(training, "adapt_pipeline", spy_adapt)
     monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
     from tactilesnn.app.bench import real as bench_real
 
@@ -125,12 +133,22 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         assert not set(scans.tolist()) & test_ids
     assert any(set(s.tolist()) <= train_ids for s in seen["fit"])  # the real-only arm
     assert all(set(s.tolist()) <= train_ids for s in seen["finetune"])
-    # scored: the encoders' candidates on the training slides (the choice), the three arms on
-    # the test slides
+    # the standardisation re-estimated on the training slides (labels unused), once
+    assert [set(s.tolist()) for s in seen["adapt"]] == [train_ids]
+    assert row["adapt"]["windows"] == seen["adapt"][0].size  # every training window
+    # scored: the encoders' candidates on the training slides (the choice), the three arms
+    # (synthetic only before and after the re-estimate) on the test slides
     on_test = [s for s in seen["scored"] if set(s.tolist()) == test_ids]
-    assert len(on_test) == 3
+    assert len(on_test) == 4
     assert all(set(s.tolist()) in (test_ids, train_ids) for s in seen["scored"])
-    for key in ("synthetic_only", "real_only", "pretrained", "synthetic_only_per_slide"):
+    for key in (
+        "synthetic_only",
+        "real_only",
+        "pretrained",
+        "synthetic_only_per_slide",
+        "synthetic_only_unadapted",
+        "synthetic_only_unadapted_per_slide",
+    ):
         assert 0.0 <= row[key] <= 1.0
     # the non-spiking references: trained on synthetic windows, then on the training slides,
     # each scored on the test slides; the waveform ones only (no spike MLP)

@@ -23,8 +23,11 @@ model).
    sensor model is fitted (:meth:`~tactilesnn.datasets_synth.tasks.braille.BrailleTask.calibrate`,
    ``--calibration-budget-s``) to the ``k`` training slides per class *only*, the arm's speed
    held at its measured value (:func:`real_arm_speed_mm_s` over those slides); ``--calibrated-
-   synthetic`` slides of the fitted model then train the pipeline (the encoder chosen on them),
-   which is scored on the other real slides (synthetic only) and fine-tuned on the ``k`` real
+   synthetic`` slides of the fitted model then train the pipeline (the encoder chosen on them);
+   its read-out's standardisation is re-estimated on the ``k`` training slides' windows (labels
+   unused: :func:`~tactilesnn.training.adapt_pipeline`; the score before it is kept as
+   ``synthetic_only_unadapted``), then it is scored on the other real slides (synthetic only)
+   and fine-tuned on the ``k`` real
    slides (:func:`~tactilesnn.training.finetune_pipeline`: the read-out re-fitted with a prior
    centred on the pretrained weights), next to the same pipeline trained on the ``k`` real
    slides alone (real only). No test slide is seen by the calibration, the encoder's choice,
@@ -244,7 +247,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     (:func:`reference_scores`), as ``row["references"]``."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
-    from ...training import finetune_pipeline, fit_pipeline
+    from ...training import adapt_pipeline, finetune_pipeline, fit_pipeline
 
     if np.intersect1d(train_idx, test_idx).size:
         raise ValueError("a slide is in both the training and the test draw")
@@ -304,6 +307,12 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                  "calibration_s": t_cal, "objective": fit.objective["value"],
                  "distances": fit.objective["distances"], "encoder": chosen,
                  "encoder_scores_on_training_slides": scores}  # fmt: skip
+    row["synthetic_only_unadapted"], row["synthetic_only_unadapted_per_slide"] = _accuracy(
+        pre, test_w
+    )
+    # the read-out's standardisation re-estimated on the k training slides' windows (labels
+    # unused): the synthetic-trained weights then read the real sensor's features on their scale
+    row["adapt"] = adapt_pipeline(pre, train_w)
     row["synthetic_only"], row["synthetic_only_per_slide"] = _accuracy(pre, test_w)
     with seeded(seed):
         report = finetune_pipeline(pre, train_w)
@@ -409,6 +418,10 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                                                                       "synthetic_only_per_slide"))),
                  "synthetic_only_per_window": float(np.mean(draw_means(rows, "synthetic_only"))),
                  "shots": {}}  # fmt: skip
+    if all("synthetic_only_unadapted_per_slide" in r for r in rows):
+        out["synthetic_only_unadapted_per_slide"] = float(
+            np.mean(draw_means(rows, "synthetic_only_unadapted_per_slide"))
+        )
     for k in sorted({r["k"] for r in rows}):
         sel = [r for r in rows if r["k"] == k]
         out["shots"][str(k)] = {
@@ -418,7 +431,10 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                               ("synthetic_only_per_window", "synthetic_only"),
                               ("real_only_per_slide", "real_only_per_slide"),
                               ("pretrained_per_slide", "pretrained_per_slide"),
-                              ("synthetic_only_per_slide", "synthetic_only_per_slide"))
+                              ("synthetic_only_per_slide", "synthetic_only_per_slide"),
+                              ("synthetic_only_unadapted_per_slide",
+                               "synthetic_only_unadapted_per_slide"))
+            if all(key in r for r in sel)
         }  # fmt: skip
         out["shots"][str(k)]["draws"] = count_draws(sel)
         out["shots"][str(k)]["runs"] = len(sel)
