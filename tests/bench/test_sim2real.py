@@ -243,3 +243,21 @@ def test_page_states_before_and_after(tmp_path):
     assert "| 1 | 3 | synthetic only | 36.0 / 34.0 (all 45) | 50.0" in text
     assert "pretrained + fine-tuned (after)" in text and "+13.0" in text
     assert "`cover_spread_mm` | mm | 3.2 |" in text and "`force_N` | N | 1.6 |" in text
+
+
+def test_the_score_before_the_restandardisation_is_summarised_and_shown():
+    """Rows with ``synthetic_only_unadapted`` (runs from 2026-12-03 on) get its mean in the
+    summary and a page row next to the synthetic-only one; older rows get neither."""
+    rows = [{"k": 1, "draw": d, "seed": d, "synthetic_only_per_slide": 0.6, "synthetic_only": 0.5,
+             "synthetic_only_unadapted": 0.4, "synthetic_only_unadapted_per_slide": 0.3 + 0.2 * d,
+             "real_only": 0.5, "pretrained": 0.6, "real_only_per_slide": 0.6,
+             "pretrained_per_slide": 0.7, "calibration_s": 1.0, "objective": 0.5,
+             "encoder": "lif"} for d in range(2)]  # fmt: skip
+    s = sim2real.summarise_calibrated(rows)
+    assert s["synthetic_only_unadapted_per_slide"] == pytest.approx(0.4)
+    assert s["shots"]["1"]["synthetic_only_unadapted_per_slide"] == pytest.approx(0.4)
+    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    assert "not re-estimated on the k slides | - | 40.0" in text
+    old = [{k: v for k, v in x.items() if "unadapted" not in k} for x in rows]
+    assert "unadapted" not in json.dumps(sim2real.summarise_calibrated(old))
+    assert "not re-estimated" not in sim2real.page({"seconds": 60.0, "calibrated": old}, {}, "cmd")

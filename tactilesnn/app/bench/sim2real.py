@@ -865,6 +865,10 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
             f"| {k} | {n} | synthetic only | {sb} | "
             f"{_cell(draw_means(sel, 'synthetic_only'))} / "
             f"{_cell(draw_means(sel, 'synthetic_only_per_slide'))} |",
+            *([f"| {k} | {n} | synthetic only, the read-out's standardisation not re-estimated "
+               f"on the k slides | - | {_cell(draw_means(sel, 'synthetic_only_unadapted'))} / "
+               f"{_cell(draw_means(sel, 'synthetic_only_unadapted_per_slide'))} |"]
+              if all("synthetic_only_unadapted" in x for x in sel) else []),
             f"| {k} | {n} | real only | "
             + (f"{_cell([x['accuracy'] for x in rb])} / {_cell([x['per_slide'] for x in rb])}"
                if rb else "-") + f" | {_cell(draw_means(sel, 'real_only'))} / "
