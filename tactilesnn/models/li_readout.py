@@ -189,13 +189,23 @@ class LIReadout(SpikeModel):
         if n == 0:
             return
         self.penalty = self.config.weight_decay * PRIOR_WINDOWS / n
-        total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
-        total_sq = torch.zeros_like(total)
         keep = (
             self.config.solver == "exact" and 4 * n * self.linear.in_features <= EXACT_BUDGET_BYTES
         )
         kept = torch.empty(n, self.linear.in_features) if keep else None  # filled, not joined
-        batch = self.batch_size(spikes)
+        mean, sd = self._moments(spikes, kept)
+        self.feat_mean.copy_(mean.float())
+        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
+        if kept is not None:
+            self._prepared = (spikes, kept)
+
+    def _moments(self, spikes: Tensor, kept: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """float64 mean and (population) standard deviation of every trace feature over
+        ``spikes``, in batches bounded by the byte budget; ``kept`` ``[N, d]``, when given,
+        receives the float32 traces."""
+        total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
+        total_sq = torch.zeros_like(total)
+        batch, n = self.batch_size(spikes), spikes.shape[0]
         for i in range(0, n, batch):
             t = self.traces(spikes[i : i + batch])
             if kept is not None:
@@ -204,11 +214,7 @@ class LIReadout(SpikeModel):
             total += f.sum(0)
             total_sq += (f * f).sum(0)
         mean = total / n
-        sd = (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
-        self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
-        if kept is not None:
-            self._prepared = (spikes, kept)
+        return mean, (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
 
     def scores(self, spikes: Tensor) -> Tensor:
         return self.linear(self.features(spikes))
@@ -374,15 +380,7 @@ class LIReadout(SpikeModel):
         n = int(spikes.shape[0])
         if n < 2:
             raise ValueError(f"adapting the standardisation needs two windows or more, got {n}")
-        total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
-        total_sq = torch.zeros_like(total)
-        batch = self.batch_size(spikes)
-        for i in range(0, n, batch):
-            f = self.traces(spikes[i : i + batch]).double()
-            total += f.sum(0)
-            total_sq += (f * f).sum(0)
-        mean = total / n
-        sd = (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
+        mean, sd = self._moments(spikes)
         live = sd > 1e-6
         shift = ((mean - self.feat_mean.double()).abs() / self.feat_scale.double()).median()
         self.feat_mean.copy_(mean.float())
