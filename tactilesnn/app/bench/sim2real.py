@@ -170,6 +170,11 @@ def reorder(ds: WindowDataset, order: np.ndarray) -> WindowDataset:
 
 
 # ---------------------------------------------------------------- fits
+def slides(real: WindowDataset, idx: np.ndarray) -> WindowDataset:
+    """The slides ``idx`` (indices into the file's slides) of ``real``, in file order."""
+    return real.subset(np.isin(np.arange(real.y.size), idx))
+
+
 def cut(ds: WindowDataset) -> WindowDataset:
     """Windows as ``train --data`` cuts the real file (:func:`~tactilesnn.recordings.auto_cut`)."""
     from ...recordings import auto_cut, cut_windows
@@ -251,8 +256,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
 
     if np.intersect1d(train_idx, test_idx).size:
         raise ValueError("a slide is in both the training and the test draw")
-    train_real = real.subset(np.isin(np.arange(real.y.size), train_idx))
-    test_real = real.subset(np.isin(np.arange(real.y.size), test_idx))
+    train_real = slides(real, train_idx)
+    test_real = slides(real, test_idx)
     t0 = time.perf_counter()
     if reuse is not None:
         from ...datasets_synth.calibration import SensorFit
@@ -358,8 +363,8 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
         if SensorFit.load(path).fitted_on.get("train_slides") != tr.tolist():
             raise ValueError(f"{path} was fitted to other slides than draw {d} of k = {k}")
         synth, _ = render_synthetic(real, synthetic, d, False, calibration=str(path))
-        train_w = cut(real.subset(np.isin(np.arange(real.y.size), tr)))
-        test_w = cut(real.subset(np.isin(np.arange(real.y.size), te)))
+        train_w = cut(slides(real, tr))
+        test_w = cut(slides(real, te))
         rows.append({"k": k, "draw": d, "seed": d,
                      **reference_scores(cut(synth), train_w, test_w, d)})  # fmt: skip
         log.info("references k=%d draw %d done", k, d)
@@ -377,7 +382,7 @@ def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: 
     rows = []
     for k in shots:
         tr, _ = few_shot_split(real, k, np.random.default_rng([31, k, 0]))
-        sub = real.subset(np.isin(np.arange(real.y.size), tr))
+        sub = slides(real, tr)
         for name in optimisers:
             for seed in range(seeds):
                 t0 = time.perf_counter()
@@ -490,8 +495,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
     for k in shots:
         for d in range(draws):
             tr, te = few_shot_split(real, k, np.random.default_rng([31, k, d]))
-            real_tr = cut(real.subset(np.isin(np.arange(real.y.size), tr)))
-            real_te = cut(real.subset(np.isin(np.arange(real.y.size), te)))
+            real_tr = cut(slides(real, tr))
+            real_te = cut(slides(real, te))
             reps = max(1, round(synth_w.y.size / real_tr.y.size))
             joint = concat(synth_w, *([real_tr] * reps))
             c = with_seed(cfg, d)
