@@ -17,11 +17,16 @@ import os
 import torch
 from hypothesis import settings
 
+from tactilesnn.core.perf import limit_blas
+
 _workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
 if _workers > 1:  # pytest-xdist (make test): the CPUs shared among the workers, not oversubscribed
     _threads = max(1, (os.cpu_count() or 1) // _workers)
     torch.set_num_threads(_threads)
     os.environ.setdefault("OMP_NUM_THREADS", str(_threads))
+    # numpy's OpenBLAS read the thread count when it was imported (before this file): its pool
+    # of a thread per CPU spins in every worker at once unless limited here too
+    limit_blas(_threads)
 os.environ.setdefault("TACTILESNN_THREADS", str(torch.get_num_threads()))
 os.environ.setdefault("TACTILESNN_ONNX_EXPORTER", "torchscript")
 settings.register_profile("ci", derandomize=True)

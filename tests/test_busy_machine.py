@@ -39,6 +39,11 @@ def test_threads_follow_the_cpus_left_by_running_processes(monkeypatch):
         assert fit_threads(cpus=4, others=1) == 3
         assert fit_threads(cpus=2, others=0) == 2
         assert fit_threads(cpus=2, others=0) is None  # already so
+        torch.set_num_threads(1)
+        threadpool_limits(limits=2, user_api="blas")
+        assert fit_threads(cpus=2, others=1) is None  # torch already at 1 ...
+        assert blas() <= {1}  # ... and BLAS's pool, sized at numpy's import, follows it too
+        torch.set_num_threads(2)
         monkeypatch.setenv("TACTILESNN_THREADS", "1")
         assert fit_threads(cpus=8, others=0) == 1
         monkeypatch.setenv("OMP_NUM_THREADS", "3")  # the user's choice wins

@@ -104,10 +104,11 @@ def fit_threads(cpus: int | None = None, others: int | None = None) -> int | Non
         if others is None:
             return None
         n = max(1, min(cpus, cpus - others))
+    # BLAS too when torch already has n: its pool was sized at numpy's import, not by torch
+    limit_blas(n)
     if n == torch.get_num_threads():
         return None
     torch.set_num_threads(n)
-    limit_blas(n)
     return n
 
 
