@@ -34,6 +34,20 @@ def test_boussinesq_closed_forms():
     assert integral == pytest.approx(-1.0, rel=1e-4)
 
 
+def test_influence_is_the_quadrature_of_boussinesq(sensor):
+    """The in-place influence matrix against the closed form evaluated point by point: each
+    taxel's charge per newton is d33 x the mean of T3 over its quadrature x its area."""
+    p = sensor.params
+    pts = np.random.default_rng(0).uniform(-5, 25, (40, 2))  # mm, over and around the pad
+    got = sensor.influence(pts)
+    want = np.zeros((12, len(pts)))
+    for t, centre in enumerate(sensor.taxels_mm):
+        for off in sensor._quad:
+            r = np.hypot(*(centre + off - pts).T)
+            want[t] += boussinesq_t3(1.0, r, p.cover_mm) * sensor._cell_m2
+    np.testing.assert_allclose(got, p.d33_pC_per_N * want, rtol=1e-12, atol=0)
+
+
 def test_charge_is_d33_times_the_stress_on_the_taxel(sensor):
     # a point force over a taxel centre puts most of its stress on that taxel; all taxels
     # together with the plane outside them share d33 * F

@@ -179,12 +179,24 @@ class PVDFTriangle:
         """Charge (pC) on each taxel per newton at each surface point: ``[12, points]``."""
         pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 2)
         q = self.taxels_mm[:, None, :] + self._quad[None, :, :]  # [12, Q, 2]
-        dx = q[:, :, None, 0] - pts[None, None, :, 0]
-        dy = q[:, :, None, 1] - pts[None, None, :, 1]
         h = self.params.cover_mm * 1e-3
-        r2 = (dx * dx + dy * dy) * 1e-6  # m^2, [12, Q, P]
-        t3 = -3.0 * h**3 / (2 * np.pi * (r2 + h * h) ** 2.5)  # Boussinesq, Pa per N
-        return self.params.d33_pC_per_N * (t3.sum(1) * self._cell_m2)
+        # Boussinesq's T3 (Pa per N, :func:`boussinesq_t3`) summed over each taxel's quadrature,
+        # in place: (r^2 + h^2)^(5/2) as s * s * sqrt(s), not a float power (9x faster; it was
+        # 25 of the touch task's 34 s of rendering), equal to it within 1 ulp
+        s = q[:, :, None, 0] - pts[None, None, :, 0]  # [12, Q, P], mm
+        s *= s
+        dy = q[:, :, None, 1] - pts[None, None, :, 1]
+        dy *= dy
+        s += dy
+        del dy
+        s *= 1e-6  # m^2
+        s += h * h
+        den = np.sqrt(s)
+        den *= s
+        den *= s
+        np.reciprocal(den, out=den)
+        t3 = den.sum(1) * (-3.0 * h**3 / (2 * np.pi))
+        return self.params.d33_pC_per_N * (t3 * self._cell_m2)
 
     def disc_points(self, diameter_mm: float, n_ring: int = 6) -> tuple[np.ndarray, np.ndarray]:
         return disc_points(diameter_mm, n_ring)
