@@ -168,13 +168,10 @@ class SpikePipeline:
             return None
         n = sum(len(m) - 1 for m, _ in runs)
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
-        idx, parts = [], []
-        for members, shift in runs:
-            rec = join_run(x, members, shift)
-            starts = shift * np.arange(1, len(members))
-            parts.append(self.encoder.encode_recording(rec, starts))
-            idx.append(members[1:])
-        at = np.concatenate(idx)
+        recs = [join_run(x, members, shift) for members, shift in runs]
+        starts = [shift * np.arange(1, len(members)) for members, shift in runs]
+        parts = self.encoder.encode_recordings(recs, starts)
+        at = np.concatenate([members[1:] for members, _ in runs])
         return at, self._with_extra(torch.cat(parts), x[at])
 
     @torch.no_grad()

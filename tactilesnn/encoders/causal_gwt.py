@@ -148,31 +148,65 @@ class CausalGWTLatencyEncoder(ScalogramLatencyEncoder):
         :func:`in_range_units` gives them. A window starting at 0 is :meth:`encode_batch`'s (up
         to float rounding); a later one differs where the bank still rings with what came
         before it."""
+        return self._encode_same(np.asarray(x)[None], starts)[0]
+
+    def encode_recordings(
+        self, recs: Sequence[np.ndarray], starts: Sequence[Sequence[int]],
+        budget_bytes: int = 1 << 26,
+    ) -> list[Tensor]:  # fmt: skip
+        """:meth:`encode_recording` of each ``(recs[i], starts[i])``; recordings of one length
+        and the same starts run through the bank together, in batches of at most
+        ``budget_bytes`` of frames (a recording alone makes each block a matrix-vector
+        product, which reads the block's whole matrix for one row: 3.4x slower on 1,000
+        recordings of 13,000 samples)."""
+        if len(recs) != len(starts):
+            raise ValueError(f"{len(recs)} recordings but {len(starts)} lists of starts")
+        out: list[Tensor | None] = [None] * len(recs)
+        groups: dict[tuple, list[int]] = {}
+        for i, (r, s) in enumerate(zip(recs, starts, strict=True)):
+            groups.setdefault((np.shape(r), tuple(int(v) for v in s)), []).append(i)
+        for (shape, st), members in groups.items():
+            per_rec = 16 * shape[0] * self.scalogram.n_bands * (shape[-1] // self.hop + 1)
+            batch = max(1, budget_bytes // max(per_rec, 1))
+            for j in range(0, len(members), batch):
+                part = members[j : j + batch]
+                codes = self._encode_same(np.stack([np.asarray(recs[i]) for i in part]), st)
+                for i, c in zip(part, codes, strict=True):
+                    out[i] = c
+        return out  # type: ignore[return-value]
+
+    @torch.no_grad()
+    def _encode_same(self, x: np.ndarray, starts: Sequence[int]) -> Tensor:
+        """:meth:`encode_recording` of recordings ``x [R, channels, samples]`` that share their
+        window starts -> ``[R, len(starts), afferents, 1]``."""
         self.check_fitted()
         self._check_level_off("coding a window with its past")
         if self.config.gate > 0:
             raise ValueError("a recording's windows with their past need every sample: the "
                              "activity gate skips quiet ones (train without --gate)")  # fmt: skip
         hop, frames = self.hop, self.window // self.hop
-        rec = torch.from_numpy(np.ascontiguousarray(x, np.float32))[None]
-        check_allocation(4 * rec.shape[1] * self.scalogram.n_bands * (rec.shape[-1] // hop + 1),
-                         "the causal bank's frames of one recording")  # fmt: skip
+        rec = torch.from_numpy(np.ascontiguousarray(x, np.float32))
+        check_allocation(4 * rec.shape[0] * rec.shape[1] * self.scalogram.n_bands
+                         * (rec.shape[-1] // hop + 1),
+                         "the causal bank's frames of the recordings")  # fmt: skip
         rec = level_off(rec)  # scaled by the recording's peak, its level off
-        out = torch.full((len(starts), self.n_afferents, 1), math.inf)
+        out = torch.full((rec.shape[0], len(starts), self.n_afferents, 1), math.inf)
         phases: dict[int, list[int]] = {}
         for i, s in enumerate(starts):
             phases.setdefault(int(s) % hop, []).append(i)
         for ph, idx in phases.items():
-            mag = self.scalogram(rec[..., ph:])[0]  # [C, bands, frames]
             first = [(int(starts[i]) - ph) // hop for i in idx]
-            if max(first) + frames > mag.shape[-1] or min(first) < 0:
+            # the bank runs only as far as this phase's last window
+            end = ph + hop * (max(first) + frames)
+            if end > rec.shape[-1] or min(first) < 0:
                 raise ValueError(f"the windows starting at {list(starts)} do not all lie in the "
                                  f"recording's {x.shape[-1]} samples")  # fmt: skip
-            win = torch.stack([mag[..., f : f + frames] for f in first])  # [n, C, bands, F]
-            x_win = torch.stack([rec[0, :, int(starts[i]) : int(starts[i]) + self.window]
-                                 for i in idx])  # fmt: skip
-            t = self.code(in_range_units(win, _window_range(x_win)))
-            out[idx, :, 0] = (self.band_scatter(t) if self.restricted else t).float()
+            mag = self.scalogram(rec[..., ph:end])  # [R, C, bands, frames]
+            for i, f in zip(idx, first, strict=True):
+                s = int(starts[i])
+                rng = _window_range(rec[..., s : s + self.window])
+                t = self.code(in_range_units(mag[..., f : f + frames], rng))
+                out[:, i, :, 0] = (self.band_scatter(t) if self.restricted else t).float()
         return out
 
     def stream_reference(self, x: Tensor, step: int) -> Tensor:

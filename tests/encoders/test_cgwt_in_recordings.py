@@ -118,6 +118,28 @@ def test_windows_with_their_past_are_the_stream_graph_s():
     assert (odd[0] - ref[0])[torch.isfinite(ref[0])].abs().max() < 1e-2
 
 
+def test_recordings_coded_together_are_each_coded_alone():
+    """:meth:`encode_recordings` batches recordings of one length and the same starts through
+    the bank (in batches of a byte budget); each one's code is :meth:`encode_recording`'s."""
+    pipe = _pipe()
+    recs = [_recording(900, seed=s) for s in range(5)] + [_recording(700, seed=9)]
+    pipe.calibrate(_cut(recs[0], 100))
+    starts = [[100, 350, 500]] * 4 + [[0, 101]] + [[200, 498]]  # phases 0, 2, 1 of hop 4
+    enc = pipe.encoder
+    for budget in (1 << 26, 1):  # all together / one at a time
+        got = enc.encode_recordings(recs, starts, budget_bytes=budget)
+        for r, s, g in zip(recs, starts, got, strict=True):
+            want = enc.encode_recording(r, s)
+            assert g.shape == want.shape == (len(s), enc.n_afferents, 1)
+            assert torch.equal(torch.isfinite(g), torch.isfinite(want))
+            fin = torch.isfinite(want)
+            assert (g[fin] - want[fin]).abs().max() < 1e-3  # ms: float rounding only
+    with pytest.raises(ValueError, match="2 recordings but 1"):
+        enc.encode_recordings(recs[:2], starts[:1])
+    with pytest.raises(ValueError, match="do not all lie"):
+        enc.encode_recordings(recs[:1], [[850]])
+
+
 @pytest.mark.slow
 def test_training_on_recordings_learns_both_codes(tmp_path, capsys):
     rng = np.random.default_rng(0)
