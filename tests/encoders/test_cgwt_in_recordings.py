@@ -119,8 +119,8 @@ def test_windows_with_their_past_are_the_stream_graph_s():
 
 
 def test_recordings_coded_together_are_each_coded_alone():
-    """:meth:`encode_recordings` batches recordings of one length and the same starts through
-    the bank (in batches of a byte budget); each one's code is :meth:`encode_recording`'s."""
+    """:meth:`encode_recordings` runs recordings through the bank together (in batches of a
+    byte budget, each padded to its batch's longest); each one's code is what it gets alone."""
     pipe = _pipe()
     recs = [_recording(900, seed=s) for s in range(5)] + [_recording(700, seed=9)]
     pipe.calibrate(_cut(recs[0], 100))
@@ -138,6 +138,8 @@ def test_recordings_coded_together_are_each_coded_alone():
         enc.encode_recordings(recs[:2], starts[:1])
     with pytest.raises(ValueError, match="do not all lie"):
         enc.encode_recordings(recs[:1], [[850]])
+    with pytest.raises(ValueError, match=r"\[3 channels, samples\], got shape \(2, 900\)"):
+        enc.encode_recordings([recs[0][:2]], [[0]])
 
 
 @pytest.mark.slow
