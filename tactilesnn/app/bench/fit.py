@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...core.stages import peak_rss_bytes
 from . import require_out, write_result
 from .busy import NEIGHBOUR
 from .standins import STANDINS, make
@@ -65,11 +66,11 @@ def run_train(data: Path, out: Path, neighbour: bool = False) -> dict:
             t0 = time.perf_counter()
             proc = subprocess.Popen(cmd, stdout=log_file, stderr=subprocess.STDOUT)
             peak = 0
-            while True:  # its own high-water mark, read while it runs (see peak_rss)
+            while True:  # its own high-water mark, read while it runs (see peak_rss_bytes)
                 pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
                 if pid:
                     break
-                peak = max(peak, peak_rss(proc.pid))
+                peak = max(peak, peak_rss_bytes(proc.pid))
                 time.sleep(0.05)
             wall = time.perf_counter() - t0
     finally:
@@ -83,20 +84,6 @@ def run_train(data: Path, out: Path, neighbour: bool = False) -> dict:
         peak = int(usage.ru_maxrss) * 1024
     return {"seconds": wall, "peak_rss_bytes": peak, "returncode": code,
             "metrics": metrics, "output_tail": log_path.read_text()[-2000:]}  # fmt: skip
-
-
-def peak_rss(pid: int) -> int:
-    """``pid``'s peak resident memory so far (bytes; 0 where /proc does not say). Read from
-    ``VmHWM``, which starts afresh when the process executes its program: the rusage's
-    ``ru_maxrss`` keeps the pages of the benchmark process it was forked from (a 7 MB event
-    file's run read 1.43 GB, the benchmark's own size by then)."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
 
 
 def references(path: Path, seed: int = 0) -> dict[str, dict]:
