@@ -26,6 +26,7 @@ via non-negative least squares.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -56,6 +57,13 @@ def boussinesq_t3(force_N: np.ndarray, r_mm: np.ndarray, cover_mm: float) -> np.
     return -3.0 * np.asarray(force_N) * h**3 / (2 * np.pi * (r * r + h * h) ** 2.5)
 
 
+@functools.lru_cache(maxsize=16)
+def _lowpass_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """The readout's 2nd-order Butterworth low-pass as second-order sections (designed once per
+    rate: the design took 2 of the touch task's 16 s of rendering)."""
+    return signal.butter(2, cutoff_hz, fs=fs_hz, output="sos")
+
+
 def contact_positions(center_mm: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Distinct contact centres ``[U, 2]`` (mm, to 0.1 um) and each sample's index into them.
 
@@ -67,7 +75,10 @@ def contact_positions(center_mm: np.ndarray, n: int) -> tuple[np.ndarray, np.nda
         c = np.repeat(c, n, 0)
     if c.shape[0] != n:
         raise ValueError(f"center_mm has {c.shape[0]} rows for {n} samples")
-    uniq, inv = np.unique(np.round(c, 4), axis=0, return_inverse=True)
+    r = np.round(c, 4)
+    if n and (r == r[0]).all():  # a contact that stays put: np.unique's row sort costs 3 ms
+        return r[:1], np.zeros(n, np.intp)
+    uniq, inv = np.unique(r, axis=0, return_inverse=True)
     return uniq, inv.ravel()
 
 
@@ -227,7 +238,7 @@ class PVDFTriangle:
         a = np.exp(-1.0 / (fs_in_hz * tau))
         dq = np.diff(q_pC, prepend=q_pC[..., :1], axis=-1)
         v = -signal.lfilter([1.0], [1.0, -a], dq, axis=-1) / cf_pF  # pC / pF = V
-        sos = signal.butter(2, p.lowpass_hz, fs=fs_in_hz, output="sos")
+        sos = _lowpass_sos(p.lowpass_hz, float(fs_in_hz)).copy()  # (sosfilt wants it writable)
         return signal.sosfilt(sos, v, axis=-1)
 
     def read(
