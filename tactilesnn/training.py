@@ -36,6 +36,9 @@ class TrainResult:
     history: list[float]
     metrics: dict
     confusion: np.ndarray
+    #: the pipeline's spike times of the test windows (on the CPU; None where they were coded
+    #: elsewhere), which the export's verification takes instead of coding them again
+    test_spikes: torch.Tensor | None = None
 
 
 def split_validation(
@@ -239,7 +242,8 @@ def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bo
     per_rec = recording_accuracy(test_scores, test.y, test.scan)
     if per_rec is not None:
         metrics.update(per_rec)
-    return TrainResult(pipe, history, metrics, cm)
+    on_cpu = s_test.device.type == "cpu" and torch.device(dev).type == "cpu"
+    return TrainResult(pipe, history, metrics, cm, s_test if on_cpu else None)
 
 
 def stream_metrics(

@@ -170,6 +170,13 @@ def test_verification_checks_each_component_graph(tmp_path, held_out_windows):
     rep = verify(whole, pipe, X, parts=(enc, mod))
     assert rep["model_max_score_diff"] <= 1e-4 and rep["encoder_max_time_diff_ms"] <= 1e-2
     assert rep["model_windows_beyond_atol"] == 0
+    # a run's evaluation coded the test windows already: given, they are not coded again
+    spikes, coded = pipe.encode(X), pipe.encode
+    pipe.encode = lambda *a, **k: pytest.fail("the given spike times were coded again")
+    assert verify(whole, pipe, X, parts=(enc, mod), spikes=spikes) == rep
+    with pytest.raises(ValueError, match="spikes for 32 windows on the CPU expected"):
+        verify(whole, pipe, X, parts=(enc, mod), spikes=spikes[:5])
+    pipe.encode = coded
     # one window off (a membrane within rounding of threshold flips a spike) is allowed; two are
     # not: the torch scores of windows 0 and 1 are shifted as such a flip would shift them
     plain = pipe.scores

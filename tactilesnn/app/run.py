@@ -244,7 +244,9 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
     del train  # the export needs the test windows only
     if spec.export:  # after the run is safely written: an export failure never loses the run
         with plan.stage("export"):
-            res.metrics["onnx"] = export_into_run(res.pipeline, path, test.X, record, spec.progress)
+            res.metrics["onnx"] = export_into_run(
+                res.pipeline, path, test.X, record, spec.progress, spikes=res.test_spikes
+            )
         res.metrics["stage_seconds"] = plan.taken
         write_json_atomic(path / "metrics.json", res.metrics)
     return RunResult(path, res.metrics, config)
@@ -404,9 +406,11 @@ def match_classes(data: WindowDataset, want: tuple[str, ...]) -> WindowDataset:
 
 
 def export_into_run(
-    pipe: SpikePipeline, run: Path, X_check: np.ndarray, record: dict, progress: bool = False
-) -> dict:
-    """Write ``run/model.onnx`` (verified on ``X_check``); a failure is reported, not raised."""
+    pipe: SpikePipeline, run: Path, X_check: np.ndarray, record: dict, progress: bool = False,
+    spikes: torch.Tensor | None = None,
+) -> dict:  # fmt: skip
+    """Write ``run/model.onnx`` (verified on ``X_check``, whose spike times the pipeline gave
+    as ``spikes`` where the caller has them); a failure is reported, not raised."""
     from ..export import data_hash, export_pipeline
 
     try:
@@ -416,6 +420,7 @@ def export_into_run(
             X_check,
             metadata={"training_data_sha256": data_hash(record), "run": run.name},
             progress=progress,
+            spikes=spikes,
         )
     except Exception as e:  # onnxruntime raises its own types too; the run is kept
         log.error("ONNX export failed (the run folder %s is complete without it): %s", run, e)

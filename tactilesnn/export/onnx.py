@@ -150,10 +150,12 @@ def export_pipeline(
     overwrite: bool = False,
     progress: bool = False,
     exporter: str | None = None,
+    spikes: torch.Tensor | None = None,
 ) -> dict:
     """Write ``pipe`` as ONNX to ``out`` after verifying it against torch on ``X_check``
     (progress bars over the verification's batches if ``progress``; ``exporter``: see
-    :func:`~tactilesnn.core.onnx_graph.chosen_exporter`).
+    :func:`~tactilesnn.core.onnx_graph.chosen_exporter`; ``spikes``: the pipeline's spike times
+    of ``X_check`` where the caller has them, see :func:`verify`).
 
     Returns a report: operator nodes (``Constant`` nodes not counted), max score difference,
     prediction agreement.
@@ -171,7 +173,7 @@ def export_pipeline(
         entry = model.metadata_props.add()
         entry.key, entry.value = k, str(v)
     onnx.checker.check_model(model)
-    report = verify(model, pipe, X_check, parts=(enc, mod), progress=progress)
+    report = verify(model, pipe, X_check, parts=(enc, mod), progress=progress, spikes=spikes)
     save_atomic(model, out)
     report["nodes"] = operator_nodes(model)
     report["path"] = str(out)
@@ -272,8 +274,11 @@ def verify(
     X: np.ndarray,
     parts: tuple[onnx.ModelProto, onnx.ModelProto] | None = None,
     progress: bool = False,
+    spikes: torch.Tensor | None = None,
 ) -> dict:
-    """Run the graph in onnxruntime on ``X`` and compare with the torch pipeline.
+    """Run the graph in onnxruntime on ``X`` and compare with the torch pipeline (``spikes``:
+    its spike times of ``X`` where the caller has them, as :meth:`SpikePipeline.encode` gave
+    them on the CPU: a run's evaluation coded the test windows already; else coded here).
 
     With ``parts`` each component's graph is checked on its own first: the encoder's spike times
     within ``TIME_ATOL_MS`` (the same silent slots, except spikes at the code's cutoff, see
@@ -285,7 +290,11 @@ def verify(
 
     x = np.ascontiguousarray(X, dtype=np.float32)
     states = list(pipe.model.state_names)
-    spikes = pipe.encode(x, progress=progress)
+    if spikes is None:
+        spikes = pipe.encode(x, progress=progress)
+    elif spikes.shape[0] != len(x) or spikes.device.type != "cpu":
+        raise ValueError(f"spikes for {len(x)} windows on the CPU expected, got "
+                         f"{tuple(spikes.shape)} on {spikes.device}")  # fmt: skip
     ref = pipe.scores(spikes).numpy()
     batch = check_batch(pipe)
     bar = (lambda name: f"verify {name}") if progress else (lambda name: None)
