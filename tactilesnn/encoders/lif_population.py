@@ -37,7 +37,7 @@ from ..core.data import evenly_spaced
 from ..core.settings import ComponentSettings, setting
 from ..core.spikes import keep_every
 from .base import SpikeEncoder, register_encoder
-from .spiking import lif_first_spikes, lif_first_spikes_op
+from .spiking import lif_first_spikes, lif_first_spikes_op, lif_first_spikes_sparse
 
 NORMS = ("train", "window")
 KEEPS = ("spread", "first")
@@ -101,12 +101,19 @@ class _LIFPopulationGraph(nn.Module):
 
     def spikes(self, x: Tensor, k: int, every: Tensor) -> tuple[Tensor, Tensor]:
         """Spike times ``[N, C * neurons, k]`` (ms) and counts ``[N, C * neurons]``: the sample
-        loop scripted (an ONNX ``Loop``) or as a scan operator (``torch.export``: a ``Scan``)."""
+        loop scripted (an ONNX ``Loop``), as a scan operator (``torch.export``: a ``Scan``), or
+        eager with only the firing converters' slots updated (the same figures bit for bit)."""
         gain = self.inv_thr.to(x.dtype)
         if not torch.jit.is_scripting():  # (TorchScript compiles nothing inside this branch)
             if torch.compiler.is_exporting():
                 return self._scanned(x, k, every, gain)
+            return self._eager(x, k, every, gain)
         return lif_first_spikes(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
+
+    @torch.jit.unused
+    def _eager(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:
+        return lif_first_spikes_sparse(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype),
+                                       gain)  # fmt: skip
 
     @torch.jit.unused
     def _scanned(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:

@@ -140,6 +140,61 @@ def lif_first_spikes(
     return times, count
 
 
+def lif_first_spikes_sparse(
+    drive: Tensor,
+    dt_ms: float,
+    tau_ms: float,
+    k: int,
+    every: Tensor | None = None,
+    gain: Tensor | None = None,
+) -> tuple[Tensor, Tensor]:
+    """:func:`lif_first_spikes` with the kept spike times (:func:`kept_spike_times`) updated
+    only for the converters that fire in each sample: a few in a hundred, where the ``[N, A,
+    k]`` slot arithmetic of every converter at every sample was most of the encoder's time. The
+    same arithmetic element by element, so the same times and counts bit for bit; eager only
+    (its row selection has no graph form: the exported graphs run :func:`first_spikes_step`)."""
+    dev = drive.device
+    g = (torch.ones(1, dtype=drive.dtype, device=dev) if gain is None
+         else gain.to(device=dev, dtype=drive.dtype))  # fmt: skip
+    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
+    v = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    count = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    times = torch.full((n, a, k), math.inf, dtype=drive.dtype, device=dev)
+    m = (torch.ones(1, a, dtype=drive.dtype, device=dev) if every is None
+         else every.to(device=dev, dtype=drive.dtype).view(1, a))  # fmt: skip
+    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    flat_times, flat_wanted = times.view(n * a, k), wanted.expand(n, a, k).reshape(n * a, k)
+    for i in range(w):
+        fired, s1, isi, v = lif_hold_sample(v, _drive_of(drive[:, :, i], g), dt_ms, tau_ms)
+        at = torch.nonzero(fired.view(-1)).squeeze(1)
+        if at.numel():
+            flat_times[at] = kept_spike_times(
+                flat_times[at], count.view(-1)[at], fired.view(-1)[at], s1.view(-1)[at],
+                isi.view(-1)[at], flat_wanted[at], i * dt_ms,
+            )  # fmt: skip
+        count = count + fired
+    return times, count
+
+
+def _drive_of(drive_i: Tensor, gain: Tensor) -> Tensor:
+    """The converters' drive ``[N, C * P]`` from the channels' ``drive_i [N, C]``."""
+    return (drive_i.unsqueeze(-1) * gain).flatten(1)
+
+
+def kept_spike_times(
+    times: Tensor, count: Tensor, fired: Tensor, s1: Tensor, isi: Tensor, wanted: Tensor,
+    t0_ms: float,
+) -> Tensor:  # fmt: skip
+    """The kept spike times ``[..., k]`` after a sample from ``t0_ms`` in which converters with
+    ``count`` spikes so far fire ``fired`` more, the first at ``s1`` ms, one every ``isi`` ms
+    (:func:`lif_hold_sample`): slot ``j`` takes the spike numbered ``wanted[..., j]`` if it falls
+    in this sample."""
+    j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
+    hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
+    t_abs = t0_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)
+    return torch.where(hit, t_abs, times)
+
+
 def first_spikes_step(
     v: Tensor,
     count: Tensor,
@@ -153,12 +208,9 @@ def first_spikes_step(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """One sample of :func:`lif_first_spikes`: ``drive_i [N, C]`` held from ``t0_ms``; returns the
     converters' potential, spike counts and kept spike times after it."""
-    d = (drive_i.unsqueeze(-1) * gain).flatten(1)
-    fired, s1, isi, v = lif_hold_sample(v, d, dt_ms, tau_ms)
-    j = wanted - count.unsqueeze(-1)  # position of each slot's spike within this sample
-    hit = (j >= 1.0) & (j <= fired.unsqueeze(-1))
-    t_abs = t0_ms + s1.unsqueeze(-1) + (j - 1.0) * isi.unsqueeze(-1)
-    return v, count + fired, torch.where(hit, t_abs, times)
+    fired, s1, isi, v = lif_hold_sample(v, _drive_of(drive_i, gain), dt_ms, tau_ms)
+    times = kept_spike_times(times, count, fired, s1, isi, wanted, t0_ms)
+    return v, count + fired, times
 
 
 def lif_first_spikes_op(

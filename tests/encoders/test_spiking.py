@@ -216,3 +216,27 @@ def test_closed_form_sample_matches_the_crossing_by_crossing_converter() -> None
     every = torch.full((3,), 7.0, dtype=torch.float64)
     kept, _ = lif_first_spikes(torch.from_numpy(x), 1000.0 / fs, tau, 50, every)
     np.testing.assert_allclose(kept[2, 1].numpy(), times[2, 1, 6::7][:50].numpy(), atol=1e-9)
+
+
+def test_the_eager_loop_is_the_scan_step_bit_for_bit() -> None:
+    """lif_first_spikes_sparse (the eager encoder) updates the kept spike times only of the
+    converters that fire in a sample; the exported graphs run first_spikes_step on every
+    converter: the same times and counts, bit for bit (float32, gains per channel, prescalers,
+    slots filled and not)."""
+    import torch
+
+    from tactilesnn.encoders.spiking import first_spikes_step, lif_first_spikes_sparse
+
+    gen = torch.Generator().manual_seed(0)
+    drive = torch.rand(5, 3, 300, generator=gen) * 4.0 - 1.0  # silent to several per sample
+    gain = torch.tensor([0.3, 1.0, 2.5])
+    every = torch.tensor([1.0, 2.0, 5.0] * 3)
+    k, dt, tau = 6, 0.5, 4.0
+    times, count = lif_first_spikes_sparse(drive, dt, tau, k, every, gain)
+    v, c = torch.zeros(5, 9), torch.zeros(5, 9)
+    t = torch.full((5, 9, k), math.inf)
+    wanted = (torch.arange(k, dtype=torch.float32).view(1, 1, -1) + 1.0) * every.view(1, 9, 1)
+    for i in range(drive.shape[-1]):
+        v, c, t = first_spikes_step(v, c, t, drive[:, :, i], i * dt, gain, wanted, dt, tau)
+    assert torch.equal(times, t) and torch.equal(count, c)
+    assert torch.isfinite(times).any() and torch.isinf(times).any() and count.max() > 3 * k
