@@ -76,6 +76,8 @@ def _numeric(cells: list[str], decimal_comma: bool) -> bool:
 def _choose_delimiter(sample: list[str]) -> str | None:
     """The first delimiter that splits most sampled lines into one number (> 1) of fields."""
     for d in DELIMITERS:
+        if d is not None and not any(d in line for line in sample):
+            continue  # one field per line: not this delimiter (no need to split to know)
         counts = [len(_split(line, d)) for line in sample]
         mode = max(sorted(set(counts)), key=counts.count)
         if mode > 1 and counts.count(mode) >= 0.5 * len(counts):
@@ -111,10 +113,11 @@ def read_table(path: Path) -> Table:
     mid = len(lines) // 2 if len(lines) > 2 * SAMPLE_LINES else 0
     sample = lines[mid : mid + SAMPLE_LINES]
     delimiter = _choose_delimiter(sample)
-    cells_sample = [c for line in sample for c in _split(line, delimiter) if c]
+    split_sample = [_split(line, delimiter) for line in sample]
+    cells_sample = [c for cells in split_sample for c in cells if c]
     decimal_comma = (delimiter != "," and any(_DECIMAL_COMMA.match(c) for c in cells_sample)
                      and not any("." in c for c in cells_sample))  # fmt: skip
-    counts = [len(_split(line, delimiter)) for line in sample]
+    counts = [len(cells) for cells in split_sample]
     start = _data_start(lines, delimiter, decimal_comma, max(sorted(set(counts)), key=counts.count))
     if start < 0:
         bad = _split(lines[min(mid, len(lines) - 1)], delimiter)
