@@ -177,6 +177,16 @@ def test_verification_checks_each_component_graph(tmp_path, held_out_windows):
     with pytest.raises(ValueError, match="spikes for 32 windows on the CPU expected"):
         verify(whole, pipe, X, parts=(enc, mod), spikes=spikes[:5])
     pipe.encode = coded
+    # the whole graph gives the encoder's spike times too: two sessions (whole, model), the
+    # encoder graph not run a second time on its own
+    import tactilesnn.export.onnx as export_onnx
+
+    opened, session = [], export_onnx._session
+    monkey = pytest.MonkeyPatch()
+    monkey.setattr(export_onnx, "_session", lambda m: opened.append(m) or session(m))
+    assert verify(whole, pipe, X, parts=(enc, mod), spikes=spikes) == rep
+    monkey.undo()
+    assert len(opened) == 2 and [o.name for o in opened[0].graph.output][-1] == "spikes"
     # one window off (a membrane within rounding of threshold flips a spike) is allowed; two are
     # not: the torch scores of windows 0 and 1 are shifted as such a flip would shift them
     plain = pipe.scores

@@ -300,32 +300,48 @@ def verify(
     bar = (lambda name: f"verify {name}") if progress else (lambda name: None)
     report: dict = {"n_checked": len(x), "check_batch": batch}
     tol = score_tolerance(ref)
+    with_parts = parts is not None and len(x) > 0
+    graph = model
+    if with_parts:  # the whole graph also gives its encoder's spike times: one run, not two
+        graph = onnx.ModelProto()
+        graph.CopyFrom(model)
+        graph.graph.output.append(next(o for o in parts[0].graph.output if o.name == "spikes"))
+    sess = _session(graph)
+    feeds = {"window": x, **_zero_states(states, len(x))}
+    got, *got_t = run_batched(sess, ["scores", *(["spikes"] if with_parts else [])], feeds,
+                              batch, bar("end to end"), trim=True)  # fmt: skip
+    frozen = False  # the state inputs ignored (checked while the session is open)
+    if states and len(x):
+        k = min(len(x), batch)
+        feeds2 = {k2: (v[:k] + 0.5 if k2 != "window" else v[:k]) for k2, v in feeds.items()}
+        frozen = np.array_equal(sess.run(["scores"], feeds2)[0], got[:k])
+    del sess, graph  # one session at a time: each holds its own copy of the weights
     flipped = np.zeros(len(x), bool)  # windows whose code flipped a spike (with parts)
-    if parts is not None and len(x):
-        enc = _session(parts[0])
-        got_t = run_batched(enc, ["spikes"], {"window": x}, batch, bar("encoder"), trim=True)[0]
+    if with_parts:
+        assert parts is not None
         t_tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
         frame_ms = pipe.encoder.frame_period_ms
         # a window whose code flipped a spike on a rounding boundary (what these checks accept)
         # may score differently end to end: the model sees another input there
         want_t = spikes.numpy()
         if frame_ms is None:
-            dt, flips = compare_spike_times(got_t, want_t, pipe.duration_ms, t_tol)
-            flipped = (np.isfinite(got_t) != np.isfinite(want_t)).any(axis=(1, 2))
+            dt, flips = compare_spike_times(got_t[0], want_t, pipe.duration_ms, t_tol)
+            flipped = (np.isfinite(got_t[0]) != np.isfinite(want_t)).any(axis=(1, 2))
         else:  # a code clocked by frames: the same frames must spike
-            dt, flips, flipped = compare_frame_spikes(got_t, want_t, frame_ms)
+            dt, flips, flipped = compare_frame_spikes(got_t[0], want_t, frame_ms)
         del got_t
         # with the parts checked, scores are held to the spike-time bound (1e-2) where it is the
         # looser: a degenerate file's LI read-out (a channel at +30,000 through the LIF code)
         # differs from torch by up to 1.4e-3 in float32 (tests/encoders/test_degenerate_windows.py)
         tol = np.maximum(tol, t_tol)
         mod = _session(parts[1])
-        feeds = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
+        feeds_m = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
         early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
-        got_m, *got_e = run_batched(mod, ["scores", *early], feeds, batch, bar("model"), trim=True)
+        got_m, *got_e = run_batched(mod, ["scores", *early], feeds_m, batch, bar("model"),
+                                    trim=True)  # fmt: skip
         per_m = np.abs(got_m - ref).max(1)
         dm, off_m = float(per_m.max()), int((~(per_m <= tol)).sum())  # NaN counts as off
-        del enc, mod  # one session at a time: each holds its own copy of the weights
+        del mod
         if off_m > _boundary_allowance(len(x)):
             raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
                               f"{float(np.min(tol)):.3g}) on {off_m} of {len(x)} windows")  # fmt: skip
@@ -337,9 +353,6 @@ def verify(
             model_max_score_diff=dm,
             model_windows_beyond_atol=off_m,
         )
-    sess = _session(model)
-    feeds = {"window": x, **_zero_states(states, len(x))}
-    got = run_batched(sess, ["scores"], feeds, batch, bar("end to end"), trim=True)[0]
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
     beyond = ~(per_window <= tol)  # a NaN score is off, not within tolerance
     off = int((beyond & ~flipped).sum())
@@ -348,11 +361,8 @@ def verify(
         raise ExportError(
             f"exported graph differs from torch by up to {worst:.3g} on {off} of {len(x)} windows"
         )
-    if states and len(x):
-        k = min(len(x), batch)
-        feeds2 = {k2: (v[:k] + 0.5 if k2 != "window" else v[:k]) for k2, v in feeds.items()}
-        if np.array_equal(sess.run(["scores"], feeds2)[0], got[:k]):
-            raise ExportError("exported model ignores its state inputs: the state was frozen")
+    if frozen:
+        raise ExportError("exported model ignores its state inputs: the state was frozen")
     report.update(
         max_score_diff=float(per_window.max()) if len(x) else 0.0,
         windows_beyond_atol=off,
