@@ -102,7 +102,8 @@ class _LIFPopulationGraph(nn.Module):
     def spikes(self, x: Tensor, k: int, every: Tensor) -> tuple[Tensor, Tensor]:
         """Spike times ``[N, C * neurons, k]`` (ms) and counts ``[N, C * neurons]``: the sample
         loop scripted (an ONNX ``Loop``), as a scan operator (``torch.export``: a ``Scan``), or
-        eager with only the firing converters' slots updated (the same figures bit for bit)."""
+        eager on the CPU with only the firing converters' slots updated (the same figures bit for
+        bit)."""
         gain = self.inv_thr.to(x.dtype)
         if not torch.jit.is_scripting():  # (TorchScript compiles nothing inside this branch)
             if torch.compiler.is_exporting():
@@ -112,8 +113,10 @@ class _LIFPopulationGraph(nn.Module):
 
     @torch.jit.unused
     def _eager(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:
-        return lif_first_spikes_sparse(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype),
-                                       gain)  # fmt: skip
+        # the firing converters' rows found on the CPU only: on a GPU each sample's search
+        # would wait for the device, and a device without values (meta) has none to search
+        fn = lif_first_spikes_sparse if x.device.type == "cpu" else lif_first_spikes
+        return fn(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
 
     @torch.jit.unused
     def _scanned(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:
