@@ -55,6 +55,10 @@ def parameter_count(*model_args: object) -> int:
     return sum(t.numel() for t in (*model.parameters(), *model.buffers()))
 
 
+#: recordings joined from their windows and held at once while coded with their past (bytes)
+JOINED_RECORDINGS_BYTES = 1 << 27
+
+
 class SpikePipeline:
     """Encoder + model with scikit-learn-style ``fit`` / ``predict``; see the module docstring."""
 
@@ -168,9 +172,17 @@ class SpikePipeline:
             return None
         n = sum(len(m) - 1 for m, _ in runs)
         check_allocation(4 * n * self.n_afferents * self.max_spikes, f"spike times of {n} windows")
-        recs = [join_run(x, members, shift) for members, shift in runs]
-        starts = [shift * np.arange(1, len(members)) for members, shift in runs]
-        parts = self.encoder.encode_recordings(recs, starts)
+        parts: list[torch.Tensor] = []
+        recs: list[np.ndarray] = []
+        starts: list[np.ndarray] = []
+        for members, shift in runs:  # the encoder codes them together, a bounded share at a time
+            recs.append(join_run(x, members, shift))
+            starts.append(shift * np.arange(1, len(members)))
+            if sum(r.nbytes for r in recs) >= JOINED_RECORDINGS_BYTES:
+                parts += self.encoder.encode_recordings(recs, starts)
+                recs, starts = [], []
+        if recs:
+            parts += self.encoder.encode_recordings(recs, starts)
         at = np.concatenate([members[1:] for members, _ in runs])
         return at, self._with_extra(torch.cat(parts), x[at])
 

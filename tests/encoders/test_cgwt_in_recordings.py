@@ -180,3 +180,25 @@ def test_training_on_recordings_learns_both_codes(tmp_path, capsys):
     assert "trained before the cgwt encoder took" in capsys.readouterr().err
     assert main(["train", *common, "--encoder", "gwt", "--out", str(tmp_path / "g")]) == 0
     assert "in_stream" not in json.loads((tmp_path / "g" / "metrics.json").read_text())
+
+
+def test_recordings_are_coded_a_bounded_share_at_a_time(monkeypatch):
+    """SpikePipeline.encode_in_recordings joins and codes the recordings a byte budget at a
+    time (not all held at once): the same codes whatever the budget."""
+    import tactilesnn.pipeline as pipeline
+
+    pipe = _pipe()
+    recs = [_recording(600 + 100 * s, seed=s) for s in range(4)]
+    X = np.concatenate([_cut(r, 100) for r in recs])
+    scan = np.repeat(np.arange(4), [len(_cut(r, 100)) for r in recs])
+    pipe.calibrate(X)
+    at, whole = pipe.encode_in_recordings(X, scan)
+    monkeypatch.setattr(pipeline, "JOINED_RECORDINGS_BYTES", 1)  # one recording at a time
+    calls = []
+    coded = pipe.encoder.encode_recordings
+    monkeypatch.setattr(pipe.encoder, "encode_recordings",
+                        lambda r, s: calls.append(len(r)) or coded(r, s))  # fmt: skip
+    at1, one = pipe.encode_in_recordings(X, scan)
+    assert calls == [1, 1, 1, 1] and np.array_equal(at, at1)
+    fin = torch.isfinite(whole)
+    assert torch.equal(fin, torch.isfinite(one)) and (whole[fin] - one[fin]).abs().max() < 1e-3
