@@ -101,6 +101,26 @@ def lif_hold_sample(v: Tensor, v_inf: Tensor, dt_ms: float, tau_ms: float):
     return n, s1, isi, torch.where(fires, v_fired, v_quiet)
 
 
+def first_spikes_start(
+    drive: Tensor, k: int, every: Tensor | None, gain: Tensor | None
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """The converters' start for :func:`lif_first_spikes` on ``drive [N, C, samples]``: ``(gain
+    [P] (ones(1) when None), potential [N, A], counts [N, A], kept times [N, A, k] (inf),
+    wanted [1, A, k])`` with ``A = C * P``; slot ``j`` keeps the converter's spike number
+    ``(j + 1) every[a]``."""
+    dev = drive.device
+    g = (torch.ones(1, dtype=drive.dtype, device=dev) if gain is None
+         else gain.to(device=dev, dtype=drive.dtype))  # fmt: skip
+    n, a = drive.shape[0], drive.shape[1] * g.shape[0]
+    m = (torch.ones(1, a, dtype=drive.dtype, device=dev) if every is None
+         else every.to(device=dev, dtype=drive.dtype).view(1, a))  # fmt: skip
+    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    v = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    count = torch.zeros(n, a, dtype=drive.dtype, device=dev)
+    times = torch.full((n, a, k), math.inf, dtype=drive.dtype, device=dev)
+    return g, v, count, times, wanted
+
+
 def lif_first_spikes(
     drive: Tensor,
     dt_ms: float,
@@ -122,17 +142,8 @@ def lif_first_spikes(
     afferent ``c * P + j`` seeing ``drive[:, c] * gain[j]`` (``A = C * P``); the product is formed
     one sample at a time, so memory stays that of the channels, not of the afferents.
     """
-    dev = drive.device
-    g = (torch.ones(1, dtype=drive.dtype, device=dev) if gain is None
-         else gain.to(device=dev, dtype=drive.dtype))  # fmt: skip
-    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
-    v = torch.zeros(n, a, dtype=drive.dtype, device=dev)
-    count = torch.zeros(n, a, dtype=drive.dtype, device=dev)
-    times = torch.full((n, a, k), math.inf, dtype=drive.dtype, device=dev)
-    m = (torch.ones(1, a, dtype=drive.dtype, device=dev) if every is None
-         else every.to(device=dev, dtype=drive.dtype).view(1, a))  # fmt: skip
-    # global spike number kept in each slot: m, 2m, ..., k m
-    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    g, v, count, times, wanted = first_spikes_start(drive, k, every, gain)
+    w = drive.shape[2]
     for i in range(w):
         v, count, times = first_spikes_step(
             v, count, times, drive[:, :, i], i * dt_ms, g, wanted, dt_ms, tau_ms
@@ -153,16 +164,9 @@ def lif_first_spikes_sparse(
     k]`` slot arithmetic of every converter at every sample was most of the encoder's time. The
     same arithmetic element by element, so the same times and counts bit for bit; eager only
     (its row selection has no graph form: the exported graphs run :func:`first_spikes_step`)."""
-    dev = drive.device
-    g = (torch.ones(1, dtype=drive.dtype, device=dev) if gain is None
-         else gain.to(device=dev, dtype=drive.dtype))  # fmt: skip
-    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
-    v = torch.zeros(n, a, dtype=drive.dtype, device=dev)
-    count = torch.zeros(n, a, dtype=drive.dtype, device=dev)
-    times = torch.full((n, a, k), math.inf, dtype=drive.dtype, device=dev)
-    m = (torch.ones(1, a, dtype=drive.dtype, device=dev) if every is None
-         else every.to(device=dev, dtype=drive.dtype).view(1, a))  # fmt: skip
-    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
+    g, v, count, times, wanted = first_spikes_start(drive, k, every, gain)
+    w = drive.shape[2]
+    n, a = v.shape
     flat_times, flat_wanted = times.view(n * a, k), wanted.expand(n, a, k).reshape(n * a, k)
     for i in range(w):
         fired, s1, isi, v = lif_hold_sample(v, _drive_of(drive[:, :, i], g), dt_ms, tau_ms)
@@ -220,13 +224,9 @@ def lif_first_spikes_op(
     writes an ONNX ``Scan``; not scriptable), the same step (:func:`first_spikes_step`)."""
     from torch._higher_order_ops.scan import scan
 
-    dev = drive.device
-    g = gain.to(device=dev, dtype=drive.dtype)
-    n, a, w = drive.shape[0], drive.shape[1] * g.shape[0], drive.shape[2]
-    m = every.to(device=dev, dtype=drive.dtype).view(1, a)
-    wanted = (torch.arange(k, dtype=drive.dtype, device=dev).view(1, 1, -1) + 1.0) * m.unsqueeze(-1)
-    init = (drive.new_zeros(n, a), drive.new_zeros(n, a), drive.new_full((n, a, k), math.inf))
-    t0 = torch.arange(w, dtype=drive.dtype, device=dev) * dt_ms
+    g, v, count, times, wanted = first_spikes_start(drive, k, every, gain)
+    init = (v, count, times)
+    t0 = torch.arange(drive.shape[2], dtype=drive.dtype, device=drive.device) * dt_ms
 
     def step(carry, x):
         v, count, times = first_spikes_step(*carry, x[0], x[1], g, wanted, dt_ms, tau_ms)
