@@ -19,7 +19,7 @@ from ..service import command as service_command
 from ..service.client import ServiceError
 from ..training import recording_accuracy, stream_metrics
 from .demo import demo_stream
-from .run import evaluation_data, load_run, run_data
+from .run import evaluation_data, load_run, source_of
 
 __all__ = [
     "ExportError",
@@ -147,10 +147,7 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
         from ..export.stream import StreamEncoderGraph
 
         StreamEncoderGraph(pipe, stream_step)  # refuses a step that does not fit, first
-    if cfg.get("data"):
-        _, test = run_data(cfg, pipe.config.seed)
-    else:
-        _, test = get_task(cfg["task"], **cfg["task_kwargs"]).build(progress=progress)
+    test = source_of(cfg).load_test(pipe.config.seed, progress=progress)
     if fmt == "nir":
         from ..export.nir import compare, write_nir
 

@@ -82,6 +82,10 @@ class TaskSource:
     def load(self, seed: int, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
         return get_task(self.name, **self.params).build(progress=progress)
 
+    def load_test(self, seed: int, progress: bool = False) -> WindowDataset:
+        """``load(seed)[1]``, the training split not rendered."""
+        return get_task(self.name, **self.params).test_split(progress=progress)
+
 
 @dataclass(frozen=True)
 class FileSource:
@@ -125,6 +129,10 @@ class FileSource:
             )
         return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s,
                               fs_hz=self.fs_hz)  # fmt: skip
+
+    def load_test(self, seed: int, progress: bool = False) -> WindowDataset:
+        """``load(seed)[1]`` (the split is drawn over the whole file, so the file is read)."""
+        return self.load(seed, progress)[1]
 
 
 DataSource = TaskSource | FileSource
@@ -367,7 +375,7 @@ def evaluation_data(pipe: SpikePipeline, record: dict, data: Path | None = None,
     ``config.json``), or of ``data`` (cut as its data was; ``every``: all its recordings),
     with channels and classes matched to the run's by name (refused where they differ)."""
     if data is None:
-        return source_of(record).load(pipe.config.seed, progress=progress)[1]
+        return source_of(record).load_test(pipe.config.seed, progress=progress)
     tr, test = load_data_file(Path(data), pipe.config.seed, window_s=record.get("data_window_s"),
                               hop_s=record.get("data_hop_s"),
                               fs_hz=fs_hz if fs_hz is not None else record.get("data_fs_hz"))  # fmt: skip

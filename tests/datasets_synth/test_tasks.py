@@ -30,6 +30,24 @@ def test_contract_and_determinism(name):
     assert np.intersect1d(tr, te).size == 0 and tr.size + te.size == a.n_samples
 
 
+@pytest.mark.parametrize(
+    "name, kw",
+    [
+        ("touch", {"n_samples": 40}),
+        ("hook_loop", {"n_planar": 4, "n_concave": 3, "n_convex": 3, "n_test": 3}),
+    ],
+)
+def test_the_test_split_alone_is_the_builds(name, kw):
+    """``evaluate`` and ``export`` render the test split alone: the same windows, labels and
+    ids as :meth:`build`'s (each sample seeded by its index, the split by the task's seed)."""
+    task = get_task(name, seed=5, **kw)
+    _, full = task.build()
+    alone = task.test_split()
+    assert alone.X.shape == full.X.shape and alone.X.shape[0] > 0
+    assert np.array_equal(alone.X, full.X) and np.array_equal(alone.y, full.y)
+    assert np.array_equal(alone.scan, full.scan)
+
+
 def test_class_counts():
     assert len(TEXTURES) >= 10 and get_task("texture").class_names == tuple(TEXTURES)
     assert len(get_task("stiffness_curvature").class_names) == 9

@@ -46,6 +46,9 @@ class Task(Protocol):
 
     def split(self) -> tuple[np.ndarray, np.ndarray]: ...
     def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]: ...
+    def test_split(self, progress: bool = False) -> WindowDataset:
+        """``build()[1]`` with only the test split's samples rendered."""
+        ...
 
 
 @runtime_checkable

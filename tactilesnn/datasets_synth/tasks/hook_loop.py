@@ -140,16 +140,23 @@ class HookLoopTask:
 
     def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
         """Generate every scan and return the ``(train, test)`` window datasets."""
+        train_idx, test_idx = self.split()
+        per_scan = self._scans(range(self.n_scans), progress)
+        return self._gather(per_scan, train_idx), self._gather(per_scan, test_idx)
+
+    def test_split(self, progress: bool = False) -> WindowDataset:
+        """The test dataset of :meth:`build` alone (only its scans generated)."""
+        test_idx = self.split()[1]
+        return self._gather(self._scans(test_idx, progress), test_idx)
+
+    def _scans(self, idx, progress: bool) -> dict:
         from tqdm.auto import tqdm
 
         per_scan = {}
-        for i in tqdm(
-            range(self.n_scans), desc=f"{self.name} scans", disable=bar_disabled(progress)
-        ):
-            stream, labels, _ = self.scan(i)
-            per_scan[i] = self.windows(stream, labels)
-        train_idx, test_idx = self.split()
-        return self._gather(per_scan, train_idx), self._gather(per_scan, test_idx)
+        for i in tqdm(idx, desc=f"{self.name} scans", disable=bar_disabled(progress)):
+            stream, labels, _ = self.scan(int(i))
+            per_scan[int(i)] = self.windows(stream, labels)
+        return per_scan
 
     def _gather(self, per_scan: dict, idx: np.ndarray) -> WindowDataset:
         X = np.concatenate([per_scan[i][0] for i in idx])

@@ -135,27 +135,28 @@ class TrialTask(ABC):
 
     def build(self, progress: bool = False) -> tuple[WindowDataset, WindowDataset]:
         """Render every sample and return the ``(train, test)`` datasets."""
+        return self._render_splits(self.split(), progress)
+
+    def test_split(self, progress: bool = False) -> WindowDataset:
+        """The test dataset of :meth:`build` alone (only its samples rendered)."""
+        return self._render_splits(self.split()[1:], progress)[0]
+
+    def _render_splits(self, parts: tuple[np.ndarray, ...], progress: bool) -> list[WindowDataset]:
         from tqdm.auto import tqdm
 
-        parts = self.split()
         shape = (len(self.channel_names), self.window)
         # rendered straight into each split's array: no full-size copy at any time
         Xs = [np.zeros((idx.size, *shape), np.float32) for idx in parts]
         ys = [np.zeros(idx.size, np.int64) for idx in parts]
-        where = {int(i): (s, j) for s, idx in enumerate(parts) for j, i in enumerate(idx)}
-        for i in tqdm(
-            range(self.n_samples), desc=f"{self.name} samples", disable=bar_disabled(progress)
-        ):
-            if i in where:
-                s, j = where[i]
-                Xs[s][j], ys[s][j], _ = self.sample(i)
-        train, test = (
+        where = sorted((int(i), s, j) for s, idx in enumerate(parts) for j, i in enumerate(idx))
+        for i, s, j in tqdm(where, desc=f"{self.name} samples", disable=bar_disabled(progress)):
+            Xs[s][j], ys[s][j], _ = self.sample(i)
+        return [
             WindowDataset(
                 X, y, idx.astype(np.int64), self.fs_hz, self.class_names, self.channel_names
             )
             for X, y, idx in zip(Xs, ys, parts, strict=True)
-        )
-        return train, test
+        ]
 
 
 def _tasks() -> dict:
