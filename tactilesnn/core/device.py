@@ -38,3 +38,14 @@ def synchronize(device: torch.device) -> None:
     """Wait for the device's queued work (timings of asynchronous CUDA kernels)."""
     if device.type == "cuda":
         torch.cuda.synchronize(device)
+
+
+def seeded_normal(rows: int, cols: int, generator: torch.Generator) -> torch.Tensor:
+    """``[rows, cols]`` float32 standard normal draws from ``generator`` (CPU; scale them in
+    place); under ``torch.device("meta")`` (a model built to count its parameters before any
+    memory is allocated) the shape alone: a draw or out-of-place arithmetic on meta tensors runs
+    torch's Python reference kernels, whose first use imports torch._dynamo (~2.5 s a process),
+    where in-place arithmetic does not."""
+    if torch.empty(0).device.type == "meta":
+        return torch.empty(rows, cols)
+    return torch.randn(rows, cols, generator=generator)

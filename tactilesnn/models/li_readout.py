@@ -47,6 +47,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_int, check_positive, check_range
+from ..core.device import seeded_normal
 from ..core.memory import release_memory
 from ..core.settings import ComponentSettings, setting
 from .base import SpikeModel, register_model, seeded
@@ -152,9 +153,11 @@ class LIReadout(SpikeModel):
         with seeded(seed):  # (its own initial draws are replaced below)
             self.linear = nn.Linear(n_in, n_classes)
         with torch.no_grad():
-            self.linear.weight.copy_(torch.randn(n_classes, n_in, generator=g) / math.sqrt(n_in))
+            self.linear.weight.copy_(seeded_normal(n_classes, n_in, g).div_(math.sqrt(n_in)))
             self.linear.bias.zero_()
-        times = (torch.arange(config.n_times, dtype=torch.float32) + 1) * (
+        # n_times values, made on the host even when the model is built on meta to be counted
+        # (an arange there would import torch._dynamo: core.device.seeded_normal)
+        times = (torch.arange(config.n_times, dtype=torch.float32, device="cpu") + 1) * (
             duration_ms / config.n_times
         )
         self.register_buffer("times_ms", times)

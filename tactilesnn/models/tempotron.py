@@ -35,6 +35,7 @@ import torch
 from torch import Tensor, nn
 
 from ..core.checks import check_choice, check_positive, check_range
+from ..core.device import seeded_normal
 from ..core.settings import ComponentSettings, setting
 from .base import SpikeModel, register_model
 
@@ -85,7 +86,7 @@ class Tempotron(nn.Module):
         self.v_rest = float(v_rest)
         std = init_std if init_std is not None else 0.5 * self.theta / math.sqrt(self.n_inputs)
         g = torch.Generator().manual_seed(int(seed))
-        self.weight = nn.Parameter(torch.randn(self.n_classes, self.n_inputs, generator=g) * std)
+        self.weight = nn.Parameter(seeded_normal(self.n_classes, self.n_inputs, g).mul_(std))
         # the previous rule step (momentum); learned state, so it lives in the state_dict
         self.register_buffer("velocity", torch.zeros(self.n_classes, self.n_inputs))
 
