@@ -117,6 +117,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         return references(train, test, pipe, seed)
 
     monkeypatch.setattr(bench_real, "references", spy_references)
+    monkeypatch.setattr(bench_real, "FOREST_TREES", 20)  # the plumbing is checked, not the forests
     speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
     run_dir = tmp_path / "run"
     (run_dir / "fits").mkdir(parents=True)

@@ -162,3 +162,26 @@ def test_position_control_raises_the_force_over_a_dot_force_control_holds_it():
     assert np.allclose(tip.last_force_N, 1.5, rtol=1e-3)
     pad = 5
     assert held[pad].max() > free[pad].max()  # at a set height the dot presses harder
+
+
+@pytest.mark.parametrize("spread", [0.0, 1.0, 3.3])
+def test_relief_is_the_dots_shape_at_every_frame_and_point(spread):
+    """The relief evaluated only where a dot is within reach equals the shape evaluated at
+    every frame and point (a spherical cap, or the cover's raised-cosine drape; the higher of
+    overlapping dots), bit for bit."""
+    tip = CapacitiveFingertip(FingertipParams(cover_spread_mm=spread))
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-6, 6, (200, 2))
+    track = np.stack([np.linspace(-30, 30, 300), rng.normal(0, 1, 300)], 1)
+    bumps = track[:, None] + rng.uniform(-3, 3, (1, 4, 2))
+    h, a = DOT_HEIGHT_MM, DOT_DIAMETER_MM / 2
+    r = np.sqrt(((pts[None, None] - bumps[:, :, None]) ** 2).sum(-1))  # [frames, k, P]
+    if spread > 0:
+        z = h * np.cos(0.5 * np.pi * np.minimum(r / (a + spread), 1.0)) ** 2
+    else:
+        radius = (a * a + h * h) / (2 * h)
+        z = np.maximum(np.sqrt(np.maximum(radius**2 - r**2, 0.0)) - (radius - h), 0.0)
+    want = np.maximum(z.max(1), 0.0)
+    got = tip.relief_mm(pts, bumps, h, 2 * a)
+    assert got.shape == want.shape and np.allclose(got, want, rtol=0, atol=1e-15)
+    assert (got > 1e-9).any(1).sum() < 0.5 * len(track)  # most frames: no dot within reach

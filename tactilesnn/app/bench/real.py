@@ -166,6 +166,8 @@ def summary_stats(X: np.ndarray) -> np.ndarray:
     return np.concatenate([X.mean(-1), X.std(-1), diff, X.max(-1), X.min(-1)], axis=1)
 
 
+#: trees of the reference forests
+FOREST_TREES = 300
 #: the defaults' goal against the best reference: points per window and per recording
 WINDOW_POINTS, RECORDING_POINTS = 2.0, 1.0
 AMPLITUDE_BASELINE = "logreg_amplitude"
@@ -202,7 +204,7 @@ def references(
         return acc, None if per_rec is None else per_rec["test_accuracy_per_recording"]
 
     lr = make_pipeline(StandardScaler(), LogisticRegression(max_iter=3000))
-    rf = RandomForestClassifier(n_estimators=300, random_state=seed, n_jobs=-1)
+    rf = RandomForestClassifier(n_estimators=FOREST_TREES, random_state=seed, n_jobs=-1)
     mlp = make_pipeline(
         StandardScaler(),
         MLPClassifier((128,), max_iter=300, early_stopping=len(train.y) >= 50, random_state=seed),

@@ -196,23 +196,39 @@ class CapacitiveFingertip:
                   diameter_mm: float) -> np.ndarray:  # fmt: skip
         """Relief (mm) the foam feels ``[frames, P]`` at ``points_mm [P, 2]`` from dots centred at
         ``bumps_mm [frames, k, 2]``: each a spherical cap (``cover_spread_mm`` = 0) or the cover's
-        raised-cosine drape over it; overlapping drapes take the higher."""
+        raised-cosine drape over it; overlapping drapes take the higher.
+
+        A dot's shape is evaluated only in the frames where it is within reach of some point
+        (the points' bounding box closer than the drape's or the cap's sphere's radius); in the
+        others every point sits at the shape's far value, the same number the formula gives
+        there (a slide's dots pass under the fingertip in a fraction of its frames)."""
         a = diameter_mm / 2
-        out = np.zeros((bumps_mm.shape[0], points_mm.shape[0]))
-        px, py = points_mm[None, :, 0], points_mm[None, :, 1]
-        for k in range(bumps_mm.shape[1]):
-            dx, dy = px - bumps_mm[:, k, 0, None], py - bumps_mm[:, k, 1, None]
-            r = np.sqrt(dx * dx + dy * dy)  # (no [frames, P, 2] temporary, as norm makes)
-            spread = self.params.cover_spread_mm
-            if spread > 0:
-                reach = a + spread
-                z = height_mm * np.cos(0.5 * np.pi * np.minimum(r / reach, 1.0)) ** 2
-            else:
-                radius = (a * a + height_mm**2) / (2 * height_mm)
-                z = np.maximum(
+        spread = self.params.cover_spread_mm
+        if spread > 0:
+            reach = a + spread
+
+            def shape(r: np.ndarray) -> np.ndarray:
+                return height_mm * np.cos(0.5 * np.pi * np.minimum(r / reach, 1.0)) ** 2
+        else:
+            radius = (a * a + height_mm**2) / (2 * height_mm)
+            reach = radius  # beyond the sphere's radius the cap is exactly 0
+
+            def shape(r: np.ndarray) -> np.ndarray:
+                return np.maximum(
                     np.sqrt(np.maximum(radius**2 - r**2, 0.0)) - (radius - height_mm), 0.0
                 )
-            np.maximum(out, z, out=out)
+
+        lo, hi = points_mm.min(0), points_mm.max(0)
+        far = shape(np.full(1, 2.0 * reach))[0] if bumps_mm.shape[1] else 0.0  # out of reach
+        out = np.full((bumps_mm.shape[0], points_mm.shape[0]), max(far, 0.0))
+        for k in range(bumps_mm.shape[1]):
+            b = bumps_mm[:, k]
+            gap = np.maximum(np.maximum(lo - b, b - hi), 0.0)  # [frames, 2] to the box
+            near = np.flatnonzero((gap * gap).sum(1) < reach * reach)
+            dx = points_mm[None, :, 0] - b[near, 0, None]
+            dy = points_mm[None, :, 1] - b[near, 1, None]
+            r = np.sqrt(dx * dx + dy * dy)  # (no [frames, P, 2] temporary, as norm makes)
+            out[near] = np.maximum(out[near], shape(r))
         return out
 
     def pressure_Pa(self, strain: np.ndarray) -> np.ndarray:
