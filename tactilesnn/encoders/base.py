@@ -42,6 +42,12 @@ def register_encoder(name: str, config: type) -> Callable[[type], type]:
     return ENCODERS.register(name, config)
 
 
+def check_recordings_and_starts(recs: Sequence[object], starts: Sequence[object]) -> None:
+    """ValueError unless there is one list of window starts per recording."""
+    if len(recs) != len(starts):
+        raise ValueError(f"{len(recs)} recordings but {len(starts)} lists of starts")
+
+
 class SpikeEncoder(nn.Module):
     """Base class of every encoder; see the module docstring for the contract."""
 
@@ -152,8 +158,7 @@ class SpikeEncoder(nn.Module):
     ) -> list[Tensor]:
         """``encode_recording`` of each ``(recs[i], starts[i])`` (where :attr:`codes_with_past`);
         an encoder whose bank runs faster on many recordings at once batches them."""
-        if len(recs) != len(starts):
-            raise ValueError(f"{len(recs)} recordings but {len(starts)} lists of starts")
+        check_recordings_and_starts(recs, starts)
         return [self.encode_recording(r, s) for r, s in zip(recs, starts, strict=True)]
 
     def stream_module(self, step: int | None = None) -> nn.Module:
