@@ -11,7 +11,7 @@ from tactilesnn.app.run import load_run
 from tactilesnn.cli import main
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "r1"
     rc = main(["train", "--epochs", "2", "--out", str(out), "--quiet", "--seed", "3"])

@@ -17,7 +17,7 @@ from tactilesnn.datasets_synth import HookLoopTask, get_task
 SMALL = {"seed": 0, "n_planar": 8, "n_concave": 4, "n_convex": 4, "n_test": 4}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def default_task():
     """The default task's windows (hook vs loop, 2 channels at 200 Hz) and their scans."""
     train, test = HookLoopTask(**SMALL).build()

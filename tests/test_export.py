@@ -31,7 +31,7 @@ def _calibrated(cfg: PipelineConfig, windows: int, seed: int):
     return pipe, X
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def held_out_windows():
     return HookLoopTask(**SMALL).build()[1]
 

@@ -301,7 +301,7 @@ json_values = st.recursive(
 )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def client(tmp_path_factory):
     from starlette.testclient import TestClient
 

@@ -12,7 +12,7 @@ from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.training import fit_and_evaluate
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def data():
     return HookLoopTask(seed=0).build()
 

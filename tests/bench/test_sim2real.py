@@ -42,7 +42,7 @@ def test_matching_recovers_a_shuffle():
 def test_bench_sim2real_on_a_synthetic_stand_in(tmp_path):
     _stand_in(tmp_path / "data")
     res = sim2real.run(tmp_path / "out", data_root=tmp_path / "data", synthetic=60, seeds=1,
-                       shots=(2,), draws=1, knobs=("gain_spread",), knob_synthetic=30,
+                       shots=(2,), draws=1, knobs=("gain_spread",), knob_synthetic=12,
                        epochs=5, progress=False, calibrated_draws=0)  # fmt: skip
     for name in ("sim2real.json", "sim2real.md", "sim2real.png"):
         assert (tmp_path / "out" / name).stat().st_size > 0

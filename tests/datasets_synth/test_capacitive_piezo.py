@@ -9,7 +9,7 @@ from tactilesnn.datasets_synth.sensors.capacitive_piezo import (
 )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def stack():
     return CapacitivePiezoStack()
 

@@ -8,7 +8,7 @@ from tactilesnn.datasets_synth.scenes.sliding_scan import SlidingScanScene
 from tactilesnn.datasets_synth.scenes.textures import ridge_comb_kernel
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def small_task():
     return HookLoopTask(n_planar=10, n_concave=5, n_convex=5, n_test=4)
 

@@ -13,7 +13,7 @@ from tactilesnn.datasets_synth.sensors.pvdf import (
 FS_SIM = 40_000.0
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def sensor():
     return PVDFTriangle()
 

@@ -30,7 +30,7 @@ def _data(n=24, seed=0):
     return (X + 0.1 * rng.standard_normal((n, 3, W))).astype(np.float32), y
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def trained():
     X, y = _data()
     cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",), epochs=3,

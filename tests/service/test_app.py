@@ -17,7 +17,7 @@ from tests.helpers import run_task
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def served(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("svc")
     run, _ = run_task(

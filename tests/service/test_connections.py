@@ -19,7 +19,7 @@ from tests.helpers import exported_model
 SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def model(tmp_path_factory):
     path, _, test = exported_model(tmp_path_factory.mktemp("conn"), SMALL)
     return str(path), test

@@ -18,7 +18,7 @@ from tactilesnn.training import fit_and_evaluate
 SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def tasks():
     return HookLoopTask(**SMALL).build()
 

@@ -17,7 +17,7 @@ from tactilesnn.service.runtime import PipelineSession, StreamState
 FS, W = 1000.0, 200
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def frame_graph(tmp_path_factory):
     rng = np.random.default_rng(0)
     t = np.arange(W) / FS

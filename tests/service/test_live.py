@@ -28,7 +28,7 @@ SMALL = {"seed": 0, "n_planar": 10, "n_concave": 5, "n_convex": 5, "n_test": 4}
 HOSTILE_ID = '<img src=x onerror="document.body.dataset.pwned=1">'
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def exported(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("live")
     cfg = PipelineConfig.from_flat(epochs=2, model="readout")

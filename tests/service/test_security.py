@@ -19,13 +19,13 @@ from tests.helpers import exported_model
 SMALL = {"seed": 0, "n_planar": 6, "n_concave": 3, "n_convex": 3, "n_test": 2}
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def model(tmp_path_factory):
     path, _, test = exported_model(tmp_path_factory.mktemp("sec"), SMALL)
     return str(path), test
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def client(model):
     with TestClient(create_app(model[0]), base_url="http://127.0.0.1:8000") as c:
         yield c, model[1]
