@@ -9,11 +9,10 @@ import urllib.error
 from pathlib import Path
 from typing import Any
 
+from ..core.checks import ExportError
 from ..datasets_synth import TASKS, get_task
 from ..datasets_synth.generate import generate
 from ..encoders import ENCODERS
-from ..export import data_hash, export_pipeline, quantize_int8
-from ..export.onnx import ExportError
 from ..pipeline import accuracy_ci95
 from ..service import command as service_command
 from ..service.client import ServiceError
@@ -163,6 +162,8 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
             f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
             f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
         ]
+    from ..export import data_hash, export_pipeline, quantize_int8  # (onnx: ~1.4 s to import)
+
     meta = {"training_data_sha256": data_hash(cfg), "run": str(run_dir)}
     if frames:
         from ..export.frames import export_frames

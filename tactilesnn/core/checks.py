@@ -140,3 +140,8 @@ def check_range(value: object, name: str, lo: float, hi: float) -> float:
     if not (np.isfinite(v) and lo <= v <= hi):
         raise ValueError(f"{name} must be a finite number in [{lo}, {hi}], got {value!r}")
     return v
+
+
+class ExportError(RuntimeError):
+    """The exported graph does not reproduce the torch pipeline (nothing is written). Here, not
+    in :mod:`tactilesnn.export`, so that the CLI catches it without importing onnx."""

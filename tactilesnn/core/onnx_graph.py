@@ -10,18 +10,18 @@ import tempfile
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import onnx
 import torch
 from torch import nn
-
-from .onnx_shapes import fold_static_shapes
 
 OPSET = 17
 
 #: custom torch ops (``namespace::name``) -> their ONNX translation for the ``torch.export``-based
 #: exporter (onnxscript nodes), registered by the component that defines the op
+if TYPE_CHECKING:  # onnx is imported where a graph is built or read (~1.4 s)
+    import onnx
+
 _TRANSLATIONS: dict[str, Callable] = {}
 
 
@@ -121,6 +121,10 @@ def torch_to_onnx(
             opset_version=opset,
             dynamo=False,
         )
+    import onnx
+
+    from .onnx_shapes import fold_static_shapes
+
     model = onnx.load(str(path))
     if fold_static_shapes(model) + literal_zero_reshapes(model) + merge_constants(model):
         onnx.save(model, str(path))
@@ -165,6 +169,8 @@ def exported_to_onnx(
     finally:
         for q, level in zip(quiet, levels, strict=True):
             q.setLevel(level)
+    from .onnx_shapes import fold_static_shapes
+
     model = program.model_proto
     _strip_trace_metadata(model.graph)
     fold_static_shapes(model)
@@ -230,6 +236,8 @@ FOLD_OUTPUT_VALUES = 1 << 20
 def _strip_trace_metadata(graph: onnx.GraphProto) -> None:
     """Drops the tracer's per-node and per-value records (source lines, module paths): nearly
     half of a small graph's bytes (a small GWT + tempotron graph: 294 kB -> 153 kB)."""
+    import onnx
+
     for node in graph.node:
         del node.metadata_props[:]
         node.doc_string = ""
@@ -302,6 +310,8 @@ def literal_zero_reshapes(model: onnx.ModelProto) -> int:
     a traced ``reshape(rows, ...)`` breaks when ``rows`` is 0 at run time (the activity gate
     passes zero rows when every taxel is silent). Constant shapes keep the exporter's meaning.
     """
+    import onnx
+
     constant = {i.name for i in model.graph.initializer}
     constant |= {n.output[0] for n in model.graph.node if n.op_type == "Constant"}
     changed = 0
@@ -332,6 +342,8 @@ def chain(
 ) -> onnx.ModelProto:
     """Feed outputs of ``first`` into inputs of ``second`` (``io`` pairs); names stay unprefixed
     on the graph boundary, internal names get ``tags``."""
+    import onnx
+
     a, b = _same_versions(prefixed(first, tags[0]), prefixed(second, tags[1]))
     merged = onnx.compose.merge_models(a, b, io_map=list(io))
     # merge_models lists the default domain once per input model; tools that look it up
@@ -370,6 +382,8 @@ def prefixed(model: onnx.ModelProto, prefix: str) -> onnx.ModelProto:
     ``onnx.compose.add_prefix`` leaves a ``Loop`` body's references to outer-scope values
     unrenamed (the recurrent SNN's ``W_rec`` inside its time loop), which breaks the graph.
     """
+    import onnx
+
     out = onnx.ModelProto()
     out.CopyFrom(model)
     g = out.graph

@@ -29,6 +29,7 @@ import onnx
 import torch
 from torch import Tensor, nn
 
+from ..core.checks import ExportError
 from ..core.files import file_sha256, replace_atomically
 from ..core.graph_contract import EARLY_OUTPUTS, SCORES_OUTPUT, WINDOW_INPUT, GraphContract
 from ..core.onnx_graph import chain, component_to_onnx, operator_nodes
@@ -52,10 +53,6 @@ def score_tolerance(ref: np.ndarray) -> np.ndarray:
 
 #: the exported decision time against torch's (float32 exponentials), or TIME_RTOL of the window
 DECISION_ATOL_MS = 1e-3
-
-
-class ExportError(RuntimeError):
-    """The exported graph does not reproduce the torch pipeline (nothing is written)."""
 
 
 class PipelineEncoderGraph(nn.Module):
