@@ -175,12 +175,14 @@ class SpikePipeline:
         parts: list[torch.Tensor] = []
         recs: list[np.ndarray] = []
         starts: list[np.ndarray] = []
+        held = 0
         for members, shift in runs:  # the encoder codes them together, a bounded share at a time
             recs.append(join_run(x, members, shift))
             starts.append(shift * np.arange(1, len(members)))
-            if sum(r.nbytes for r in recs) >= JOINED_RECORDINGS_BYTES:
+            held += recs[-1].nbytes
+            if held >= JOINED_RECORDINGS_BYTES:
                 parts += self.encoder.encode_recordings(recs, starts)
-                recs, starts = [], []
+                recs, starts, held = [], [], 0
         if recs:
             parts += self.encoder.encode_recordings(recs, starts)
         at = np.concatenate([members[1:] for members, _ in runs])

@@ -363,11 +363,6 @@ def _write_run(writer: RunWriter, spec: RunSpec, record: dict, res: TrainResult,
     writer.write_json("metrics.json", res.metrics)
 
 
-def run_data(cfg: dict, seed: int) -> tuple[WindowDataset, WindowDataset]:
-    """The ``(train, test)`` windows of a run's data source, cut as they were cut."""
-    return source_of(cfg).load(seed)
-
-
 def evaluation_data(pipe: SpikePipeline, record: dict, data: Path | None = None,
                     every: bool = False, progress: bool = False,
                     fs_hz: float | None = None) -> WindowDataset:  # fmt: skip

@@ -46,6 +46,6 @@ def seeded_normal(rows: int, cols: int, generator: torch.Generator) -> torch.Ten
     memory is allocated) the shape alone: a draw or out-of-place arithmetic on meta tensors runs
     torch's Python reference kernels, whose first use imports torch._dynamo (~2.5 s a process),
     where in-place arithmetic does not."""
-    if torch.empty(0).device.type == "meta":
+    if torch.get_default_device().type == "meta":
         return torch.empty(rows, cols)
     return torch.randn(rows, cols, generator=generator)

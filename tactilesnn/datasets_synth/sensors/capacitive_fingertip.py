@@ -220,7 +220,7 @@ class CapacitiveFingertip:
 
         lo, hi = points_mm.min(0), points_mm.max(0)
         far = shape(np.full(1, 2.0 * reach))[0] if bumps_mm.shape[1] else 0.0  # out of reach
-        out = np.full((bumps_mm.shape[0], points_mm.shape[0]), max(far, 0.0))
+        out = np.full((bumps_mm.shape[0], points_mm.shape[0]), far)
         for k in range(bumps_mm.shape[1]):
             b = bumps_mm[:, k]
             gap = np.maximum(np.maximum(lo - b, b - hi), 0.0)  # [frames, 2] to the box

@@ -17,6 +17,7 @@ amplitude from identifying the texture. Both default to 1.0; 0 gives idealised s
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -149,7 +150,7 @@ class HookLoopTask:
         test_idx = self.split()[1]
         return self._gather(self._scans(test_idx, progress), test_idx)
 
-    def _scans(self, idx, progress: bool) -> dict:
+    def _scans(self, idx: Iterable[int], progress: bool) -> dict:
         from tqdm.auto import tqdm
 
         per_scan = {}
