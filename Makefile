@@ -43,6 +43,7 @@ bench: $(VENV)/.bench
 	$(BIN)/tactilesnn bench pareto --out bench_out/pareto --overwrite
 	$(BIN)/tactilesnn bench stability --out bench_out/stability --overwrite
 	$(BIN)/tactilesnn bench skip --out bench_out/skip --overwrite
+	$(BIN)/tactilesnn bench graphs --out bench_out/graphs
 	$(BIN)/tactilesnn bench gwt-vs-stft --seeds 5 --out bench_out/gwt_vs_stft --overwrite
 
 clean:

@@ -112,6 +112,11 @@ class SpikePipeline:
         model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
         return max(self.encoder.bytes_per_window(), model)
 
+    def graph_bytes_per_window(self) -> int:
+        """:meth:`bytes_per_window` of the exported graph (onnxruntime batches by a budget)."""
+        model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
+        return max(self.encoder.graph_bytes_per_window(), model)
+
     def encoder_input(self, X: np.ndarray) -> np.ndarray:
         """Validated ``X`` restricted to the pipeline's channels (a view when that is all)."""
         arr = self.validate(X)

@@ -207,6 +207,13 @@ class BandCodeEncoder(SpikeEncoder):
         per_band = 16 * self.n_channels * self.config.n_bands * 3 * self.window
         return per_band + self.code.bytes_per_window()
 
+    def graph_bytes_per_window(self) -> int:
+        return (
+            self.bytes_per_window()
+            - self.code.bytes_per_window()
+            + self.code.graph_bytes_per_window()
+        )
+
     def onnx_module(self) -> nn.Module:
         size = 8 * self.window * int(np.prod(self.filter_bank.linear_map_shape(self.window)))
         if size > EXPORT_BUDGET_BYTES:

@@ -102,6 +102,12 @@ class SpikeEncoder(nn.Module):
         """Peak intermediate bytes per window (for batching by a byte budget)."""
         return 64 * self.n_channels * self.window
 
+    def graph_bytes_per_window(self) -> int:
+        """Peak intermediate bytes per window of the exported graph (the service's and the
+        export check's onnxruntime batches): :meth:`bytes_per_window` unless the graph computes
+        differently from the eager code."""
+        return self.bytes_per_window()
+
     @torch.no_grad()
     def encode(
         self,

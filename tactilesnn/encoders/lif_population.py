@@ -208,6 +208,14 @@ class LIFPopulationEncoder(SpikeEncoder):
             2 * self.n_channels * self.window + self.n_afferents * (4 * self.max_spikes + 8)
         )
 
+    def graph_bytes_per_window(self) -> int:
+        # the Scan form (spiking.lif_first_spikes_op) also holds per afferent and sample the
+        # drive's constants, each sample's counts and first times, their running sums and the
+        # slots' histogram indices: onnxruntime's peak RSS, 8 channels x 8 converters x 1,500
+        # samples, batches of 24 and 120: 9.5 and 10.7 MB per window, 12.4 and 14.0 eight-byte
+        # values per afferent and sample
+        return self.bytes_per_window() + 8 * 16 * self.n_afferents * self.window
+
     def graph(self) -> _LIFPopulationGraph:
         return _LIFPopulationGraph(self.ref, self.inv_thr, self.every, 1000.0 / self.fs_hz,
                                    self.config.tau_ms, self.config.max_spikes,

@@ -79,6 +79,17 @@ def lif_hold_substep(v: Tensor, v_inf: Tensor, rem: Tensor, tau_ms: float, theta
     return fires, torch.where(fires, s, torch.full_like(s, math.inf)), relaxed
 
 
+def hold_constants(v_inf: Tensor, tau_ms: float) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """What :func:`lif_hold_sample` needs of a held drive ``v_inf`` alone, not of the potential:
+    ``(above, safe, safe_m1, isi)``: whether it exceeds threshold 1, the drive where it does (2
+    where not: a finite stand-in), ``safe - 1`` and the interval between its periodic spikes
+    (ms). Separate so that a graph computes them for every sample at once, outside its loop."""
+    above = v_inf > 1.0
+    safe = torch.where(above, v_inf, torch.full_like(v_inf, 2.0))
+    safe_m1 = safe - 1.0
+    return above, safe, safe_m1, tau_ms * torch.log1p(1.0 / safe_m1)
+
+
 def lif_hold_sample(v: Tensor, v_inf: Tensor, dt_ms: float, tau_ms: float):
     """Every crossing of threshold 1 in one sample held at ``v_inf``, for converters that reset
     by subtraction from ``v < 1``, in closed form: a held drive above threshold fires
@@ -89,16 +100,24 @@ def lif_hold_sample(v: Tensor, v_inf: Tensor, dt_ms: float, tau_ms: float):
     subtraction at threshold restarts from 0); ``v_end`` the potential at the sample's end.
     Same crossings as :func:`lif_hold_substep` repeated, without a loop per crossing.
     """
-    drive_above = v_inf > 1.0
-    safe = torch.where(drive_above, v_inf, torch.full_like(v_inf, 2.0))
-    s1 = tau_ms * torch.log((safe - v) / (safe - 1.0))
-    isi = tau_ms * torch.log1p(1.0 / (safe - 1.0))
-    fires = drive_above & (s1 <= dt_ms)
+    consts = hold_constants(v_inf, tau_ms)
+    n, s1, v_end = lif_hold_from(v, v_inf, *consts, dt_ms, tau_ms)
+    return n, s1, consts[3], v_end
+
+
+def lif_hold_from(
+    v: Tensor, v_inf: Tensor, above: Tensor, safe: Tensor, safe_m1: Tensor, isi: Tensor,
+    dt_ms: float, tau_ms: float,
+) -> tuple[Tensor, Tensor, Tensor]:  # fmt: skip
+    """:func:`lif_hold_sample` given the drive's :func:`hold_constants`: ``(n, s1, v_end)``,
+    the only part that depends on the potential ``v`` (a graph's loop body)."""
+    s1 = tau_ms * torch.log((safe - v) / safe_m1)
+    fires = above & (s1 <= dt_ms)
     n = torch.where(fires, torch.floor((dt_ms - s1) / isi) + 1.0, torch.zeros_like(v))
     t_last = s1 + (n - 1.0) * isi
     v_fired = safe * (1.0 - torch.exp(-(dt_ms - t_last) / tau_ms))  # no expm1 in ONNX
     v_quiet = v_inf + (v - v_inf) * math.exp(-dt_ms / tau_ms)
-    return n, s1, isi, torch.where(fires, v_fired, v_quiet)
+    return n, s1, torch.where(fires, v_fired, v_quiet)
 
 
 def first_spikes_start(
@@ -221,19 +240,51 @@ def lif_first_spikes_op(
     drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor, gain: Tensor
 ) -> tuple[Tensor, Tensor]:
     """:func:`lif_first_spikes` with its sample loop as one scan operator (``torch.export``
-    writes an ONNX ``Scan``; not scriptable), the same step (:func:`first_spikes_step`)."""
+    writes an ONNX ``Scan``; not scriptable), the same arithmetic bit for bit: the drive's
+    :func:`hold_constants` for every sample at once, only :func:`lif_hold_from` (the potential's
+    recurrence) in the loop, which hands out each sample's spike count and first spike time,
+    and the kept slots read from those afterwards (:func:`slots_from_samples`). Updating the
+    ``k`` slots of every converter at every sample inside the loop, as the eager step does, made
+    the exported graph 2-3x slower in onnxruntime (docs/benchmarks.md); the price is about 14
+    eight-byte values per afferent and sample held at once
+    (:meth:`.LIFPopulationEncoder.graph_bytes_per_window`)."""
     from torch._higher_order_ops.scan import scan
 
-    g, v, count, times, wanted = first_spikes_start(drive, k, every, gain)
-    init = (v, count, times)
-    t0 = torch.arange(drive.shape[2], dtype=drive.dtype, device=drive.device) * dt_ms
+    g, v, _, times, wanted = first_spikes_start(drive, k, every, gain)
+    v_inf = (drive.permute(2, 0, 1).unsqueeze(-1) * g).flatten(2)  # [W, N, A], as _drive_of
+    consts = hold_constants(v_inf, tau_ms)
 
-    def step(carry, x):
-        v, count, times = first_spikes_step(*carry, x[0], x[1], g, wanted, dt_ms, tau_ms)
-        return (v, count, times), v.new_zeros(1)  # (a scan must give an output per step)
+    def step(v, x):
+        n, s1, v = lif_hold_from(v, *x, dt_ms, tau_ms)
+        return v.clone(), (n, s1)  # (a scan's carry may not alias its outputs)
 
-    (_, count, times), _ = scan(step, init, (drive.permute(2, 0, 1), t0))
-    return times, count
+    _, (n, s1) = scan(step, v, (v_inf, *consts))
+    return slots_from_samples(n, s1, consts[3], wanted, dt_ms, times[..., 0])
+
+
+def slots_from_samples(
+    n: Tensor, s1: Tensor, isi: Tensor, wanted: Tensor, dt_ms: float, none: Tensor
+) -> tuple[Tensor, Tensor]:
+    """Kept spike times ``[N, A, k]`` and counts ``[N, A]`` from each sample's spike count
+    ``n``, first spike time ``s1`` (ms into the sample) and interval ``isi`` (each ``[samples,
+    N, A]``, :func:`lif_hold_sample`): slot ``j`` holds spike number ``wanted[..., j] = (j + 1)
+    every`` (``[1, A, k]``), which falls in the first sample whose running count reaches it, at
+    the time :func:`kept_spike_times` gives it there (the same operations, so the same bits);
+    ``none`` (``[N, A]``) where the window ends before it. Which sample fills each slot comes
+    from a histogram of the slots filled by each sample's end (a scatter-add and a running sum),
+    so the work is ``O(samples + k)`` per converter: a comparison over the samples per slot made
+    ``k = 32`` slower than the loop it replaced."""
+    w, k = n.shape[0], wanted.shape[-1]
+    cum = torch.cumsum(n, 0)  # spikes up to and including each sample: whole numbers, exact
+    before = cum - n
+    filled = torch.floor(cum / wanted[..., 0]).clamp(max=k).to(torch.int64)  # [W, N, A]
+    hist = torch.zeros((k + 1, *n.shape[1:]), dtype=torch.int64, device=n.device)
+    at = torch.cumsum(hist.scatter_add(0, filled, torch.ones_like(filled)), 0)[:k]  # [k, N, A]
+    i = at.clamp(max=w - 1)
+    want = wanted.permute(2, 0, 1)  # [k, 1, A]
+    t = (at.to(n.dtype) * dt_ms + s1.gather(0, i)
+         + (want - before.gather(0, i) - 1.0) * isi.gather(0, i))  # fmt: skip
+    return torch.where(at < w, t, none).permute(1, 2, 0), cum[-1]
 
 
 def lif_rate_bound(

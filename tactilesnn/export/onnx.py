@@ -205,7 +205,7 @@ def pipeline_contract(
         encoder=pipe.config.encoder_type,
         model=pipe.config.model_type,
         state_inputs=state_inputs,
-        bytes_per_window=pipe.bytes_per_window(),
+        bytes_per_window=pipe.graph_bytes_per_window(),
         encoder_channels=tuple(int(i) for i in pipe.channel_idx),
         units=f"{input_units}; scores: {pipe.model.score_units}",
         pipeline_config=pipe.config.to_dict(),
@@ -375,7 +375,7 @@ CHECK_BUDGET_BYTES = 256 << 20
 
 def check_batch(pipe: SpikePipeline) -> int:
     """Windows per onnxruntime call so one call stays within :data:`CHECK_BUDGET_BYTES`."""
-    return max(1, min(4096, CHECK_BUDGET_BYTES // max(1, pipe.bytes_per_window())))
+    return max(1, min(4096, CHECK_BUDGET_BYTES // max(1, pipe.graph_bytes_per_window())))
 
 
 def _session(model: onnx.ModelProto):

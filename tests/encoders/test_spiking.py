@@ -240,3 +240,26 @@ def test_the_eager_loop_is_the_scan_step_bit_for_bit() -> None:
         v, c, t = first_spikes_step(v, c, t, drive[:, :, i], i * dt, gain, wanted, dt, tau)
     assert torch.equal(times, t) and torch.equal(count, c)
     assert torch.isfinite(times).any() and torch.isinf(times).any() and count.max() > 3 * k
+
+
+def test_the_scan_operator_is_the_eager_loop_bit_for_bit() -> None:
+    """lif_first_spikes_op (the exported graph's form: the drive's constants for every sample
+    at once, only the potential in the scan, the kept slots read from each sample's count and
+    first time afterwards) gives the eager encoder's times and counts bit for bit: float64 (the
+    graph's), a rate that is not a power of two, gains per channel, prescalers, slots filled and
+    not, converters silent and firing several times a sample."""
+    import torch
+
+    from tactilesnn.encoders.spiking import lif_first_spikes_op, lif_first_spikes_sparse
+
+    gen = torch.Generator().manual_seed(1)
+    drive = (torch.rand(4, 3, 120, generator=gen) * 30.0 - 1.0).double()
+    drive[0, 0] = 0.0  # a silent channel
+    gain = torch.tensor([0.05, 0.4, 3.0], dtype=torch.float64)
+    every = torch.tensor([1.0, 3.0, 40.0] * 3, dtype=torch.float64)
+    k, dt, tau = 5, 1000.0 / 93.97, 7.0
+    want_t, want_n = lif_first_spikes_sparse(drive, dt, tau, k, every, gain)
+    got_t, got_n = lif_first_spikes_op(drive, dt, tau, k, every, gain)
+    assert torch.equal(got_t, want_t) and torch.equal(got_n, want_n)
+    assert torch.isfinite(got_t).any() and torch.isinf(got_t).any()
+    assert (got_n == 0).any() and got_n.max() > drive.shape[-1]  # silent and several a sample

@@ -18,7 +18,7 @@ for _name, _module in (
     ("gwt-vs-stft", "gwt_vs_stft"), ("encoders", "encoders"), ("snn", "snn"),
     ("serve", "serve"), ("tasks", "tasks"), ("real", "real"), ("pareto", "pareto"),
     ("stability", "stability"), ("skip", "skip"), ("busy", "busy"), ("sim2real", "sim2real"),
-    ("localise", "localise"), ("fit", "fit"), ("gpu", "gpu"),
+    ("localise", "localise"), ("fit", "fit"), ("gpu", "gpu"), ("graphs", "graphs"),
 ):  # fmt: skip
     BENCHMARKS.register_module(_name, f"{__name__}.{_module}")
 
