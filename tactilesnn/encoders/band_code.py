@@ -202,17 +202,15 @@ class BandCodeEncoder(SpikeEncoder):
     def encode_batch(self, x: Tensor) -> Tensor:
         return self.code.encode_batch(self.envelopes(x))
 
+    def _spectra_bytes(self) -> int:
+        # the transform's complex spectra per band (padded window)
+        return 16 * self.n_channels * self.config.n_bands * 3 * self.window
+
     def bytes_per_window(self) -> int:
-        # the transform's complex spectra per band (padded window) and the code's own
-        per_band = 16 * self.n_channels * self.config.n_bands * 3 * self.window
-        return per_band + self.code.bytes_per_window()
+        return self._spectra_bytes() + self.code.bytes_per_window()
 
     def graph_bytes_per_window(self) -> int:
-        return (
-            self.bytes_per_window()
-            - self.code.bytes_per_window()
-            + self.code.graph_bytes_per_window()
-        )
+        return self._spectra_bytes() + self.code.graph_bytes_per_window()
 
     def onnx_module(self) -> nn.Module:
         size = 8 * self.window * int(np.prod(self.filter_bank.linear_map_shape(self.window)))

@@ -250,7 +250,7 @@ def lif_first_spikes_op(
     (:meth:`.LIFPopulationEncoder.graph_bytes_per_window`)."""
     from torch._higher_order_ops.scan import scan
 
-    g, v, _, times, wanted = first_spikes_start(drive, k, every, gain)
+    g, v, _, _, wanted = first_spikes_start(drive, k, every, gain)
     v_inf = (drive.permute(2, 0, 1).unsqueeze(-1) * g).flatten(2)  # [W, N, A], as _drive_of
     consts = hold_constants(v_inf, tau_ms)
 
@@ -259,18 +259,18 @@ def lif_first_spikes_op(
         return v.clone(), (n, s1)  # (a scan's carry may not alias its outputs)
 
     _, (n, s1) = scan(step, v, (v_inf, *consts))
-    return slots_from_samples(n, s1, consts[3], wanted, dt_ms, times[..., 0])
+    return slots_from_samples(n, s1, consts[3], wanted, dt_ms)
 
 
 def slots_from_samples(
-    n: Tensor, s1: Tensor, isi: Tensor, wanted: Tensor, dt_ms: float, none: Tensor
+    n: Tensor, s1: Tensor, isi: Tensor, wanted: Tensor, dt_ms: float
 ) -> tuple[Tensor, Tensor]:
     """Kept spike times ``[N, A, k]`` and counts ``[N, A]`` from each sample's spike count
     ``n``, first spike time ``s1`` (ms into the sample) and interval ``isi`` (each ``[samples,
     N, A]``, :func:`lif_hold_sample`): slot ``j`` holds spike number ``wanted[..., j] = (j + 1)
     every`` (``[1, A, k]``), which falls in the first sample whose running count reaches it, at
     the time :func:`kept_spike_times` gives it there (the same operations, so the same bits);
-    ``none`` (``[N, A]``) where the window ends before it. Which sample fills each slot comes
+    inf where the window ends before it. Which sample fills each slot comes
     from a histogram of the slots filled by each sample's end (a scatter-add and a running sum),
     so the work is ``O(samples + k)`` per converter: a comparison over the samples per slot made
     ``k = 32`` slower than the loop it replaced."""
@@ -284,7 +284,7 @@ def slots_from_samples(
     want = wanted.permute(2, 0, 1)  # [k, 1, A]
     t = (at.to(n.dtype) * dt_ms + s1.gather(0, i)
          + (want - before.gather(0, i) - 1.0) * isi.gather(0, i))  # fmt: skip
-    return torch.where(at < w, t, none).permute(1, 2, 0), cum[-1]
+    return torch.where(at < w, t, math.inf).permute(1, 2, 0), cum[-1]
 
 
 def lif_rate_bound(
