@@ -113,9 +113,11 @@ def lif_hold_from(
     the only part that depends on the potential ``v`` (a graph's loop body)."""
     s1 = tau_ms * torch.log((safe - v) / safe_m1)
     fires = above & (s1 <= dt_ms)
-    n = torch.where(fires, torch.floor((dt_ms - s1) / isi) + 1.0, torch.zeros_like(v))
+    # (scalar fill and a swapped difference instead of zeros_like and a negation: the same
+    # values, two nodes fewer per sample in the exported loop)
+    n = torch.where(fires, torch.floor((dt_ms - s1) / isi) + 1.0, 0.0)
     t_last = s1 + (n - 1.0) * isi
-    v_fired = safe * (1.0 - torch.exp(-(dt_ms - t_last) / tau_ms))  # no expm1 in ONNX
+    v_fired = safe * (1.0 - torch.exp((t_last - dt_ms) / tau_ms))  # no expm1 in ONNX
     v_quiet = v_inf + (v - v_inf) * math.exp(-dt_ms / tau_ms)
     return n, s1, torch.where(fires, v_fired, v_quiet)
 
