@@ -113,10 +113,12 @@ def lif_hold_from(
     the only part that depends on the potential ``v`` (a graph's loop body)."""
     s1 = tau_ms * torch.log((safe - v) / safe_m1)
     fires = above & (s1 <= dt_ms)
-    # (scalar fill and a swapped difference instead of zeros_like and a negation: the same
-    # values, two nodes fewer per sample in the exported loop)
-    n = torch.where(fires, torch.floor((dt_ms - s1) / isi) + 1.0, 0.0)
-    t_last = s1 + (n - 1.0) * isi
+    # (a scalar fill, a swapped difference and the whole intervals reused where they fire,
+    # rather than zeros_like, a negation and n - 1: the same values, three nodes fewer per
+    # sample in the exported loops; t_last is only read where the converter fires)
+    whole = torch.floor((dt_ms - s1) / isi)  # periodic spikes after the first
+    n = torch.where(fires, whole + 1.0, 0.0)
+    t_last = s1 + whole * isi
     v_fired = safe * (1.0 - torch.exp((t_last - dt_ms) / tau_ms))  # no expm1 in ONNX
     v_quiet = v_inf + (v - v_inf) * math.exp(-dt_ms / tau_ms)
     return n, s1, torch.where(fires, v_fired, v_quiet)
@@ -258,7 +260,7 @@ def lif_first_spikes_op(
 
     def step(v, x):
         n, s1, v = lif_hold_from(v, *x, dt_ms, tau_ms)
-        return v.clone(), (n, s1)  # (a scan's carry may not alias its outputs)
+        return v, (n, s1)
 
     _, (n, s1) = scan(step, v, (v_inf, *consts))
     return slots_from_samples(n, s1, consts[3], wanted, dt_ms)
