@@ -274,10 +274,10 @@ def slots_from_samples(
     N, A]``, :func:`lif_hold_sample`): slot ``j`` holds spike number ``wanted[..., j] = (j + 1)
     every`` (``[1, A, k]``), which falls in the first sample whose running count reaches it, at
     the time :func:`kept_spike_times` gives it there (the same operations, so the same bits);
-    inf where the window ends before it. Which sample fills each slot comes
-    from a histogram of the slots filled by each sample's end (a scatter-add and a running sum),
-    so the work is ``O(samples + k)`` per converter: a comparison over the samples per slot made
-    ``k = 32`` slower than the loop it replaced."""
+    inf where the window ends before it. Which sample fills each slot comes from a histogram of
+    the slots filled by each sample's end (a scatter-add and a running sum), so the work is
+    ``O(samples + k)`` per converter: a comparison over the samples per slot made ``k = 32``
+    slower than the loop it replaced."""
     w, k = n.shape[0], wanted.shape[-1]
     cum = torch.cumsum(n, 0)  # spikes up to and including each sample: whole numbers, exact
     before = cum - n
