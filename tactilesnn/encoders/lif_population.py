@@ -19,7 +19,8 @@ converter both cost the same; accuracy, seed 0, first -> spread: Braille LIF + r
 
 Converters integrate exactly for sample-and-hold input (:func:`~tactilesnn.encoders.spiking.
 lif_first_spikes`: every crossing of a sample in closed form, so the cost does not grow with the
-firing rate; the same function in the exported graph, where the sample loop is an ONNX ``Loop``).
+firing rate; the same arithmetic in the exported graph, where the sample loop is an ONNX ``Scan``
+carrying the potentials, the kept slots read after it, or a ``Loop`` from the older exporter).
 """
 
 from __future__ import annotations
@@ -42,6 +43,12 @@ from .spiking import lif_first_spikes, lif_first_spikes_op, lif_first_spikes_spa
 NORMS = ("train", "window")
 KEEPS = ("spread", "first")
 log = logging.getLogger("tactilesnn")
+
+
+#: one window's bytes above which the exported LIF loop keeps its slots in the loop: the faster
+#: form holds ~14 eight-byte values per afferent and sample, the slow one the slots alone (a
+#: whole 60 s recording at 2 kHz on 12 channels x 8 converters would need 1.5 GB per window)
+GRAPH_HISTOGRAM_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -81,16 +88,18 @@ class LIFPopulationConfig(ComponentSettings):
 
 class _LIFPopulationGraph(nn.Module):
     """Scaling + converters; the sample loop becomes an ONNX ``Loop`` (scripted, for the
-    TorchScript-based exporter) or ``Scan`` (``torch.export``)."""
+    TorchScript-based exporter) or ``Scan`` (``torch.export``; ``slots_in_loop``: see
+    :func:`~.spiking.lif_first_spikes_op`)."""
 
     def __init__(self, ref: Tensor, inv_thr: Tensor, every: Tensor, dt_ms: float, tau_ms: float,
-                 k: int, window_norm: bool) -> None:  # fmt: skip
+                 k: int, window_norm: bool, slots_in_loop: bool = False) -> None:  # fmt: skip
         super().__init__()
         self.register_buffer("ref", ref.clone())
         self.register_buffer("inv_thr", inv_thr.clone())
         self.register_buffer("every", every.clone())
         self.dt, self.tau, self.k = float(dt_ms), float(tau_ms), int(k)
         self.window_norm = bool(window_norm)
+        self.slots_in_loop = bool(slots_in_loop)
 
     def scaled(self, x: Tensor) -> Tensor:
         """Window ``[N, C, W]`` -> each channel in units of its reference level ``[N, C, W]``;
@@ -120,7 +129,8 @@ class _LIFPopulationGraph(nn.Module):
 
     @torch.jit.unused
     def _scanned(self, x: Tensor, k: int, every: Tensor, gain: Tensor) -> tuple[Tensor, Tensor]:
-        return lif_first_spikes_op(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain)
+        return lif_first_spikes_op(self.scaled(x), self.dt, self.tau, k, every.to(x.dtype), gain,
+                                   self.slots_in_loop)  # fmt: skip
 
     def forward(self, x: Tensor) -> Tensor:
         return self.spikes(x, self.k, self.every)[0]
@@ -208,18 +218,29 @@ class LIFPopulationEncoder(SpikeEncoder):
             2 * self.n_channels * self.window + self.n_afferents * (4 * self.max_spikes + 8)
         )
 
-    def graph_bytes_per_window(self) -> int:
+    def _histogram_bytes(self) -> int:
         # the Scan form (spiking.lif_first_spikes_op) also holds per afferent and sample the
         # drive's constants, each sample's counts and first times, their running sums and the
         # slots' histogram indices: onnxruntime's peak RSS, 8 channels x 8 converters x 1,500
         # samples, batches of 24 and 120: 9.5 and 10.7 MB per window, 12.4 and 14.0 eight-byte
         # values per afferent and sample
-        return self.bytes_per_window() + 8 * 16 * self.n_afferents * self.window
+        return 8 * 16 * self.n_afferents * self.window
+
+    @property
+    def graph_slots_in_loop(self) -> bool:
+        """Whether the exported loop keeps the slots in it (memory of the slots alone) instead of
+        reading them after it: when one window's samples would need more than
+        :data:`GRAPH_HISTOGRAM_BYTES` (12 channels x 8 converters: windows over ~5,500 samples)."""
+        return self._histogram_bytes() > GRAPH_HISTOGRAM_BYTES
+
+    def graph_bytes_per_window(self) -> int:
+        extra = 0 if self.graph_slots_in_loop else self._histogram_bytes()
+        return self.bytes_per_window() + extra
 
     def graph(self) -> _LIFPopulationGraph:
         return _LIFPopulationGraph(self.ref, self.inv_thr, self.every, 1000.0 / self.fs_hz,
                                    self.config.tau_ms, self.config.max_spikes,
-                                   self.config.norm == "window")  # fmt: skip
+                                   self.config.norm == "window", self.graph_slots_in_loop)  # fmt: skip
 
     def encode_batch(self, x: Tensor) -> Tensor:
         # float64 for the exact crossing times, as in the exported graph (_Float64Graph)

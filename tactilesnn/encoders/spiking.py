@@ -241,8 +241,9 @@ def first_spikes_step(
 
 
 def lif_first_spikes_op(
-    drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor, gain: Tensor
-) -> tuple[Tensor, Tensor]:
+    drive: Tensor, dt_ms: float, tau_ms: float, k: int, every: Tensor, gain: Tensor,
+    slots_in_loop: bool = False,
+) -> tuple[Tensor, Tensor]:  # fmt: skip
     """:func:`lif_first_spikes` with its sample loop as one scan operator (``torch.export``
     writes an ONNX ``Scan``; not scriptable), the same arithmetic bit for bit: the drive's
     :func:`hold_constants` for every sample at once, only :func:`lif_hold_from` (the potential's
@@ -251,10 +252,21 @@ def lif_first_spikes_op(
     ``k`` slots of every converter at every sample inside the loop, as the eager step does, made
     the exported graph 2-3x slower in onnxruntime (docs/benchmarks.md); the price is about 14
     eight-byte values per afferent and sample held at once
-    (:meth:`.LIFPopulationEncoder.graph_bytes_per_window`)."""
+    (:meth:`.LIFPopulationEncoder.graph_bytes_per_window`). ``slots_in_loop`` keeps the eager
+    step's form (:func:`first_spikes_step`: memory of the slots alone), for windows long enough
+    that the samples' values would not fit."""
     from torch._higher_order_ops.scan import scan
 
-    g, v, _, _, wanted = first_spikes_start(drive, k, every, gain)
+    g, v, count, times, wanted = first_spikes_start(drive, k, every, gain)
+    if slots_in_loop:
+        t0 = torch.arange(drive.shape[2], dtype=drive.dtype, device=drive.device) * dt_ms
+
+        def slot_step(carry, x):
+            v, count, times = first_spikes_step(*carry, x[0], x[1], g, wanted, dt_ms, tau_ms)
+            return (v, count, times), v.new_zeros(1)  # (a scan must give an output per step)
+
+        (_, count, times), _ = scan(slot_step, (v, count, times), (drive.permute(2, 0, 1), t0))
+        return times, count
     v_inf = (drive.permute(2, 0, 1).unsqueeze(-1) * g).flatten(2)  # [W, N, A], as _drive_of
     consts = hold_constants(v_inf, tau_ms)
 

@@ -261,5 +261,8 @@ def test_the_scan_operator_is_the_eager_loop_bit_for_bit() -> None:
     want_t, want_n = lif_first_spikes_sparse(drive, dt, tau, k, every, gain)
     got_t, got_n = lif_first_spikes_op(drive, dt, tau, k, every, gain)
     assert torch.equal(got_t, want_t) and torch.equal(got_n, want_n)
+    # the form for windows too long for the samples' values: the slots updated in the loop
+    loop_t, loop_n = lif_first_spikes_op(drive, dt, tau, k, every, gain, slots_in_loop=True)
+    assert torch.equal(loop_t, want_t) and torch.equal(loop_n, want_n)
     assert torch.isfinite(got_t).any() and torch.isinf(got_t).any()
     assert (got_n == 0).any() and got_n.max() > drive.shape[-1]  # silent and several a sample

@@ -80,6 +80,32 @@ def test_the_supported_exporter_writes_every_traced_component_with_parity(tmp_pa
 
 
 @pytest.mark.slow
+def test_a_window_too_long_for_the_histogram_keeps_the_lif_slots_in_the_loop(tmp_path, monkeypatch):
+    """Past GRAPH_HISTOGRAM_BYTES per window the LIF graph updates its slots in the loop (memory
+    of the slots alone), states the eager bytes, and keeps parity."""
+    from tactilesnn.encoders import lif_population
+
+    pipe, X = _calibrated(400.0, 200, 3, encoder="lif", model="readout")
+    fast = pipe.graph_bytes_per_window()
+    assert not pipe.encoder.graph_slots_in_loop and fast > pipe.bytes_per_window()
+    monkeypatch.setattr(lif_population, "GRAPH_HISTOGRAM_BYTES", 1000)
+    assert pipe.encoder.graph_slots_in_loop
+    assert pipe.graph_bytes_per_window() == pipe.bytes_per_window() < fast
+    rep = export_pipeline(pipe, tmp_path / "m.onnx", X, exporter="torch.export")  # verified
+    assert rep["prediction_agreement"] == 1.0
+    session = PipelineSession(str(tmp_path / "m.onnx"))
+    assert session.contract.bytes_per_window == pipe.bytes_per_window()
+    (scan,) = [n for n in onnx.load(str(tmp_path / "m.onnx")).graph.node if n.op_type == "Scan"]
+    body = next(a.g for a in scan.attribute if a.name == "body")
+    assert "ScatterElements" not in {
+        n.op_type for n in onnx.load(str(tmp_path / "m.onnx")).graph.node
+    }
+    assert len(body.node) > 22  # the slots' arithmetic in the body
+    ref = pipe.scores(pipe.encode(X)).numpy()
+    assert np.abs(session.run(X) - ref).max() <= 1e-4 * max(1.0, np.abs(ref).max())
+
+
+@pytest.mark.slow
 def test_a_part_only_the_older_exporter_writes_is_chained_at_the_newer_opset(tmp_path):
     """A component that cannot trace under torch.export (``onnx_exportable`` False) is written
     by the TorchScript-based exporter (opset 17, Loops) and chained to a torch.export part."""
