@@ -8,21 +8,22 @@ kept spike slots read from each sample's count afterwards) and the TorchScript-b
 Each is timed in onnxruntime with one thread on ``windows`` windows, in the batches the
 service would use (:attr:`~tactilesnn.service.runtime.PipelineSession.RUN_BUDGET_BYTES` over the
 graph's own bytes per window) and one window per call; torch (the pipeline's ``predict``, one
-thread) on the same windows. Medians of ``repeats`` rounds; the ratios are the result (noisy
-machines: compare them, not the seconds). Every graph's predictions are checked against torch's
-(agreement reported; the benchmark exits 1 below 100 %).
+thread) on the same windows. Medians of up to ``repeats`` rounds (fewer once one timing passes
+20 s); the ratios are the result (noisy machines: compare them, not the seconds). Every graph's
+predictions are checked against torch's (agreement reported; the benchmark exits 1 below 100 %).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from .encoders import median_time
 
 HELP = "exported window graphs (each exporter) in onnxruntime against torch: ms per window"
 
@@ -60,16 +61,6 @@ def _windows(n: int, channels: int, window: int, seed: int) -> np.ndarray:
     return x.astype(np.float32)
 
 
-def _median_s(fn, repeats: int) -> float:
-    fn()  # warm
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
-
-
 def _session(graph):
     import onnxruntime as ort
 
@@ -88,7 +79,7 @@ def case(name: str, flat: dict, fs: float, window: int, channels: int, windows: 
     pipe = _pipeline(flat, fs, window, channels)
     X = _windows(windows, channels, window, seed=1)
     want = pipe.predict(X)
-    torch_s = _median_s(lambda: pipe.predict(X), repeats)
+    torch_s = median_time(lambda: pipe.predict(X), repeats)
     row: dict = {"case": name, "windows": windows, "afferents": pipe.n_afferents,
                  "slots": pipe.max_spikes, "torch_ms_per_window": 1e3 * torch_s / windows}  # fmt: skip
     for exporter in EXPORTERS:
@@ -111,8 +102,8 @@ def case(name: str, flat: dict, fs: float, window: int, channels: int, windows: 
         row[exporter] = {
             "nodes": len(graph.graph.node), "export_s": export_s, "batch": int(batch),
             "bytes_per_window": int(per),
-            "ms_per_window": 1e3 * _median_s(batched, repeats) / windows,
-            "ms_per_window_one_at_a_time": 1e3 * _median_s(
+            "ms_per_window": 1e3 * median_time(batched, repeats) / windows,
+            "ms_per_window_one_at_a_time": 1e3 * median_time(
                 lambda sess=sess, feed=feed, one=one: [sess.run(None, {feed: X[i : i + 1]})
                                               for i in range(one)], repeats) / one,
             "agreement": float((got == want).mean()),
