@@ -109,13 +109,14 @@ class SpikePipeline:
 
     def bytes_per_window(self) -> int:
         """Peak intermediate bytes of one window through encoder and model (byte budgets)."""
-        model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
-        return max(self.encoder.bytes_per_window(), model)
+        return max(self.encoder.bytes_per_window(), self._model_bytes())
 
     def graph_bytes_per_window(self) -> int:
         """:meth:`bytes_per_window` of the exported graph (onnxruntime batches by a budget)."""
-        model = self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
-        return max(self.encoder.graph_bytes_per_window(), model)
+        return max(self.encoder.graph_bytes_per_window(), self._model_bytes())
+
+    def _model_bytes(self) -> int:
+        return self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
 
     def encoder_input(self, X: np.ndarray) -> np.ndarray:
         """Validated ``X`` restricted to the pipeline's channels (a view when that is all)."""

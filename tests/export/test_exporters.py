@@ -95,11 +95,10 @@ def test_a_window_too_long_for_the_histogram_keeps_the_lif_slots_in_the_loop(tmp
     assert rep["prediction_agreement"] == 1.0
     session = PipelineSession(str(tmp_path / "m.onnx"))
     assert session.contract.bytes_per_window == pipe.bytes_per_window()
-    (scan,) = [n for n in onnx.load(str(tmp_path / "m.onnx")).graph.node if n.op_type == "Scan"]
+    nodes = onnx.load(str(tmp_path / "m.onnx")).graph.node
+    (scan,) = [n for n in nodes if n.op_type == "Scan"]
     body = next(a.g for a in scan.attribute if a.name == "body")
-    assert "ScatterElements" not in {
-        n.op_type for n in onnx.load(str(tmp_path / "m.onnx")).graph.node
-    }
+    assert "ScatterElements" not in {n.op_type for n in nodes}
     assert len(body.node) > 22  # the slots' arithmetic in the body
     ref = pipe.scores(pipe.encode(X)).numpy()
     assert np.abs(session.run(X) - ref).max() <= 1e-4 * max(1.0, np.abs(ref).max())
