@@ -44,14 +44,29 @@ class Trainer:
         on_epoch: Callable[[int, dict], None] | None = None,
         resume: dict | None = None,
         groups: np.ndarray | None = None,
+        confidence: np.ndarray | None = None,
     ) -> list[float]:
         """Train on spike times ``[N, A, k]`` and labels ``[N]``; returns the error per epoch.
 
         A model that solves in one go (:meth:`~SpikeModel.solve`) does so instead of the epochs:
         one entry of history, what it chose in ``self.history["solved"]``; ``groups``: the
-        windows' recording ids ``[N]`` for its cross-validation."""
+        windows' recording ids ``[N]`` for its cross-validation. ``confidence`` ``[N]`` in
+        [0, 1]: soft targets (:func:`~.models.softmax_fit.soft_targets`), for a model that
+        :attr:`~SpikeModel.trains_on_confidence`."""
         cfg, model = self.config, self.model
         yt = to_tensor_labels(np.asarray(y), model.n_classes, spikes.shape[0])
+        ct = None
+        if confidence is not None:
+            if not model.trains_on_confidence:
+                raise ValueError(f"{type(model).registry_name} does not train on window "
+                                 "confidences (soft targets)")  # fmt: skip
+            ct = torch.as_tensor(np.asarray(confidence, np.float32))
+            if (
+                ct.shape != yt.shape
+                or not bool(torch.isfinite(ct).all())
+                or (float(ct.min()) < 0 or float(ct.max()) > 1)
+            ):
+                raise ValueError(f"confidence must be [N={yt.numel()}] finite in [0, 1]")
         gen = torch.Generator().manual_seed(cfg.seed)
         by_rule = model.learns_by_rule
         opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
@@ -59,7 +74,7 @@ class Trainer:
         solved = None
         if resume is None:
             model.prepare(spikes)  # resumed runs restore what it fitted with their weights
-            solved = model.solve(spikes, yt, groups)
+            solved = model.solve(spikes, yt, groups, **({} if ct is None else {"confidence": ct}))
         best_w = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if solved is not None and not solved.get("train_epochs"):  # the optimum: no epochs
             _record(st, model, spikes, yt, val, solved.get("train_error"))
@@ -101,7 +116,8 @@ class Trainer:
                     with torch.no_grad():
                         model.rule_update(spikes[idx], yt[idx], epoch)
                 else:
-                    loss = model.loss(spikes[idx].to(device), yt[idx].to(device))
+                    extra = {} if ct is None else {"confidence": ct[idx].to(device)}
+                    loss = model.loss(spikes[idx].to(device), yt[idx].to(device), **extra)
                     opt.zero_grad()
                     loss.backward()
                     opt.step()

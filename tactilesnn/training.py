@@ -114,12 +114,19 @@ def fit_pipeline(
     # past: trained on both codes of every window that has one, so that the window graph (a
     # window alone) and the stream graph (a live stream) both get windows like those it learnt
     fit_y, fit_groups = fit_set.y, fit_set.scan
+    # soft targets where the data knows how much of its class each window holds and the model
+    # trains on them; a model that does not trains on the labels as they are
+    conf = fit_set.confidence if pipe.model.trains_on_confidence else None
+    if fit_set.confidence is not None and conf is None:
+        log.info("%s trains on hard labels: the windows' confidences are not used",
+                 type(pipe.model).registry_name)  # fmt: skip
     in_rec = pipe.encode_in_recordings(fit_set.X, fit_set.scan) if with_past else None
     if in_rec is not None:
         at, s_past = in_rec
         s_train = torch.cat([s_train, s_past])
         fit_y = np.concatenate([fit_set.y, fit_set.y[at]])
         fit_groups = np.concatenate([fit_set.scan, fit_set.scan[at]])
+        conf = None if conf is None else np.concatenate([conf, conf[at]])
     t_enc = time.perf_counter() - t0
     trainer = Trainer(pipe.model, config.train, progress=progress)
     history = trainer.fit(
@@ -129,6 +136,7 @@ def fit_pipeline(
         on_epoch=checkpoint,
         resume=resume,
         groups=fit_groups,
+        confidence=conf,
     )
     # a stream model: then trained on the recordings as streams, its state carried
     streams = fit_streams(pipe, fit_set.X, fit_set.y, fit_set.scan, progress) if with_past else None

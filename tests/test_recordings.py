@@ -1,5 +1,6 @@
 """Recordings with sensors at several sampling rates form one recording (resampled channels)."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,34 @@ def test_cut_windows_are_the_recordings_slices_and_keep_their_ids() -> None:
         cut_windows(ds, 3.0)
     with pytest.raises(ValueError, match="finite positive"):
         cut_windows(ds, 0.5, -1.0)
+
+
+def test_a_windows_confidence_is_its_share_of_the_class_signal_and_travels_with_it() -> None:
+    from tactilesnn.datasets_synth import WindowDataset
+    from tactilesnn.recordings import FULL_CONFIDENCE_SHARE, cut_windows
+
+    X = np.zeros((2, 1, 40), np.float32)
+    ds = WindowDataset(X, np.array([0, 1]), np.array([3, 4]), 10.0, ("a", "b"), ("u",))
+    sig = np.zeros((2, 40), np.float32)
+    sig[0, 30:] = 1.0  # recording 0: its class's signal in the last quarter only
+    cut = cut_windows(ds, 1.0, 1.0, class_signal=sig)  # 10 samples every 10: 4 windows each
+    share = np.array([0, 0, 0, 1.0])
+    expect = np.concatenate([np.minimum(1, share / FULL_CONFIDENCE_SHARE), np.ones(4)])
+    np.testing.assert_allclose(cut.confidence, expect)  # recording 1 has none: all 1
+    sig[0, 25:30] = 0.05  # half a window's worth of a faint tail before it
+    part = cut_windows(ds, 1.0, 1.0, class_signal=sig).confidence[:4]
+    tail = 0.25 / 10.25
+    np.testing.assert_allclose(part, [0, 0, min(1, tail / FULL_CONFIDENCE_SHARE), 1], rtol=1e-6)
+    # a subset, a concatenation and a second cut carry the confidences with their windows
+    np.testing.assert_array_equal(cut.subset(np.array([3, 4])).confidence, [1, 1])
+    both = cut.concat(cut_windows(ds, 1.0, 1.0))
+    assert both.confidence.shape == (16,) and (both.confidence[8:] == 1).all()
+    again = cut_windows(replace(ds, confidence=np.array([0.5, 1.0], np.float32)), 2.0, 2.0)
+    np.testing.assert_array_equal(again.confidence, [0.5, 0.5, 1, 1])
+    with pytest.raises(ValueError, match="class_signal"):
+        cut_windows(ds, 1.0, 1.0, class_signal=-sig)
+    with pytest.raises(ValueError, match="confidence must be"):
+        replace(ds, confidence=np.ones(3, np.float32))
 
 
 def test_windows_cut_at_load_never_straddle_the_split(tmp_path: Path) -> None:

@@ -121,3 +121,38 @@ def test_a_resumed_cosine_run_equals_an_uninterrupted_one():
     trainer_mod.Trainer(resumed, cfg).fit(spikes, y, resume=states[1])
     for (k, a), b in zip(whole.state_dict().items(), resumed.state_dict().values(), strict=True):
         assert torch.equal(a, b), k
+
+
+@pytest.mark.parametrize("solver", ["exact", "adam"])
+def test_windows_without_their_class_signal_train_towards_saying_nothing(solver):
+    from tactilesnn.models import ReadoutConfig
+
+    spikes, y = _data(60, seed=3)
+    # half the windows carry the wrong half's pattern: with full confidence they pull the
+    # read-out; with none, they are trained to the uniform target and leave it alone
+    y_noisy = y.copy()
+    y_noisy[:30] = 1 - y_noisy[:30]
+    conf = np.r_[np.zeros(30), np.ones(30)].astype(np.float32)
+
+    def fitted(confidence):
+        model = build_model(ReadoutConfig(solver=solver, choose=False), 32, 2, 2, 50.0, seed=0)
+        cfg = TrainConfig(epochs=60 if solver == "adam" else 1, batch_size=16, seed=0)
+        trainer_mod.Trainer(model, cfg).fit(spikes, y_noisy, confidence=confidence)
+        return torch.softmax(model.scores(spikes), 1).detach()
+
+    p_none, p_full = fitted(conf), fitted(np.ones(60, np.float32))
+    hit = lambda p: float((p.argmax(1).numpy() == y).mean())  # noqa: E731
+    # (exact: 0.97 against 0.50; Adam's 60 epochs: 0.75+ against 0.50)
+    assert hit(p_none) >= 0.7 and hit(p_full) <= 0.6, (hit(p_none), hit(p_full))
+    if solver == "exact":  # all 1 is the hard-label fit itself
+        model = build_model(ReadoutConfig(choose=False), 32, 2, 2, 50.0, seed=0)
+        trainer_mod.Trainer(model, TrainConfig(seed=0)).fit(spikes, y_noisy)
+        np.testing.assert_allclose(torch.softmax(model.scores(spikes), 1).detach(), p_full,
+                                   atol=1e-5)  # fmt: skip
+
+
+def test_a_model_that_cannot_take_confidences_says_so():
+    model = build_model(ConvSNNConfig(grid="4x4", channels=2), 32, 2, 2, 50.0, seed=0)
+    spikes, y = _data()
+    with pytest.raises(ValueError, match="does not train on window confidences"):
+        trainer_mod.Trainer(model, TrainConfig(epochs=1)).fit(spikes, y, confidence=np.ones(40))

@@ -3,7 +3,10 @@
 :class:`WindowDataset` is what every task's ``build()`` and every recordings reader returns:
 ``X`` ``[N, channels, window]`` float32 in the sensor's readout units at ``fs_hz``, ``y`` ``[N]``
 int64 class indices into ``class_names``, ``scan`` ``[N]`` int64 group ids (a scan, trial or
-recording: windows of one group never straddle a split).
+recording: windows of one group never straddle a split); optionally ``confidence`` ``[N]``
+float32 in [0, 1], how much of its class's own signal each window holds (known where a renderer
+drew it: a synthetic slide's windows before its letter hold none; None: every window all), which
+training turns into soft targets (:func:`~tactilesnn.models.softmax_fit.soft_targets`).
 
 It is also a map-style dataset as torch's ``DataLoader`` and tonic expect: ``len(ds)`` and
 ``ds[i] -> (window [channels, window], label)``, with an optional ``transform`` applied to the
@@ -31,6 +34,14 @@ class WindowDataset:
     class_names: tuple[str, ...]
     channel_names: tuple[str, ...]
     transform: Callable[[np.ndarray], Any] | None = field(default=None, compare=False)
+    confidence: np.ndarray | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        c = self.confidence
+        if c is not None and (np.shape(c) != np.shape(self.y) or not np.all(np.isfinite(c))
+                              or np.any((np.asarray(c) < 0) | (np.asarray(c) > 1))):  # fmt: skip
+            raise ValueError(f"confidence must be [N={len(self.y)}] in [0, 1], got shape "
+                             f"{np.shape(c)}")  # fmt: skip
 
     def __len__(self) -> int:
         return len(self.y)
@@ -47,7 +58,8 @@ class WindowDataset:
 
     def subset(self, mask: np.ndarray) -> WindowDataset:
         """The windows selected by a boolean mask or an index array (same rate and names)."""
-        return replace(self, X=self.X[mask], y=self.y[mask], scan=self.scan[mask])
+        c = None if self.confidence is None else self.confidence[mask]
+        return replace(self, X=self.X[mask], y=self.y[mask], scan=self.scan[mask], confidence=c)
 
     def with_transform(self, transform: Callable[[np.ndarray], Any] | None) -> WindowDataset:
         return replace(self, transform=transform)
@@ -63,7 +75,15 @@ class WindowDataset:
             X=np.concatenate([self.X, other.X]),
             y=np.concatenate([self.y, other.y]),
             scan=np.concatenate([self.scan, other.scan]),
+            confidence=None
+            if self.confidence is None and other.confidence is None
+            else np.concatenate([_confidence(self), _confidence(other)]),
         )
+
+
+def _confidence(ds: WindowDataset) -> np.ndarray:
+    """``ds``'s window confidences, all 1 where it has none."""
+    return np.ones(len(ds.y), np.float32) if ds.confidence is None else ds.confidence
 
 
 #: windows a fit statistic reads at a time (bounded temporaries, whatever the data's size)

@@ -71,6 +71,9 @@ class SpikeModel(nn.Module):
     #: the training epochs a run takes for this model when none are given (None: the
     #: settings' default)
     default_epochs: ClassVar[int | None] = None
+    #: trains on soft targets from each window's confidence (:meth:`solve` and :meth:`loss`
+    #: take ``confidence``; :func:`~.softmax_fit.soft_targets`)
+    trains_on_confidence: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -133,10 +136,11 @@ class SpikeModel(nn.Module):
         over the training spikes, which a run's plan can estimate) rather than by epochs."""
         return False
 
-    def solve(self, spikes: Tensor, y: Tensor, groups=None) -> dict | None:
+    def solve(self, spikes: Tensor, y: Tensor, groups=None, confidence=None) -> dict | None:
         """Fit in one go instead of the trainer's epochs (a convex model solved to its optimum),
         after :meth:`prepare`: labels ``y [N]`` int64, ``groups`` recording ids ``[N]`` (for
-        cross-validation; None: each window its own). Returns what the fit chose (reported in
+        cross-validation; None: each window its own), ``confidence`` ``[N]`` in [0, 1] (only
+        where :attr:`trains_on_confidence`). Returns what the fit chose (reported in
         ``metrics.json``), or None (default): train by epochs."""
         return None
 

@@ -58,6 +58,7 @@ from .softmax_fit import (
     fit_features,
     fit_softmax,
     row_space,
+    soft_targets,
     whole_groups,
 )
 
@@ -142,6 +143,7 @@ class LIReadout(SpikeModel):
     """Leaky-integrator traces at fixed times -> linear class scores; see the module docstring."""
 
     score_units = "logits of a softmax over classes"
+    trains_on_confidence = True
     #: the feature scaler's buffers: runs written before it load them as identity
     optional_state: ClassVar[tuple[str, ...]] = ("feat_mean", "feat_scale")
 
@@ -243,7 +245,8 @@ class LIReadout(SpikeModel):
         return out
 
     def _exact(self, held: list[Tensor], spikes: Tensor, rows: np.ndarray | None,
-               cols: Tensor | None, y: Tensor, lam: float) -> tuple[Tensor, Tensor, int, Tensor]:  # fmt: skip
+               cols: Tensor | None, y: Tensor, lam: float,
+               confidence: Tensor | None = None) -> tuple[Tensor, Tensor, int, Tensor]:  # fmt: skip
         """The exact fit on the features ``held.pop()`` (of ``spikes[rows]``, columns ``cols``;
         handed over in a list so that this frame holds their last reference):
         ``(W [d, classes] float64, b, function evaluations, training logits)``. With more
@@ -253,10 +256,10 @@ class LIReadout(SpikeModel):
         part = held.pop()
         g, lk = row_space(part)
         if lk is None:
-            w, b, evals = fit_features(part, y, self.n_classes, lam)
+            w, b, evals = fit_features(part, y, self.n_classes, lam, confidence=confidence)
             return w, b, evals, part @ w.float() + b.float()
         del part  # the features freed: the row space is all the fit needs
-        z, b, evals = fit_softmax(g, y, self.n_classes, lam)
+        z, b, evals = fit_softmax(g, y, self.n_classes, lam, confidence=confidence)
         logits = (g @ z.to(g.dtype)).double() + b  # F W = L_K L_K^T L_K^-T z = G z
         a = torch.linalg.solve_triangular(g.T.double(), z, upper=True)  # [N, classes]
         del g, lk
@@ -271,13 +274,16 @@ class LIReadout(SpikeModel):
         return w, b, evals, logits
 
     @torch.no_grad()
-    def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None) -> dict | None:
+    def solve(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None,
+              confidence: Tensor | None = None) -> dict | None:  # fmt: skip
         """The exact solver (``solver = "exact"``; None otherwise): after :meth:`prepare`, the
         penalised cross-entropy minimised to its optimum (:func:`~.softmax_fit.fit_features`),
         with ``choose`` the penalty and the read-out instants used (the others get zero weight)
         chosen by cross-validation over ``groups`` (recording ids ``[N]``; each window its own
-        without) on at most ``CV_WINDOWS`` windows. Returns what was chosen, with the
-        cross-validated accuracy of every candidate and the training error of the fit.
+        without) on at most ``CV_WINDOWS`` windows; ``confidence`` ``[N]``: soft targets
+        (:func:`~.softmax_fit.soft_targets`) in the fit and the cross-validation. Returns what
+        was chosen, with the cross-validated accuracy of every candidate and the training error
+        of the fit.
 
         Bounded: the cross-validation featurises at most :data:`EXACT_BUDGET_BYTES` of float32
         (whole recordings), the final fit every window's features of the chosen instants where
@@ -307,7 +313,9 @@ class LIReadout(SpikeModel):
                 cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]
             )
             lam, rows = choose_penalty(part, y[torch.from_numpy(cv)], groups[cv], self.n_classes,
-                                       [self.penalty * f for f in factors])  # fmt: skip
+                                       [self.penalty * f for f in factors],
+                                       confidence=None if confidence is None else
+                                       confidence[torch.from_numpy(cv)])  # fmt: skip
             del part
             acc = max((r["cv_accuracy"] for r in rows), default=0.0)
             table += [{"instants": len(subset), **r} for r in rows]
@@ -332,10 +340,12 @@ class LIReadout(SpikeModel):
                 part = self._training_features(spikes, rows, None if every else used)
             del feats
             fit_y = y if rows is None else y[torch.from_numpy(rows)]
+            fit_c = confidence if rows is None or confidence is None else confidence[
+                torch.from_numpy(rows)]  # fmt: skip
             cols_used = None if every else used
             held = [part]  # handed over: _exact holds the features' last reference
             del part
-            w, b, evals, logits = self._exact(held, spikes, rows, cols_used, fit_y, lam)
+            w, b, evals, logits = self._exact(held, spikes, rows, cols_used, fit_y, lam, fit_c)
             weight[:, used] = w.T
             self.linear.bias.copy_(b.float())
             report.update(solver="exact (L-BFGS, float32 data)", function_evaluations=evals,
@@ -361,12 +371,13 @@ class LIReadout(SpikeModel):
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         return 4 * 4 * afferents * k * self.config.n_times
 
-    def loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+    def loss(self, spikes: Tensor, y: Tensor, confidence: Tensor | None = None) -> Tensor:
         # instants left out by solve() have zero weight and, masked here, zero gradient: Adam
         # keeps them at exactly zero, so the unmasked scores() equal the masked ones
         w = self.linear.weight * self.instant_mask
+        target = y if confidence is None else soft_targets(y, self.n_classes, confidence).float()
         ce = nn.functional.cross_entropy(nn.functional.linear(self.features(spikes), w,
-                                                              self.linear.bias), y)  # fmt: skip
+                                                              self.linear.bias), target)  # fmt: skip
         return ce + self.penalty * w.pow(2).sum()
 
     @torch.no_grad()

@@ -123,21 +123,22 @@ def fit_softmax(
     tol: float = TOL,
     max_iter: int = 1000,
     gg: Tensor | None = None,
+    confidence: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, int]:
     """Minimise ``mean CE(g Z + b, y) + penalty ||Z||^2`` (``b`` unpenalised) with full-batch
     L-BFGS (strong Wolfe line search), preconditioned by :func:`curvature_factor`, from ``init``
     (warm start, ``(Z, b)``) or zeros.
 
     ``g [N, r]`` (float32 for speed or float64), ``y [N]`` int64 in ``[0, n_classes)``; ``gg``:
-    ``g``'s :func:`gram` when the caller has it (the cross-validation reuses one per fold).
+    ``g``'s :func:`gram` when the caller has it (the cross-validation reuses one per fold);
+    ``confidence``: each window's :func:`soft_targets` weight ``[N]`` (None: hard labels).
     Returns ``(Z [r, classes] float64, b [classes] float64, function evaluations)``; stops when
     the largest gradient entry is below ``tol`` (or after ``max_iter`` iterations)."""
     n, r = g.shape
     dt = g.dtype
     lf = curvature_factor(gram(g), n, penalty, inplace=True) if gg is None else (
         curvature_factor(gg, n, penalty))  # fmt: skip
-    onehot = torch.zeros(n, n_classes, dtype=torch.float64)
-    onehot[torch.arange(n), y] = 1.0
+    onehot = soft_targets(y, n_classes, confidence)
     u = torch.zeros(r, n_classes, dtype=torch.float64)
     b = torch.zeros(n_classes, dtype=torch.float64)
     if init is not None:
@@ -171,6 +172,21 @@ def fit_softmax(
     return z, b.detach(), evals
 
 
+def soft_targets(y: Tensor, n_classes: int, confidence: Tensor | None = None) -> Tensor:
+    """Targets ``[N, classes]`` float64: one-hot ``y``, or with ``confidence`` ``c [N]`` in
+    ``[0, 1]`` the mixture ``c * one-hot + (1 - c) / classes``: a window that holds none of its
+    class's signal (``c = 0``; a synthetic slide's windows before its letter) is trained to say
+    nothing rather than taught a cue its class does not own."""
+    q = torch.zeros(len(y), n_classes, dtype=torch.float64)
+    q[torch.arange(len(y)), y] = 1.0
+    if confidence is None:
+        return q
+    c = torch.as_tensor(confidence, dtype=torch.float64).reshape(-1, 1)
+    if c.shape[0] != len(y) or not bool(((c >= 0) & (c <= 1)).all()):
+        raise ValueError(f"confidence must be [N={len(y)}] in [0, 1]")
+    return c * q + (1.0 - c) / n_classes
+
+
 def group_folds(groups: np.ndarray, folds: int = FOLDS) -> list[np.ndarray]:
     """Boolean held-out masks of ``folds`` folds, whole groups each, balanced by window count
     (largest groups first onto the lightest fold; deterministic). Fewer folds when there are
@@ -195,6 +211,7 @@ def choose_penalty(
     n_classes: int,
     penalties: list[float],
     max_windows: int = CV_WINDOWS,
+    confidence: Tensor | None = None,
 ) -> tuple[float, list[dict]]:
     """The penalty with the highest cross-validated accuracy over recordings (ties: the lower
     held-out cross-entropy, then the larger penalty), on at most ``max_windows`` windows (whole
@@ -203,13 +220,17 @@ def choose_penalty(
     last (the well-conditioned end first), to a gradient of :data:`CV_TOL` (a ranking, not
     the final weights). Returns ``(penalty, [{"penalty", "cv_accuracy", "cv_log_loss"} per penalty])``;
     with one penalty (nothing to choose) or fewer than two recordings, the middle penalty and an
-    empty table."""
+    empty table. With ``confidence`` (:func:`soft_targets`) the fits take the soft targets and
+    a held-out window's accuracy is its target's share on the class predicted (a window with
+    none of its class's signal counts 1 / classes whatever the prediction)."""
     if len(penalties) == 1:
         return float(penalties[0]), []
     keep = whole_groups(np.asarray(groups), max_windows)
     if keep.size < len(y):
         at = torch.from_numpy(keep)
         features, y, groups = features[at], y[at], np.asarray(groups)[keep]
+        confidence = None if confidence is None else torch.as_tensor(confidence)[at]
+    q = None if confidence is None else soft_targets(y, n_classes, confidence)
     masks = group_folds(groups)
     if not masks:
         return penalties[len(penalties) // 2], []
@@ -224,12 +245,17 @@ def choose_penalty(
         warm = None
         for i in order:
             z, b, _ = fit_softmax(g, y[fit], n_classes, penalties[i], warm, tol=CV_TOL,
-                                  max_iter=300, gg=gg)  # fmt: skip
+                                  max_iter=300, gg=gg,
+                                  confidence=None if confidence is None else confidence[fit])  # fmt: skip
             warm = (z, b)
             w = from_row_space(f_fit, lk, z)
             logits = (features[out] @ w.to(features.dtype)).double() + b
-            acc[i] += float((logits.argmax(1) == y[out]).double().sum())
-            ce[i] += float(torch.nn.functional.cross_entropy(logits, y[out], reduction="sum"))
+            if confidence is None:
+                acc[i] += float((logits.argmax(1) == y[out]).double().sum())
+                ce[i] += float(torch.nn.functional.cross_entropy(logits, y[out], reduction="sum"))
+            else:
+                acc[i] += float(q[out].gather(1, logits.argmax(1, keepdim=True)).sum())
+                ce[i] += float(-(q[out] * torch.log_softmax(logits, 1)).sum())
     n = float(len(y))
     table = [{"penalty": float(lam), "cv_accuracy": acc[i] / n, "cv_log_loss": ce[i] / n}
              for i, lam in enumerate(penalties)]  # fmt: skip
@@ -244,11 +270,13 @@ def fit_features(
     n_classes: int,
     penalty: float,
     tol: float = TOL,
+    confidence: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, int]:
     """The exact fit on features ``[N, d]`` (float32 or float64): ``(W [d, classes] float64,
-    b [classes], function evaluations)`` through :func:`row_space` and :func:`fit_softmax`."""
+    b [classes], function evaluations)`` through :func:`row_space` and :func:`fit_softmax`
+    (``confidence``: soft targets, :func:`soft_targets`)."""
     g, lk = row_space(features)
-    z, b, evals = fit_softmax(g, y, n_classes, penalty, tol=tol)
+    z, b, evals = fit_softmax(g, y, n_classes, penalty, tol=tol, confidence=confidence)
     del g
     return from_row_space(features, lk, z), b, evals
 

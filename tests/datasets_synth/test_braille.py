@@ -185,3 +185,22 @@ def test_relief_is_the_dots_shape_at_every_frame_and_point(spread):
     got = tip.relief_mm(pts, bumps, h, 2 * a)
     assert got.shape == want.shape and np.allclose(got, want, rtol=0, atol=1e-15)
     assert (got > 1e-9).any(1).sum() < 0.5 * len(track)  # most frames: no dot within reach
+
+
+def check_class_signal(task) -> None:
+    """The letter's own signal: zero where the cell is out of reach, and the slide unchanged."""
+    for i in range(3):
+        x, _, info = task.sample(i)
+        x2, _, info2 = task.sample(i, class_signal=True)
+        np.testing.assert_array_equal(x, x2)  # the draw is not disturbed
+        assert "class_signal" not in info
+        sig = info2["class_signal"]
+        assert sig.shape == (x.shape[-1],) and sig.dtype == np.float32 and (sig >= 0).all()
+        n = sig.size
+        # the cell passes the fingertip mid-slide: nothing at the ends, most in the middle half
+        assert sig[: n // 10].max() == 0 and sig[-(n // 10) :].max() == 0
+        assert sig[n // 4 : 3 * n // 4].sum() > 0.8 * sig.sum() > 0
+
+
+def test_the_class_signal_is_the_letters_response_and_leaves_the_slide_as_it_was():
+    check_class_signal(get_task("braille", seed=2, n_samples=6))

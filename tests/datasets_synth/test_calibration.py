@@ -351,3 +351,10 @@ def test_known_values_are_held_and_checked():
     everything = {k: lo for k, (lo, _, _) in bf.bounds_for("abc").items()}
     with pytest.raises(ValueError, match="nothing is left to search"):
         bf.check_known(everything, "abc")
+
+
+def test_a_fitted_fingertips_class_signal_is_its_letters_response(tmp_path):
+    from tests.datasets_synth.test_braille import check_class_signal
+
+    path = _fit().save(tmp_path / "fit.json")
+    check_class_signal(get_task("braille", calibration=str(path), n_samples=6, seed=3))

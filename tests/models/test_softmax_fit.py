@@ -12,6 +12,7 @@ from tactilesnn.models.softmax_fit import (
     from_row_space,
     group_folds,
     row_space,
+    soft_targets,
 )
 
 
@@ -94,3 +95,41 @@ def test_the_chosen_penalty_is_the_best_cross_validated_one():
     tied = [r for r in table if r["cv_accuracy"] == max(accs)]
     assert best == min(tied, key=lambda r: r["cv_log_loss"])["penalty"]
     assert all(0.0 <= a <= 1.0 for a in accs)
+
+
+@pytest.mark.parametrize("n, d", [(90, 12), (40, 120)])
+def test_soft_targets_are_the_optimum_of_the_windows_weighted_by_class(n, d):
+    # mean over windows of -(q . log p) with q = c one-hot + (1 - c) / K is scikit-learn's
+    # weighted fit of every window repeated once per class, weighted by q
+    k, lam = 3, 0.05
+    x, y = _problem(n, d, k, seed=4)
+    conf = torch.from_numpy(np.random.default_rng(5).uniform(0, 1, n))
+    conf[:10] = 0.0  # windows with none of their class's signal
+    w, _, _ = fit_features(x, y, k, lam, tol=1e-10, confidence=conf)
+    q = soft_targets(y, k, conf).numpy()
+    np.testing.assert_allclose(q.sum(1), 1.0)
+    np.testing.assert_allclose(q[:10], 1.0 / k)
+    xr = np.repeat(x.numpy(), k, axis=0)
+    yr = np.tile(np.arange(k), n)
+    ref = LogisticRegression(C=1.0 / (2 * lam * n), tol=1e-12, max_iter=20_000).fit(
+        xr, yr, sample_weight=q.reshape(-1)
+    )
+    np.testing.assert_allclose(w.T.numpy(), ref.coef_, atol=1e-4 * np.abs(ref.coef_).max())
+
+
+def test_full_confidence_is_the_hard_label_fit_and_bad_confidence_is_refused():
+    x, y = _problem(80, 10, 3, seed=6)
+    hard = fit_features(x, y, 3, 0.02, tol=1e-9)
+    full = fit_features(x, y, 3, 0.02, tol=1e-9, confidence=torch.ones(80, dtype=torch.float64))
+    np.testing.assert_allclose(full[0].numpy(), hard[0].numpy(), atol=1e-8)
+    groups = np.arange(80) // 4
+    lam_h, t_h = choose_penalty(x, y, groups, 3, [0.01, 0.1, 1.0])
+    lam_f, t_f = choose_penalty(x, y, groups, 3, [0.01, 0.1, 1.0], confidence=torch.ones(80))
+    assert lam_h == lam_f
+    np.testing.assert_allclose([r["cv_accuracy"] for r in t_f], [r["cv_accuracy"] for r in t_h])
+    # windows with no signal count 1 / classes in the cross-validated accuracy, whatever is said
+    _, t0 = choose_penalty(x, y, groups, 3, [0.01, 0.1], confidence=torch.zeros(80))
+    np.testing.assert_allclose([r["cv_accuracy"] for r in t0], 1.0 / 3)
+    for bad in (torch.full((80,), 1.5), torch.ones(79)):
+        with pytest.raises(ValueError, match="confidence"):
+            soft_targets(y, 3, bad)

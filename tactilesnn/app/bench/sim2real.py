@@ -78,9 +78,11 @@ def load_real(root: Path) -> WindowDataset:
 
 
 def render_synthetic(real: WindowDataset, n: int, seed: int, progress: bool = False,
-                     **knobs: float) -> WindowDataset:  # fmt: skip
-    """``n`` slides of the ``braille`` task at the real file's rate and length, letters named
-    as the real classes (``A`` -> ``a``); recording ids from 10^6 up."""
+                     class_signal: bool = False, **knobs: float) -> tuple:  # fmt: skip
+    """``(slides, force rise N [n])``: ``n`` slides of the ``braille`` task at the real file's
+    rate and length, letters named as the real classes (``A`` -> ``a``); recording ids from
+    10^6 up. With ``class_signal``, ``(slides, rise, letter's signal [n, samples])`` (the
+    task's ``info["class_signal"]``: what :func:`cut` turns into window confidences)."""
     from tqdm.auto import tqdm
 
     from ...datasets_synth import get_task
@@ -92,12 +94,15 @@ def render_synthetic(real: WindowDataset, n: int, seed: int, progress: bool = Fa
     X = np.empty((n, len(task.channel_names), samples), np.float32)
     y = np.empty(n, np.int64)
     rise = np.empty(n)
+    signal = np.empty((n, samples), np.float32) if class_signal else None
     for i in tqdm(range(n), desc="render braille", disable=not progress):
-        X[i], y[i], info = task.sample(i)
+        X[i], y[i], info = task.sample(i, class_signal=class_signal)
         rise[i] = info["force_rise_N"]
+        if signal is not None:
+            signal[i] = info["class_signal"]
     ds = WindowDataset(X, y, 10**6 + np.arange(n, dtype=np.int64), real.fs_hz,
                        real.class_names, real.channel_names)  # fmt: skip
-    return ds, rise
+    return (ds, rise) if signal is None else (ds, rise, signal)
 
 
 def real_force_rise(root: Path) -> np.ndarray | None:
@@ -175,12 +180,13 @@ def slides(real: WindowDataset, idx: np.ndarray) -> WindowDataset:
     return real.subset(np.isin(np.arange(real.y.size), idx))
 
 
-def cut(ds: WindowDataset) -> WindowDataset:
-    """Windows as ``train --data`` cuts the real file (:func:`~tactilesnn.recordings.auto_cut`)."""
+def cut(ds: WindowDataset, class_signal: np.ndarray | None = None) -> WindowDataset:
+    """Windows as ``train --data`` cuts the real file (:func:`~tactilesnn.recordings.auto_cut`);
+    with the slides' ``class_signal`` ``[N, samples]``, each window's confidence from it."""
     from ...recordings import auto_cut, cut_windows
 
     c = auto_cut(ds.X.shape[-1], ds.fs_hz, False)
-    return ds if c is None else cut_windows(ds, *c)
+    return ds if c is None else cut_windows(ds, *c, class_signal=class_signal)
 
 
 def concat(*parts: WindowDataset) -> WindowDataset:
@@ -281,7 +287,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(fit_path) if fit_path is not None else Path(tmp) / "fit.json"
         fit.save(path, overwrite=True)
-        synth, _ = render_synthetic(real, synthetic, seed, False, calibration=str(path))
+        synth, _, letter = render_synthetic(real, synthetic, seed, False, class_signal=True,
+                                            calibration=str(path))  # fmt: skip
         if plot_path is not None:
             from ...datasets_synth.calibration import plot_statistics, slide_statistics
 
@@ -290,7 +297,10 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
             st_syn = slide_statistics(synth.X, synth.y, real.fs_hz, n_cls)
             plot_statistics(st_real, {"calibrated": st_syn}, real.class_names, real.fs_hz,
                             plot_path, title=f"fitted to {train_idx.size} real slides")  # fmt: skip
-    synth_w, train_w, test_w = cut(synth), cut(train_real), cut(test_real)
+    # the synthetic windows' confidence: their share of the letter's own signal (the renderer
+    # knows it): windows before and after the letter are trained to say nothing, not to read
+    # a rest level the robot's letters do not own
+    synth_w, train_w, test_w = cut(synth, letter), cut(train_real), cut(test_real)
     # the encoder: the candidate whose synthetic-trained pipeline scores best on the k real
     # training slides (what transfers; the training slides only, never the test ones)
     from ...data_policy import DATA_ENCODER_CANDIDATES
@@ -311,7 +321,10 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                  "seed": seed,
                  "calibration_s": t_cal, "objective": fit.objective["value"],
                  "distances": fit.objective["distances"], "encoder": chosen,
-                 "encoder_scores_on_training_slides": scores}  # fmt: skip
+                 "encoder_scores_on_training_slides": scores,
+                 "synthetic_confidence": {"mean": float(synth_w.confidence.mean()),
+                                          "none": float((synth_w.confidence == 0).mean()),
+                                          "full": float((synth_w.confidence == 1).mean())}}  # fmt: skip
     row["synthetic_only_unadapted"], row["synthetic_only_unadapted_per_slide"] = _accuracy(
         pre, test_w
     )

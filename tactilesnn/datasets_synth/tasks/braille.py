@@ -83,6 +83,10 @@ def check_fit(fit: SensorFit, where: str) -> None:
         raise ValueError(f"{where}: randomisation widths and noise must be >= 0")
 
 
+#: where :meth:`BrailleTask.class_signal` puts the cell: far out of any fingertip's reach (mm)
+CELL_AWAY_MM = 1.0e4
+
+
 @register_task
 @dataclass(frozen=True)
 class BrailleTask(TrialTask):
@@ -186,9 +190,15 @@ class BrailleTask(TrialTask):
     def fs_hz(self) -> float:
         return float(self.fs_frames_hz)
 
-    def _render(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    def _render_without_class(self, label: int, rng: np.random.Generator) -> np.ndarray:
+        # the same draw with the cell moved out of the fingertip's reach: every random number is
+        # drawn as before, so what differs from the slide is the letter's own response
+        return self._render(label, rng, away=True)[0]
+
+    def _render(self, label: int, rng: np.random.Generator,
+                away: bool = False) -> tuple[np.ndarray, dict]:  # fmt: skip
         if self.fit is not None:
-            return self._render_fitted(label, rng)
+            return self._render_fitted(label, rng, away)
         d = self.difficulty
         sensor = self.sensor
         n = self.window
@@ -201,6 +211,7 @@ class BrailleTask(TrialTask):
         pitch = self.dot_spacing_mm
         diameter = scaled_dot_diameter_mm(pitch)
         dots = cell_dots_mm(self.class_names[label], pitch) + place - [0.0, self.row_mm]
+        dots = dots + (CELL_AWAY_MM if away else 0.0)
         shift = speed * (t - self.duration_s / 2)  # the plate moves towards -x
 
         bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]  # [frames, k, 2]
@@ -223,7 +234,8 @@ class BrailleTask(TrialTask):
                 "force_rise_N": float(load.max() - load[: max(1, n // 10)].mean())}  # fmt: skip
         return counts, info
 
-    def _render_fitted(self, label: int, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    def _render_fitted(self, label: int, rng: np.random.Generator,
+                       away: bool = False) -> tuple[np.ndarray, dict]:  # fmt: skip
         """A slide of the fitted fingertip and scene, drawn around the fit's values."""
         fit = self.fit
         assert fit is not None
@@ -249,6 +261,7 @@ class BrailleTask(TrialTask):
         rows = float(sc.get("row_spacing_mm", pitch))
         diameter = scaled_dot_diameter_mm(pitch, rows)
         dots = cell_dots_mm(self.class_names[label], pitch, rows) + place - [0.0, sc["row_mm"]]
+        dots = dots + (CELL_AWAY_MM if away else 0.0)
         shift = speed * (t - t_mid)
         bumps = dots[None] - np.stack([shift, np.zeros(n)], 1)[:, None]
         fs = min(knob("force_spread", rz["force_spread"]), 0.9)

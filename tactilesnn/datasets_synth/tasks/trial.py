@@ -98,13 +98,22 @@ class TrialTask(ABC):
     def rng(self, index: int) -> np.random.Generator:
         return np.random.default_rng([self.task_id, self.seed, index])
 
-    def sample(self, index: int) -> tuple[np.ndarray, int, dict]:
-        """Sample ``index`` -> ``(x [channels, window] float32, label, info)``."""
+    def sample(self, index: int, class_signal: bool = False) -> tuple[np.ndarray, int, dict]:
+        """Sample ``index`` -> ``(x [channels, window] float32, label, info)``. With
+        ``class_signal``, ``info["class_signal"]``: the class's own signal per sample ``[window]``
+        float32 (>= 0, in :attr:`units`, summed over channels): how far the rendering moves from
+        the same draw without the stimulus (a Braille slide's letter, not its rest or the
+        fingertip's noise; device faults left out), or None where the task cannot render a trial
+        without it. It feeds :func:`~tactilesnn.recordings.cut_windows`' window confidences."""
         if not 0 <= index < self.n_samples:
             raise IndexError(f"sample index {index} out of range [0, {self.n_samples})")
         label = index % len(self.class_names)
         rng = self.rng(index)
         x, info = self._render(label, rng)
+        if class_signal:
+            bare = self._render_without_class(label, self.rng(index))
+            info["class_signal"] = None if bare is None else (
+                np.abs(np.asarray(x, np.float64) - bare).sum(0).astype(np.float32))  # fmt: skip
         if self.faults.active:  # device draws depend on (task, seed) only; drift on the sample
             device = np.random.default_rng([self.task_id, self.seed, 2**31 + 1])
             x = self.faults.apply(x, self.fs_hz, device, self.rng(index).spawn(1)[0])
@@ -113,6 +122,11 @@ class TrialTask(ABC):
                                  f"{(len(self.channel_names), self.window)}")  # fmt: skip
         info["class"] = self.class_names[label]
         return x.astype(np.float32), label, info
+
+    def _render_without_class(self, label: int, rng: np.random.Generator) -> np.ndarray | None:
+        """The trial :meth:`_render` draws from ``rng``, without its class's stimulus (every
+        other random draw the same); None (default): the task cannot render one."""
+        return None
 
     def render(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Sample ``index`` as windows ``(X [1, C, W] float32, y [1] int64)`` (generator contract)."""
