@@ -774,14 +774,17 @@ Braille cell the way the robot arm of `../shared/data/braille_icub_abc` does it 
 letters A, B, C). `tactilesnn calibrate` fits that model to a user's slides; `tactilesnn bench
 sim2real` measures what the fitted model buys a classifier of the real sensor, with a protocol
 that cannot leak: for each few-shot draw (k real slides per letter), the model is fitted to
-those k slides per letter only, its synthetic slides train the `train --data` pipeline (the
-encoder: the candidate whose synthetic-trained pipeline scores best on the k real training
-slides), whose read-out's standardisation is re-estimated on the k real training slides' windows
-(labels unused), which is scored on the other real slides (synthetic only) and then fine-tuned
-on the k real slides (pretrained + fine-tuned: the read-out re-fitted with a prior centred on the
-pretrained weights), next to the same pipeline trained on the k real slides alone (real only).
-No test slide is seen by the fit, the choice of encoder, the re-estimate, the training or the
-fine-tune (no early stopping); `tests/bench/test_sim2real.py` checks the split through every call.
+those k slides per letter only, its synthetic slides train the `train --data` pipeline (each
+window's target weighted by its share of the letter's own signal, which the renderer knows:
+the windows before and after the letter are trained to the uniform target, not to a rest level
+the letters do not own; the encoder: the candidate whose synthetic-trained pipeline scores best
+on the k real training slides), whose read-out's standardisation is re-estimated on the k real
+training slides' windows (labels unused), which is scored on the other real slides (synthetic
+only) and then fine-tuned on the k real slides (pretrained + fine-tuned: the read-out re-fitted
+with a prior centred on the pretrained weights), next to the same pipeline trained on the k real
+slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
+re-estimate, the training or the fine-tune (no early stopping); `tests/bench/test_sim2real.py`
+checks the split through every call.
 """
 
 
