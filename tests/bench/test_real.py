@@ -115,3 +115,14 @@ def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monk
     assert main(["bench", "tasks", "--references", "--out", str(tmp_path), "--quiet"]) == 0
     assert sorted(calls["datasets"]) == sorted(f"synth:{t}" for t in TASKS)
     assert calls["pipelines"] == ["default+readout"] and calls["out"] == tmp_path / "references"
+
+
+def test_soft_targets_become_weighted_rows_that_sum_to_each_window():
+    from tactilesnn.app.bench.real import soft_target_rows
+
+    y = np.array([0, 2, 1])
+    rows, labels, w = soft_target_rows(y, np.array([1.0, 0.0, 0.4]), 3)
+    assert rows.tolist() == [0, 1, 1, 1, 2, 2, 2]  # a certain window: its label's row only
+    assert labels.tolist() == [0, 0, 1, 2, 0, 1, 2]
+    np.testing.assert_allclose(np.bincount(rows, weights=w), 1.0)
+    np.testing.assert_allclose(w[4:], [0.2, 0.6, 0.2])

@@ -85,6 +85,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     def spy_fit(cfg, data, *a, **kw):
         seen["fit"].append(data.scan.copy())
+        seen.setdefault("fit_confidence", []).append(data.confidence)
         return fit_pipeline(cfg, data, *a, **kw)
 
     def spy_finetune(pipe, data, *a, **kw):
@@ -114,6 +115,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     def spy_references(train, test, pipe, seed):
         seen.setdefault("references", []).append((train.scan.copy(), test.scan.copy()))
+        seen.setdefault("reference_confidence", []).append(train.confidence)
         return references(train, test, pipe, seed)
 
     monkeypatch.setattr(bench_real, "references", spy_references)
@@ -133,6 +135,13 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     for scans in seen["fit"] + seen["finetune"]:  # synthetic ids (>= 1e6) or training slides
         assert not set(scans.tolist()) & test_ids
     assert any(set(s.tolist()) <= train_ids for s in seen["fit"])  # the real-only arm
+    # the synthetic windows train on their share of the letter (the real ones on their labels)
+    for scans, conf in zip(seen["fit"], seen["fit_confidence"], strict=True):
+        synthetic = scans.min() >= 10**6
+        assert (conf is not None) == synthetic
+        if synthetic:
+            assert conf.min() == 0.0 and conf.max() == 1.0  # windows before the letter: none
+    assert 0.0 < row["synthetic_confidence"]["none"] < 1.0
     assert all(set(s.tolist()) <= train_ids for s in seen["finetune"])
     # the standardisation re-estimated on the training slides (labels unused), once
     assert [set(s.tolist()) for s in seen["adapt"]] == [train_ids]
@@ -153,10 +162,13 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         assert 0.0 <= row[key] <= 1.0
     # the non-spiking references: trained on synthetic windows, then on the training slides,
     # each scored on the test slides; the waveform ones only (no spike MLP)
-    (syn_tr, syn_te), (real_tr, real_te) = seen["references"]
+    # (on the synthetic windows twice: on their labels alone, and on the pipeline's soft targets)
+    (syn_tr, syn_te), (soft_tr, soft_te), (real_tr, real_te) = seen["references"]
     assert syn_tr.min() >= 10**6 and set(real_tr.tolist()) == train_ids
-    assert set(syn_te.tolist()) == set(real_te.tolist()) == test_ids
-    assert set(row["references"]) == {"synthetic", "real"}
+    assert np.array_equal(soft_tr, syn_tr)
+    assert set(syn_te.tolist()) == set(soft_te.tolist()) == set(real_te.tolist()) == test_ids
+    assert [c is not None for c in seen["reference_confidence"]] == [False, True, False]
+    assert set(row["references"]) == {"synthetic", "synthetic_confidence", "real"}
     assert "mlp_spikes" not in row["references"]["real"] and len(row["references"]["real"]) == 5
     assert all(0.0 <= s <= 1.0 for acc in row["references"]["real"].values() for s in acc)
     # --references-from: the same references for a run's saved fit, into its JSON
@@ -196,9 +208,17 @@ def test_page_reports_the_references_next_to_the_spike_pipeline():
     cal = [{"k": k, "draw": d, "seed": d + 100 * s, "synthetic_only_per_slide": 0.2 + 0.5 * s,
             "real_only_per_slide": 0.3} for k in (1, 2) for d in range(2) for s in range(2)]  # fmt: skip
     lines = sim2real._references_section(refs, cal)
-    assert "| synthetic slides | rf | 55.0 | 55.0 | 55.0 |" in lines
-    assert "| synthetic slides | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
+    assert "| synthetic slides, labels alone | rf | 55.0 | 55.0 | 55.0 |" in lines
+    assert "| synthetic slides, labels alone | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
     assert "| k real slides | **spike pipeline** | 30.0 | 30.0 | 30.0 |" in lines
+    # with the soft-target references, the spike pipeline (trained on them) is shown with those
+    for x in refs:
+        x["synthetic_confidence"] = {"rf": [0.5, 0.8]}
+    lines = sim2real._references_section(refs, cal)
+    soft = "synthetic slides, the pipeline's soft targets"
+    assert f"| {soft} | rf | 80.0 | 80.0 | 80.0 |" in lines
+    assert f"| {soft} | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
+    assert not any("labels alone | **spike" in ln for ln in lines)
 
 
 def test_calibrated_summary_has_the_documented_keys():

@@ -196,7 +196,13 @@ def references(
     from ...training import recording_accuracy
 
     def scored(clf, f_train: np.ndarray, f_test: np.ndarray) -> tuple[float, float | None]:
-        clf.fit(f_train, train.y)
+        if train.confidence is None:
+            clf.fit(f_train, train.y)
+        else:  # the same soft targets as the spike pipeline's: each window once per class
+            rows, labels, weights = soft_target_rows(train.y, train.confidence,
+                                                     len(train.class_names))  # fmt: skip
+            last = clf.steps[-1][0] + "__" if hasattr(clf, "steps") else ""
+            clf.fit(f_train[rows], labels, **{last + "sample_weight": weights})
         proba = np.zeros((test.y.size, len(test.class_names)))
         proba[:, clf.classes_] = clf.predict_proba(f_test)
         per_rec = recording_accuracy(proba, test.y, test.scan)
@@ -222,6 +228,18 @@ def references(
         out["mlp_spikes"] = scored(mlp, spike_features(pipe.encode(train.X), pipe.duration_ms),
                                    spike_features(pipe.encode(test.X), pipe.duration_ms))  # fmt: skip
     return out
+
+
+def soft_target_rows(y: np.ndarray, confidence: np.ndarray,
+                     n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Soft targets (:func:`~tactilesnn.models.softmax_fit.soft_targets`) as weighted hard
+    rows, for a scikit-learn classifier's ``sample_weight``: ``(window index, label, weight)``
+    of every (window, class) pair with a weight above zero. A weighted cross-entropy over these
+    rows is the soft-target one."""
+    c = np.asarray(confidence, np.float64)[:, None]
+    q = (1.0 - c) / n_classes + c * np.eye(n_classes)[np.asarray(y)]
+    rows, labels = np.nonzero(q > 0)
+    return rows, labels, q[rows, labels]
 
 
 # ---------------------------------------------------------------- the benchmark

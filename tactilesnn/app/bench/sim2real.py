@@ -349,11 +349,16 @@ def reference_scores(synth_w: WindowDataset, train_w: WindowDataset, test_w: Win
     """The non-spiking references of ``bench real`` (:func:`.real.references`, the waveform
     ones: no spikes) trained on a draw's synthetic windows and, apart, on its real training
     windows; each scored on the draw's test windows -> ``{"synthetic" | "real": {name: [per
-    window, per slide]}}``."""
+    window, per slide]}}``; where the synthetic windows carry confidences, also
+    ``"synthetic_confidence"``: the references trained on the same soft targets as the spike
+    pipeline (``"synthetic"``: on the labels alone)."""
     from .real import references
 
+    arms = [("synthetic", replace(synth_w, confidence=None)), ("real", train_w)]
+    if synth_w.confidence is not None:
+        arms.insert(1, ("synthetic_confidence", synth_w))
     return {arm: {name: list(acc) for name, acc in references(train, test_w, None, seed).items()}
-            for arm, train in (("synthetic", synth_w), ("real", train_w))}  # fmt: skip
+            for arm, train in arms}  # fmt: skip
 
 
 def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> list[dict]:
@@ -375,11 +380,12 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
         path = run_dir / "fits" / f"k{k}_d{d}.json"
         if SensorFit.load(path).fitted_on.get("train_slides") != tr.tolist():
             raise ValueError(f"{path} was fitted to other slides than draw {d} of k = {k}")
-        synth, _ = render_synthetic(real, synthetic, d, False, calibration=str(path))
+        synth, _, letter = render_synthetic(real, synthetic, d, False, class_signal=True,
+                                            calibration=str(path))  # fmt: skip
         train_w = cut(slides(real, tr))
         test_w = cut(slides(real, te))
         rows.append({"k": k, "draw": d, "seed": d,
-                     **reference_scores(cut(synth), train_w, test_w, d)})  # fmt: skip
+                     **reference_scores(cut(synth, letter), train_w, test_w, d)})  # fmt: skip
         log.info("references k=%d draw %d done", k, d)
     result["references"] = rows
     write_json_atomic(run_dir / "sim2real.json", result)
@@ -824,12 +830,19 @@ def _references_section(refs: list[dict], cal: list[dict]) -> list[str]:
              "spike pipeline of the same seed.", "",
              "| trained on | classifier | " + " | ".join(f"k = {k}" for k in ks) + " | all |",
              "|---|---|" + "---|" * (len(ks) + 1)]  # fmt: skip
-    for arm, own, label in (("synthetic", "synthetic_only_per_slide", "synthetic slides"),
-                            ("real", "real_only_per_slide", "k real slides")):  # fmt: skip
+    arms = [("synthetic", "synthetic_only_per_slide", "synthetic slides, labels alone"),
+            ("synthetic_confidence", "synthetic_only_per_slide",
+             "synthetic slides, the pipeline's soft targets"),
+            ("real", "real_only_per_slide", "k real slides")]  # fmt: skip
+    for arm, own, label in arms:
+        if not all(arm in x for x in refs):
+            continue
         for name in refs[0][arm]:
             lines.append(
                 f"| {label} | {name} | " + cells(lambda x, a=arm, n=name: x[a][n][1]) + " |"
             )
+        if arm == "synthetic" and "synthetic_confidence" in refs[0]:
+            continue  # the spike pipeline trained on the soft targets: shown with that arm
         lines.append(f"| {label} | **spike pipeline** | "
                      + cells(lambda x, o=own: first[(x["k"], x["draw"])][o]) + " |")  # fmt: skip
     return lines
