@@ -100,9 +100,9 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     accuracy = sim2real._accuracy
 
-    def spy_accuracy(pipe, test):
+    def spy_accuracy(pipe, test, *a, **kw):
         seen["scored"].append(test.scan.copy())
-        return accuracy(pipe, test)
+        return accuracy(pipe, test, *a, **kw)
 
     monkeypatch.setattr(BrailleTask, "calibrate", classmethod(spy_calibrate))
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)

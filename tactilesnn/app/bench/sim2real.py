@@ -233,24 +233,24 @@ def few_shot_split(
     return np.sort(train), np.setdiff1d(np.arange(real.y.size), train)
 
 
-def _accuracy(pipe, test: WindowDataset) -> tuple[float, float]:
-    """Per window and per slide (window scores summed) accuracy of a fitted pipeline."""
-    from ...pipeline import recording_accuracy
-
-    scores = pipe.scores(pipe.encode(test.X)).numpy()
-    per_window = float((scores.argmax(1) == test.y).mean())
-    rec = recording_accuracy(scores, test.y, test.scan)
-    return per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window
-
-
-def _log_likelihood(pipe, data: WindowDataset) -> float:
-    """Mean log-probability (nats) a fitted pipeline gives each window's own class (its scores
-    through a softmax): a proper score, which a few windows rank less noisily than accuracy."""
+def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False) -> tuple:
+    """Per window and per slide (window scores summed) accuracy of a fitted pipeline; with
+    ``log_likelihood``, also the mean log-probability (nats) it gives each window's own class
+    (its scores through a softmax): a proper score, which a few windows rank less noisily than
+    accuracy."""
     import torch
 
-    scores = pipe.scores(pipe.encode(data.X))
+    from ...pipeline import recording_accuracy
+
+    scores = pipe.scores(pipe.encode(test.X))
+    s = scores.numpy()
+    per_window = float((s.argmax(1) == test.y).mean())
+    rec = recording_accuracy(s, test.y, test.scan)
+    out = (per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window)
+    if not log_likelihood:
+        return out
     logp = torch.log_softmax(scores.double(), 1)
-    return float(logp[torch.arange(len(data.y)), torch.as_tensor(data.y)].mean())
+    return (*out, float(logp[torch.arange(len(test.y)), torch.as_tensor(test.y)].mean()))
 
 
 def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
@@ -327,7 +327,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     for name, c in candidate_configs(base, synth_w, DATA_ENCODER_CANDIDATES).items():
         with seeded(seed):
             fitted[name] = fit_pipeline(with_seed(c, seed), synth_w, with_past=False).pipeline
-        scores[name] = [*_accuracy(fitted[name], train_w), _log_likelihood(fitted[name], train_w)]
+        scores[name] = list(_accuracy(fitted[name], train_w, log_likelihood=True))
     chosen = max(scores, key=lambda n: scores[n][2])  # ties: the earlier candidate
     pre, cfg = fitted[chosen], with_seed(candidate_configs(base, synth_w, (chosen,))[chosen], seed)
     row: dict = {"train_slides": train_idx.tolist(), "test_slides": int(test_idx.size),
@@ -796,12 +796,12 @@ that cannot leak: for each few-shot draw (k real slides per letter), the model i
 those k slides per letter only, its synthetic slides train the `train --data` pipeline (each
 window's target weighted by its share of the letter's own signal, which the renderer knows:
 the windows before and after the letter are trained to the uniform target, not to a rest level
-the letters do not own; the encoder: the candidate whose synthetic-trained pipeline scores best
-on the k real training slides), whose read-out's standardisation is re-estimated on the k real
-training slides' windows (labels unused), which is scored on the other real slides (synthetic
-only) and then fine-tuned on the k real slides (pretrained + fine-tuned: the read-out re-fitted
-with a prior centred on the pretrained weights), next to the same pipeline trained on the k real
-slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
+the letters do not own; the encoder: the candidate whose synthetic-trained pipeline gives the
+k real training slides' letters the highest mean log-probability), whose read-out's
+standardisation is re-estimated on the k real training slides' windows (labels unused), which
+is scored on the other real slides (synthetic only) and then fine-tuned on the k real slides
+(pretrained + fine-tuned: the read-out re-fitted with a prior centred on the pretrained
+weights), next to the same pipeline trained on the k real slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
 re-estimate, the training or the fine-tune (no early stopping); `tests/bench/test_sim2real.py`
 checks the split through every call.
 """

@@ -83,7 +83,8 @@ def check_fit(fit: SensorFit, where: str) -> None:
         raise ValueError(f"{where}: randomisation widths and noise must be >= 0")
 
 
-#: where :meth:`BrailleTask.class_signal` puts the cell: far out of any fingertip's reach (mm)
+#: where a slide drawn without its letter (``sample(i, class_signal=True)``) puts the cell:
+#: far out of any fingertip's reach (mm)
 CELL_AWAY_MM = 1.0e4
 
 
