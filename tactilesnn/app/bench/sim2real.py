@@ -801,9 +801,9 @@ k real training slides' letters the highest mean log-probability), whose read-ou
 standardisation is re-estimated on the k real training slides' windows (labels unused), which
 is scored on the other real slides (synthetic only) and then fine-tuned on the k real slides
 (pretrained + fine-tuned: the read-out re-fitted with a prior centred on the pretrained
-weights), next to the same pipeline trained on the k real slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
-re-estimate, the training or the fine-tune (no early stopping); `tests/bench/test_sim2real.py`
-checks the split through every call.
+weights), next to the same pipeline trained on the k real slides alone (real only). No test
+slide is seen by the fit, the choice of encoder, the re-estimate, the training or the fine-tune
+(no early stopping); `tests/bench/test_sim2real.py` checks the split through every call.
 """
 
 
