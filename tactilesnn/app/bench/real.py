@@ -236,8 +236,12 @@ def soft_target_rows(y: np.ndarray, confidence: np.ndarray,
     rows, for a scikit-learn classifier's ``sample_weight``: ``(window index, label, weight)``
     of every (window, class) pair with a weight above zero. A weighted cross-entropy over these
     rows is the soft-target one."""
-    c = np.asarray(confidence, np.float64)[:, None]
-    q = (1.0 - c) / n_classes + c * np.eye(n_classes)[np.asarray(y)]
+    import torch
+
+    from ...models.softmax_fit import soft_targets
+
+    q = soft_targets(torch.as_tensor(np.asarray(y)), n_classes,
+                     torch.as_tensor(np.asarray(confidence, np.float64))).numpy()  # fmt: skip
     rows, labels = np.nonzero(q > 0)
     return rows, labels, q[rows, labels]
 
