@@ -270,6 +270,30 @@ def window_confidence(class_signal: np.ndarray, n: int, samples: int, n_win: int
     return np.clip(share / FULL_CONFIDENCE_SHARE, 0.0, 1.0).astype(np.float32).reshape(-1)
 
 
+def expected_class_signal(signal: np.ndarray, signal_y: np.ndarray,
+                          y: np.ndarray) -> np.ndarray:  # fmt: skip
+    """For recordings whose class's signal nobody measured (real ones, labels ``y [N]``): the
+    mean over the rendered recordings of the same class of their class signal ``signal [M,
+    S]`` (labels ``signal_y [M]``), float32 ``[N, S]``: what :func:`cut_windows`'s
+    ``class_signal`` turns into window confidences. It assumes the recordings follow the
+    rendered trials' protocol (the same rate, length and timing: a calibrated model's slides
+    rendered at the recordings' rate and length, whose timing the fit matched to them)."""
+    sig = np.asarray(signal, np.float64)
+    sy, y = np.asarray(signal_y), np.asarray(y)
+    if sig.ndim != 2 or sy.shape != (sig.shape[0],):
+        raise ValueError(f"signal must be [M, samples] with one label each, got {sig.shape} "
+                         f"and {sy.shape} labels")  # fmt: skip
+    if not np.all(np.isfinite(sig)) or np.any(sig < 0):
+        raise ValueError("signal must be finite and >= 0")
+    missing = sorted(set(np.unique(y).tolist()) - set(sy.tolist()))
+    if missing:
+        raise ValueError(f"no rendered recording of class(es) {missing} to take the signal from")
+    if y.size == 0:
+        return np.zeros((0, sig.shape[1]), np.float32)
+    means = {c: sig[sy == c].mean(0) for c in np.unique(y).tolist()}
+    return np.stack([means[c] for c in y.tolist()]).astype(np.float32).reshape(len(y), -1)
+
+
 def datasets_from_arrays(
     arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2
 ) -> tuple[WindowDataset, WindowDataset]:

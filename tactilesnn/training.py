@@ -164,15 +164,22 @@ def finetune_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool =
     (:meth:`~.models.base.SpikeModel.finetune`): the model's own prior strength, or with
     ``choose_prior`` one chosen by leave-one-recording-out cross-validation on ``data`` (iCub
     Braille, k = 2, one draw: it chose the strongest prior, 52.4 % per window against 57.1 %
-    with the model's own; not the default). Returns the model's report."""
+    with the model's own; not the default). Windows with a ``confidence`` (e.g. from
+    :func:`~.recordings.expected_class_signal`) are fitted to soft targets, as in
+    :func:`fit_pipeline`. Returns the model's report."""
     if tuple(data.class_names) != tuple(pipe.class_names):
         raise ValueError(f"fine-tuning data has classes {data.class_names}, the pipeline "
                          f"{pipe.class_names}")  # fmt: skip
+    if data.confidence is not None and not pipe.model.trains_on_confidence:
+        raise ValueError(f"the {type(pipe.model).__name__} model does not train on window "
+                         "confidences; fine-tune on windows without them")  # fmt: skip
     spikes = pipe.encode(data.X, progress=progress)
     pipe.model.train()
     try:
         groups = data.scan if choose_prior else None
-        return pipe.model.finetune(spikes, torch.as_tensor(data.y, dtype=torch.int64), groups)
+        conf = None if data.confidence is None else torch.as_tensor(data.confidence)
+        return pipe.model.finetune(spikes, torch.as_tensor(data.y, dtype=torch.int64), groups,
+                                   confidence=conf)  # fmt: skip
     finally:
         pipe.model.eval()
 

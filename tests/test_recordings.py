@@ -106,6 +106,32 @@ def test_a_windows_confidence_is_its_share_of_the_class_signal_and_travels_with_
         replace(ds, confidence=np.ones(3, np.float32))
 
 
+def test_real_windows_take_the_confidence_of_their_classs_rendered_signal() -> None:
+    """``expected_class_signal``: each recording gets the mean rendered signal of its class, and
+    ``cut_windows`` turns it into the confidences a rendered recording of that class gets on
+    average; a class nothing was rendered for is refused by name."""
+    from tactilesnn.datasets_synth import WindowDataset
+    from tactilesnn.recordings import cut_windows, expected_class_signal
+
+    sig = np.zeros((3, 40))
+    sig[0, 30:], sig[1, 20:30], sig[2, 0:10] = 1.0, 2.0, 4.0  # classes 0, 0, 1
+    out = expected_class_signal(sig, np.array([0, 0, 1]), np.array([1, 0, 0]))
+    assert out.dtype == np.float32 and out.shape == (3, 40)
+    np.testing.assert_allclose(out[0], sig[2])
+    np.testing.assert_allclose(out[1], (sig[0] + sig[1]) / 2)
+    np.testing.assert_array_equal(out[1], out[2])
+    real = WindowDataset(np.zeros((3, 1, 40), np.float32), np.array([1, 0, 0]), np.arange(3),
+                         10.0, ("a", "b"), ("u",))  # fmt: skip
+    conf = cut_windows(real, 1.0, 1.0, class_signal=out).confidence.reshape(3, 4)
+    np.testing.assert_array_equal(conf[0], [1, 0, 0, 0])  # class 1: its signal in window 0
+    np.testing.assert_array_equal(conf[1], [0, 0, 1, 1])  # class 0: windows 2 and 3
+    assert expected_class_signal(sig, np.array([0, 0, 1]), np.zeros(0, int)).shape == (0, 40)
+    with pytest.raises(ValueError, match=r"class\(es\) \[2\]"):
+        expected_class_signal(sig, np.array([0, 0, 1]), np.array([0, 2]))
+    with pytest.raises(ValueError, match=">= 0"):
+        expected_class_signal(-sig, np.array([0, 0, 1]), np.array([0]))
+
+
 def test_windows_cut_at_load_never_straddle_the_split(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     y = np.arange(20) % 2

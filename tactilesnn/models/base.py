@@ -162,12 +162,16 @@ class SpikeModel(nn.Module):
         """The pull of :meth:`finetune` towards the trained values for ``n`` new windows."""
         return 0.03 * 256 / max(n, 1)
 
-    def finetune_loss(self, spikes: Tensor, y: Tensor) -> Tensor:
-        """The data term :meth:`finetune` minimises (default: :meth:`loss`)."""
+    def finetune_loss(self, spikes: Tensor, y: Tensor, confidence: Tensor | None = None) -> Tensor:
+        """The data term :meth:`finetune` minimises (default: :meth:`loss`; with
+        ``confidence``, models that :attr:`trains_on_confidence` take soft targets)."""
+        if confidence is not None:
+            raise NotImplementedError(f"{type(self).__name__} does not train on confidences")
         return self.loss(spikes, y)
 
     def finetune(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None,
-                 factors: tuple[float, ...] = FINETUNE_FACTORS, max_iter: int = 200) -> dict:  # fmt: skip
+                 factors: tuple[float, ...] = FINETUNE_FACTORS, max_iter: int = 200,
+                 confidence: Tensor | None = None) -> dict:  # fmt: skip
         """Adapt a trained model to a few windows of a new domain (pretrain, then fine-tune):
         :meth:`finetune_parameters` re-fitted by full-batch L-BFGS to :meth:`finetune_loss`
         plus a penalty times their squared distance from the trained values (a prior centred on
@@ -175,11 +179,15 @@ class SpikeModel(nn.Module):
         :meth:`finetune_penalty` times one of ``factors``, chosen by leave-one-recording-out
         cross-validation over ``groups`` (recording ids ``[N]``; the held-out recordings'
         cross-entropy; ties: the stronger prior) where there are two recordings or more, else
-        the factor 1. Spikes ``[N, A, k]``, labels ``y [N]`` int64. Returns the penalty, the
-        cross-validation's table and the data term before and after."""
+        the factor 1. Spikes ``[N, A, k]``, labels ``y [N]`` int64; ``confidence`` ``[N]`` in
+        [0, 1]: soft targets (:func:`~.softmax_fit.soft_targets`; models that
+        :attr:`trains_on_confidence`). Returns the penalty, the cross-validation's table and
+        the data term before and after."""
         params = self.finetune_parameters()
         if not params:
             raise NotImplementedError(f"{type(self).__name__} does not fine-tune")
+        if confidence is not None and not self.trains_on_confidence:
+            raise ValueError(f"{type(self).__name__} does not train on window confidences")
         n = int(spikes.shape[0])
         if n == 0 or y.shape[0] != n:
             raise ValueError(
@@ -187,6 +195,13 @@ class SpikeModel(nn.Module):
             )
         if groups is not None and len(groups) != n:
             raise ValueError(f"groups must name the recording of each of the {n} windows")
+        conf = None if confidence is None else torch.as_tensor(confidence)
+        if conf is not None and conf.shape != (n,):
+            raise ValueError(f"confidence must be [N={n}], got {tuple(conf.shape)}")
+
+        def rows(at: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
+            return spikes[at], y[at], None if conf is None else conf[at]
+
         anchors = [q.detach().clone() for q in params]
         named = {id(q): name for name, q in self.named_parameters()}
         pulled = [not named.get(id(q), "").endswith("bias") for q in params]
@@ -195,13 +210,13 @@ class SpikeModel(nn.Module):
             with torch.no_grad():
                 for q, a in zip(params, anchors, strict=True):
                     q.copy_(a)
-            sx, sy = spikes[torch.from_numpy(idx)], y[torch.from_numpy(idx)]
+            part = rows(torch.from_numpy(idx))
             opt = torch.optim.LBFGS(params, lr=1.0, max_iter=iters, history_size=20,
                                     tolerance_grad=1e-7, line_search_fn="strong_wolfe")  # fmt: skip
 
             def closure() -> Tensor:
                 opt.zero_grad()
-                loss = self.finetune_loss(sx, sy) + lam * sum(
+                loss = self.finetune_loss(*part) + lam * sum(
                     (q - a).pow(2).sum()
                     for q, a, pull in zip(params, anchors, pulled, strict=True) if pull
                 )  # fmt: skip
@@ -211,7 +226,7 @@ class SpikeModel(nn.Module):
             opt.step(closure)
 
         with torch.no_grad():
-            before = float(self.finetune_loss(spikes, y))
+            before = float(self.finetune_loss(spikes, y, conf))
         everything = np.arange(n)
         ids = np.unique(groups) if groups is not None else np.zeros(0)
         table = []
@@ -225,14 +240,14 @@ class SpikeModel(nn.Module):
                     fit(everything[~out], lam, max_iter // 2)
                     at = torch.from_numpy(everything[out])
                     with torch.no_grad():
-                        held.append(float(self.finetune_loss(spikes[at], y[at])))
+                        held.append(float(self.finetune_loss(*rows(at))))
                 table.append({"factor": f, "penalty": lam, "held_out_loss": float(np.mean(held))})
             best = min(r["held_out_loss"] for r in table)
             factor = max(r["factor"] for r in table if r["held_out_loss"] <= best + 1e-9)
         lam = self.finetune_penalty(n) * factor
         fit(everything, lam, max_iter)
         with torch.no_grad():
-            after = float(self.finetune_loss(spikes, y))
+            after = float(self.finetune_loss(spikes, y, conf))
         return {"penalty": lam, "factor": factor, "windows": n, "cross_validation": table,
                 "loss_before": before, "loss_after": after}  # fmt: skip
 

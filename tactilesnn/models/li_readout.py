@@ -410,10 +410,11 @@ class LIReadout(SpikeModel):
         # pretrained weights
         return self.config.weight_decay * PRIOR_WINDOWS / max(n, 1)
 
-    def finetune_loss(self, spikes: Tensor, y: Tensor) -> Tensor:
+    def finetune_loss(self, spikes: Tensor, y: Tensor, confidence: Tensor | None = None) -> Tensor:
         w = self.linear.weight * self.instant_mask
+        target = y if confidence is None else soft_targets(y, self.n_classes, confidence).float()
         return nn.functional.cross_entropy(nn.functional.linear(self.features(spikes), w,
-                                                                self.linear.bias), y)  # fmt: skip
+                                                                self.linear.bias), target)  # fmt: skip
 
     def learning_rate(self) -> float:
         return self.config.lr

@@ -90,6 +90,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     def spy_finetune(pipe, data, *a, **kw):
         seen["finetune"].append(data.scan.copy())
+        seen.setdefault("finetune_confidence", []).append(data.confidence)
         return finetune_pipeline(pipe, data, *a, **kw)
 
     adapt_pipeline = training.adapt_pipeline
@@ -143,18 +144,25 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
             assert conf.min() == 0.0 and conf.max() == 1.0  # windows before the letter: none
     assert 0.0 < row["synthetic_confidence"]["none"] < 1.0
     assert all(set(s.tolist()) <= train_ids for s in seen["finetune"])
+    # two fine-tunes of the same pretrained pipeline: on the letter's share as the fitted model
+    # renders it at each window's place (the real labels' windows weighted), then on the labels
+    letter, labels = seen["finetune_confidence"]
+    assert labels is None and letter is not None and letter.shape == seen["finetune"][0].shape
+    assert 0.0 <= letter.min() < letter.max() <= 1.0
     # the standardisation re-estimated on the training slides (labels unused), once
     assert [set(s.tolist()) for s in seen["adapt"]] == [train_ids]
     assert row["adapt"]["windows"] == seen["adapt"][0].size  # every training window
     # scored: the encoders' candidates on the training slides (the choice), the three arms
-    # (synthetic only before and after the re-estimate) on the test slides
+    # (synthetic only before and after the re-estimate; the two fine-tunes) on the test slides
     on_test = [s for s in seen["scored"] if set(s.tolist()) == test_ids]
-    assert len(on_test) == 4
+    assert len(on_test) == 5
     assert all(set(s.tolist()) in (test_ids, train_ids) for s in seen["scored"])
     for key in (
         "synthetic_only",
         "real_only",
         "pretrained",
+        "pretrained_letter",
+        "pretrained_letter_per_slide",
         "synthetic_only_per_slide",
         "synthetic_only_unadapted",
         "synthetic_only_unadapted_per_slide",

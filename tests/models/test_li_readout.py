@@ -276,6 +276,42 @@ def test_finetune_adapts_near_the_pretrained_weights():
         model.finetune(few, torch.from_numpy(yf[:-1]))
 
 
+def test_finetune_on_confidences_takes_soft_targets():
+    """Fine-tuning on window confidences: all 1 is the labels' fine-tune to the last digit; all
+    0 fits the uniform target (the windows' scores move towards equal, not towards the
+    labels); a model that cannot train on confidences, or confidences of the wrong length, are
+    refused."""
+    from tactilesnn.config import TrainConfig
+    from tactilesnn.models.softmax_fit import soft_targets
+
+    rng = np.random.default_rng(8)
+    proto = rng.uniform(50, 450, (3, 12, 1))
+    src, ys = _domain(rng, proto, 40)
+    model = build_model(ReadoutConfig(), 12, 1, 3, 500.0)
+    Trainer(model, TrainConfig(epochs=1)).fit(src, ys)
+    few, yf = _domain(rng, proto, 3)
+    y = torch.from_numpy(yf)
+    state = {k: v.clone() for k, v in model.state_dict().items()}
+
+    def finetuned(conf):
+        model.load_state_dict(state)
+        report = model.finetune(few, y, confidence=conf)
+        return report, torch.softmax(model.scores(few).double(), 1)
+
+    hard, p_hard = finetuned(None)
+    ones, p_ones = finetuned(torch.ones(yf.size))
+    torch.testing.assert_close(p_ones, p_hard)
+    assert ones["loss_after"] == pytest.approx(hard["loss_after"])
+    zeros, p_zero = finetuned(torch.zeros(yf.size))
+    uniform = torch.full_like(p_zero, 1 / 3)
+    assert (p_zero - uniform).abs().max() < (p_hard - uniform).abs().max()
+    # the data term is the soft targets' cross-entropy (float64 reference)
+    q = soft_targets(y, 3, torch.zeros(yf.size))
+    assert zeros["loss_after"] == pytest.approx(float(-(q * p_zero.log()).sum(1).mean()), rel=1e-4)
+    with pytest.raises(ValueError, match="confidence must be"):
+        model.finetune(few, y, confidence=torch.ones(yf.size + 1))
+
+
 def test_finetune_chooses_its_prior_by_leaving_recordings_out():
     from tactilesnn.config import TrainConfig
 
