@@ -1,7 +1,7 @@
 """Command-line interface: parse, call the application layer, print.
 
-``tactilesnn train | evaluate | export | generate | calibrate | sweep | serve | demo-stream |
-bench``;
+``tactilesnn train | evaluate | finetune | export | generate | calibrate | sweep | serve |
+demo-stream | bench``;
 ``python train.py ...`` is the same as ``tactilesnn ...``.
 """
 
@@ -166,6 +166,21 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_finetune(args: argparse.Namespace) -> int:
+    from .app.finetune import finetune_lines, finetune_run
+
+    m = finetune_run(Path(args.run_dir), Path(args.data), Path(args.out) if args.out else None,
+                     overwrite=args.overwrite, export=not args.no_export, fs_hz=args.fs,
+                     choose_prior=args.choose_prior, progress=not args.quiet)  # fmt: skip
+    if args.json:
+        print(json.dumps({k: m[k] for k in ("path", "test_accuracy", "n_test_windows",
+                                            "test_accuracy_per_recording", "pretrained")
+                          if k in m}))  # fmt: skip
+    else:
+        print("\n".join(finetune_lines(m)))
+    return 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from .app.commands import export_run
 
@@ -300,6 +315,27 @@ def _parse_evaluate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_evaluate)
+    return p
+
+
+def _parse_finetune(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    p = _command(sub, "finetune", "pretrain, then fine-tune: adapt a run (e.g. trained on a "
+                 "calibrated model's generated recordings) to a few labelled recordings")  # fmt: skip
+    p.add_argument("run_dir", help="the pretrained run folder (kept as it is)")
+    p.add_argument("--data", required=True, help="recordings .npz or folder of the real sensor: "
+                   "cut as the run's windows were, split by recording; the training split "
+                   "fine-tunes, the test split scores")  # fmt: skip
+    p.add_argument("--out", help="the new run folder (default: runs/<data>-finetuned-...)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out run")
+    p.add_argument("--fs", type=float, help="the sampling rate (Hz) of recordings without a "
+                   "time column")  # fmt: skip
+    p.add_argument("--choose-prior", action="store_true", help="the prior's strength by "
+                   "leave-one-recording-out cross-validation on the training split (default: "
+                   "the model's own)")  # fmt: skip
+    p.add_argument("--no-export", action="store_true", help="skip the verified ONNX export")
+    p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_finetune)
     return p
 
 
@@ -492,7 +528,8 @@ def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 #: the sub-commands and their parsers (``python train.py`` passes anything else to ``train``)
-COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "export": _parse_export,
+COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "finetune": _parse_finetune,
+            "export": _parse_export,
             "convert": _parse_convert, "generate": _parse_generate, "tasks": _parse_tasks,
             "calibrate": _parse_calibrate,
             "sweep": _parse_sweep,

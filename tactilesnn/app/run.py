@@ -386,6 +386,9 @@ def match_channels(data: WindowDataset, want: tuple[str, ...]) -> WindowDataset:
     have = tuple(data.channel_names)
     if have == tuple(want):
         return data
+    if have == tuple(f"ch{i}" for i in range(len(want))):  # the file names none: by position
+        log.warning("the data names no channels: taken in the run's order (%s ...)", want[0])
+        return replace(data, channel_names=tuple(want))
     if sorted(have) != sorted(want):
         raise ValueError(f"the data's channels {list(have)} are not the run's {list(want)}")
     log.warning("data channels are in another order than the run's: reordered by name")
@@ -400,6 +403,18 @@ def match_classes(data: WindowDataset, want: tuple[str, ...]) -> WindowDataset:
     have = tuple(data.class_names)
     if have == tuple(want):
         return data
+    folded = [str(c).casefold() for c in want]
+    if (
+        set(have) - set(want)
+        and len(set(folded)) == len(want)
+        and all(str(c).casefold() in folded for c in have)
+    ):  # "A" in the file, "a" in the run: the same class where case tells none apart
+        log.warning("the data's classes %s matched to the run's %s ignoring case", list(have),
+                    list(want))  # fmt: skip
+        have = tuple(want[folded.index(str(c).casefold())] for c in have)
+        data = replace(data, class_names=have)
+        if have == tuple(want):
+            return data
     unknown = sorted(set(have) - set(want))
     if unknown:
         raise ValueError(f"the data's classes {unknown} are not among the run's {list(want)}")

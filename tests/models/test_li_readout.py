@@ -25,6 +25,24 @@ def test_traces_match_a_float64_loop():
     np.testing.assert_allclose(got.numpy(), want, rtol=1e-12)
 
 
+def test_a_spike_on_an_instant_counts_alike_a_float32_rounding_either_side():
+    """Frame-clocked codes put spikes exactly on read-out instants; torch and the exported
+    graph round such a time to either side of it. Within the slack (1e-6 of the window) both
+    count the spike as on the instant; beyond it, after the instant, it does not count."""
+    from tactilesnn.models.li_readout import INSTANT_SLACK
+
+    model = build_model(ReadoutConfig(n_times=4), 1, 1, 2, 925.827)
+    t = float(model.times_ms[1])
+    ulp = float(np.spacing(np.float32(t)))
+    spikes = torch.tensor([[[t]], [[t + 2 * ulp]], [[t - 2 * ulp]], [[t + 1e-3 * 925.827]]],
+                          dtype=torch.float32)  # fmt: skip
+    f = model.traces(spikes)
+    torch.testing.assert_close(f[1], f[0])
+    torch.testing.assert_close(f[2], f[0], rtol=1e-5, atol=0)
+    assert f[0].view(4)[1] > 0 and f[3].view(4)[1] == 0  # 1e-3 of the window late: not counted
+    assert 2 * ulp < INSTANT_SLACK * 925.827
+
+
 @pytest.mark.slow
 def test_trains_thirty_classes_from_spike_timing():
     # class c: afferents fire at class-specific times (a pattern a count code cannot see)

@@ -1,0 +1,142 @@
+"""``tactilesnn finetune``: pretrain, then fine-tune, from the command line.
+
+A trained run folder (typically ``train --data`` on a calibrated model's generated recordings)
+is adapted to a few labelled recordings of the real sensor: the read-out's input scaling
+re-estimated on the file's training split (:func:`~tactilesnn.training.adapt_pipeline`,
+labels unused), then its weights re-fitted with a prior centred on the pretrained ones
+(:func:`~tactilesnn.training.finetune_pipeline`), the same two calls ``bench sim2real``
+measures. The file is cut into windows as the run's were (the run's window and hop, at the
+run's rate) and split by recording with the run's seed; the test split is scored before and
+after, never fitted. The result is a new run folder (``config.json`` naming the file and the
+pretrained run, ``weights.npz``, ``metrics.json``, ``model.onnx``) that ``evaluate``,
+``export`` and ``serve`` read like any other; the pretrained run is left as it was.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..core.files import file_sha256
+from ..core.version import __version__
+from ..models.base import seeded
+from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
+from ..recordings import load_data_file
+from ..training import adapt_pipeline, finetune_pipeline
+from .run import RUNS_ROOT, FileSource, export_into_run, load_run, match_channels, match_classes
+from .runs import OutLock, RunWriter, default_run_dir
+
+log = logging.getLogger("tactilesnn")
+
+#: the file's rate may differ from the run's by this share: a run generated at a rounded rate
+#: (93.97 Hz for the iCub file's 93.9668 Hz: 3.4e-5) cuts the same windows, its time scale off
+#: by less than a sample per window of 1,000
+RATE_TOLERANCE = 1e-3
+
+
+def _scores(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray) -> dict:
+    s = pipe.scores(pipe.encode(X)).numpy()
+    acc = float((s.argmax(1) == y).mean())
+    return {"test_accuracy": acc, "test_accuracy_ci95": accuracy_ci95(acc, y.size),
+            **(recording_accuracy(s, y, scan) or {})}  # fmt: skip
+
+
+def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: bool = False,
+                 export: bool = True, fs_hz: float | None = None, choose_prior: bool = False,
+                 progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    """Fine-tune the run at ``run_dir`` on ``data``'s training split (see the module doc) and
+    write the result to ``out`` (default ``runs/<data>-finetuned-<encoder>-<model>-<time>``).
+    ``fs_hz``: the file's rate where it states none. ``choose_prior``: the prior's strength by
+    leave-one-recording-out cross-validation on the training split. Returns the metrics with
+    ``"path"``."""
+    run_dir = Path(run_dir)
+    pipe, record = load_run(run_dir)
+    if not pipe.model.finetune_parameters():
+        raise ValueError(f"the run's {pipe.config.model_type!r} model does not fine-tune; "
+                         "pretrain with --model readout")  # fmt: skip
+    window_s = pipe.window / pipe.fs_hz
+    hop_s = record.get("data_hop_s") or window_s / 2
+    source = FileSource(Path(data), window_s, hop_s, fs_hz=fs_hz)
+
+    def check_rate(rate: float) -> None:
+        if abs(rate - pipe.fs_hz) > RATE_TOLERANCE * pipe.fs_hz:
+            raise ValueError(f"{data} is sampled at {rate:g} Hz, the run at {pipe.fs_hz:g} Hz: "
+                             "record or resample the data at the run's rate")  # fmt: skip
+
+    try:
+        train, test = load_data_file(Path(data), pipe.config.seed, window_s=window_s,
+                                     hop_s=hop_s, fs_hz=fs_hz)  # fmt: skip
+    except ValueError as e:  # the run's window may not fit: the rate is the likelier cause
+        check_rate(load_data_file(Path(data), pipe.config.seed, fs_hz=fs_hz)[0].fs_hz)
+        raise ValueError(f"{data}: {e} (the run's windows: {pipe.window} samples, "
+                         f"{window_s:g} s)") from e  # fmt: skip
+    check_rate(train.fs_hz)
+    train, test = (match_classes(match_channels(d, pipe.channel_names), pipe.class_names)
+                   for d in (train, test))  # fmt: skip
+    if train.y.size < 2 or test.y.size == 0:
+        raise ValueError(f"{data}: {train.y.size} training / {test.y.size} test windows; "
+                         "fine-tuning needs two training windows or more and a test split")  # fmt: skip
+    out = (default_run_dir(RUNS_ROOT, f"{Path(data).stem}-finetuned", pipe.config.encoder_type,
+                           pipe.config.model_type) if out is None else Path(out))  # fmt: skip
+    if out.resolve() == run_dir.resolve():
+        raise ValueError(f"--out {out} is the pretrained run itself: choose another folder (the "
+                         "pretrained run is kept as it is)")  # fmt: skip
+    with OutLock(out):
+        writer = RunWriter(out, overwrite=overwrite)  # refuses an existing folder before work
+        try:
+            before = _scores(pipe, test.X, test.y, test.scan)
+            log.info("pretrained run on %s's test split: %.2f %% per window", Path(data).name,
+                     100 * before["test_accuracy"])  # fmt: skip
+            adapt = adapt_pipeline(pipe, train, progress=progress)
+            with seeded(pipe.config.seed):
+                report = finetune_pipeline(pipe, train, progress=progress,
+                                           choose_prior=choose_prior)  # fmt: skip
+            metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before,
+                       "adapt": adapt, "finetune": report, "n_train_windows": int(train.y.size),
+                       "n_test_windows": int(test.y.size),
+                       "n_train_recordings": int(np.unique(train.scan).size),
+                       "test_recordings": np.unique(test.scan).tolist()}  # fmt: skip
+            config = {**source.record(), "pipeline": pipe.config.to_dict(),
+                      "pretrained_run": {"path": str(run_dir.resolve()),
+                                         "weights_sha256": file_sha256(run_dir / "weights.npz"),
+                                         "data": record.get("data"), "task": record.get("task")},
+                      "fs_hz": pipe.fs_hz, "window": int(pipe.window),
+                      "channel_names": list(pipe.channel_names),
+                      "class_names": list(pipe.class_names), "tactilesnn_version": __version__,
+                      "torch_version": torch.__version__,
+                      "python": platform.python_version()}  # fmt: skip
+            writer.write_json("config.json", config)
+            writer.write_arrays("weights.npz", pipe.weights())
+            writer.write_json("metrics.json", metrics)
+            path = writer.commit()
+        except BaseException:
+            writer.abort()
+            raise
+    if export:  # after the run is written: an export failure never loses it
+        from ..core.files import write_json_atomic
+
+        metrics["onnx"] = export_into_run(pipe, path, test.X, config, progress)
+        write_json_atomic(path / "metrics.json", metrics)
+    return {**metrics, "path": str(path)}
+
+
+def finetune_lines(m: dict[str, Any]) -> list[str]:
+    """:func:`finetune_run`'s result as the command prints it."""
+
+    def line(tag: str, r: dict) -> str:
+        per = r.get("test_accuracy_per_recording")
+        rec = "" if per is None else f", {100 * per:.2f} % per recording"
+        return f"{tag}: {100 * r['test_accuracy']:.2f} % per window{rec}"
+
+    lines = [line("pretrained, on the file's test split", m["pretrained"]),
+             line(f"fine-tuned on {m['n_train_recordings']} recordings "
+                  f"({m['n_train_windows']} windows)", m)]  # fmt: skip
+    if "onnx" in m and "error" not in m["onnx"]:
+        lines.append(f"exported: {m['path']}/model.onnx")
+    lines.append(f"run folder: {m['path']}")
+    return lines

@@ -1,0 +1,84 @@
+"""``tactilesnn finetune``: a run pretrained on one domain adapted to a few recordings of
+another, written as a new run folder that ``evaluate`` reads; the pretrained run untouched."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactilesnn.cli import main
+from tactilesnn.core.files import file_sha256
+
+#: each class's level per channel (counts); the "real" domain swaps classes 0 and 1
+LEVELS = np.array([[10, 20, 30, 40], [40, 30, 20, 10], [20, 40, 10, 30]], np.float32)
+
+
+def _file(path: Path, levels: np.ndarray, seed: int, fs: float = 100.0, per: int = 20,
+          classes: tuple[str, ...] = ("a", "b", "c"), **names: np.ndarray) -> Path:  # fmt: skip
+    rng = np.random.default_rng(seed)
+    y = np.repeat(np.arange(3), per)
+    X = levels[y][:, :, None] + rng.normal(0, 2.0, (y.size, 4, 100)).astype(np.float32)
+    np.savez(path, X=X.astype(np.float32), y=y, fs=fs, class_names=np.array(classes), **names)
+    return path
+
+
+@pytest.fixture(scope="module")
+def pretrained(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("finetune")
+    src = _file(root / "source.npz", LEVELS, 0, channel_names=np.array(["t0", "t1", "t2", "t3"]))
+    run = root / "pretrained"
+    assert main(["train", "--data", str(src), "--encoder", "lif", "--model", "readout",
+                 "--epochs", "2", "--quiet", "--no-export", "--out", str(run)]) == 0  # fmt: skip
+    return run
+
+
+def test_finetune_adapts_a_run_to_another_domain_and_writes_a_run(pretrained, tmp_path, capsys):
+    shifted = LEVELS[[1, 0, 2]] + 3.0  # a and b swapped, every level 3 counts up
+    # the real file names no channels (taken in the run's order) and its classes in capitals
+    real = _file(tmp_path / "real.npz", shifted, 1, classes=("A", "B", "C"))
+    before = file_sha256(pretrained / "weights.npz")
+    out = tmp_path / "tuned"
+    capsys.readouterr()
+    assert main(["finetune", str(pretrained), "--data", str(real), "--out", str(out),
+                 "--quiet", "--json"]) == 0  # fmt: skip
+    m = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert m["path"] == str(out)
+    # the swap costs the pretrained run two classes of three; the fine-tune wins them back
+    assert m["pretrained"]["test_accuracy"] < 0.5
+    assert m["test_accuracy"] >= 0.9
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["pretrained_run"]["weights_sha256"] == before
+    assert cfg["data"] == str(real.resolve()) and cfg["window"] == 100
+    assert (out / "model.onnx").is_file()
+    assert file_sha256(pretrained / "weights.npz") == before  # the pretrained run is kept
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "max_score_diff" in metrics["onnx"], metrics["onnx"]
+    # evaluate reads the new run: the same test split, the same accuracy
+    assert main(["evaluate", str(out), "--json", "--quiet"]) == 0
+    ev = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert ev["test_accuracy"] == pytest.approx(m["test_accuracy"])
+    # an existing folder is refused without --overwrite
+    assert main(["finetune", str(pretrained), "--data", str(real), "--out", str(out),
+                 "--quiet"]) != 0  # fmt: skip
+    assert "already exists; pass --overwrite" in capsys.readouterr().err
+
+
+def test_finetune_refuses_what_it_cannot_use(pretrained, tmp_path):
+    from tactilesnn.app.finetune import finetune_run
+
+    real = _file(tmp_path / "real.npz", LEVELS, 2)
+    with pytest.raises(ValueError, match="the pretrained run itself"):
+        finetune_run(pretrained, real, pretrained, overwrite=True, export=False, progress=False)
+    fast = _file(tmp_path / "fast.npz", LEVELS, 2, fs=200.0)
+    with pytest.raises(ValueError, match="200 Hz, the run at 100 Hz"):
+        finetune_run(pretrained, fast, tmp_path / "x", export=False, progress=False)
+    rng = np.random.default_rng(3)
+    np.savez(tmp_path / "other.npz", X=rng.normal(size=(20, 4, 100)).astype(np.float32),
+             y=np.arange(20) % 2, fs=100.0, class_names=np.array(["a", "z"]))  # fmt: skip
+    with pytest.raises(ValueError, match=r"classes \['z'\]"):
+        finetune_run(pretrained, tmp_path / "other.npz", tmp_path / "y", export=False,
+                     progress=False)  # fmt: skip
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
