@@ -136,6 +136,10 @@ def finetune_lines(m: dict[str, Any]) -> list[str]:
     lines = [line("pretrained, on the file's test split", m["pretrained"]),
              line(f"fine-tuned on {m['n_train_recordings']} recordings "
                   f"({m['n_train_windows']} windows)", m)]  # fmt: skip
+    ids = m.get("test_recordings", [])
+    more = f" and {len(ids) - 12} more" if len(ids) > 12 else ""
+    lines.append(f"test split: recordings {', '.join(map(str, ids[:12]))}{more} (fit nothing "
+                 "to them, the calibration included)")  # fmt: skip
     if "onnx" in m and "error" not in m["onnx"]:
         lines.append(f"exported: {m['path']}/model.onnx")
     lines.append(f"run folder: {m['path']}")
