@@ -57,16 +57,16 @@ def load_data_file(
     ``test_fraction`` of the recordings (stratified by class, from ``seed``) is held out.
     ``window_s`` (and ``hop_s``): after the split, cut every recording into windows of that
     length (:func:`cut_windows`); they keep their recording's id, so scores are also accumulated
-    per recording. ``fs_hz``: the sampling rate (Hz) of a folder of recordings without
-    timestamps (``--fs``); where the data states its rate, a different ``fs_hz`` is refused.
+    per recording; with ``class_signal`` ``[N, samples]`` in the data (a generated folder of a
+    task that renders it), each window's share of it is its confidence. ``fs_hz``: the
+    sampling rate (Hz) of a folder of recordings without timestamps (``--fs``); where the data
+    states its rate, a different ``fs_hz`` is refused.
     """
+    if window_s is None and hop_s is not None:
+        raise ValueError("a hop (--data-hop-s) needs a window length (--data-window-s)")
     arrays = read_data_arrays(Path(path), fs_hz)
-    train, test = datasets_from_arrays(arrays, path, seed, test_fraction)
-    if window_s is None:
-        if hop_s is not None:
-            raise ValueError("a hop (--data-hop-s) needs a window length (--data-window-s)")
-        return train, test
-    return cut_windows(train, window_s, hop_s), cut_windows(test, window_s, hop_s)
+    return datasets_from_arrays(arrays, path, seed, test_fraction,
+                                None if window_s is None else (window_s, hop_s))  # fmt: skip
 
 
 #: channels (taxels x polarities for events) a recordings file may hold
@@ -295,9 +295,12 @@ def expected_class_signal(signal: np.ndarray, signal_y: np.ndarray,
 
 
 def datasets_from_arrays(
-    arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2
-) -> tuple[WindowDataset, WindowDataset]:
-    """:func:`load_data_file` on arrays already in memory (``path`` names them in errors)."""
+    arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2,
+    window: tuple[float, float | None] | None = None,
+) -> tuple[WindowDataset, WindowDataset]:  # fmt: skip
+    """:func:`load_data_file` on arrays already in memory (``path`` names them in errors);
+    ``window``: ``(window_s, hop_s)`` to cut each split into (:func:`cut_windows`, with the
+    recordings' ``class_signal`` where the arrays hold one)."""
     if "X" in arrays:
         check_sizes(np.shape(arrays["X"]), path)
     if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
@@ -360,10 +363,32 @@ def datasets_from_arrays(
                 f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets"
             )
 
+    signal = _class_signal(arrays, X.shape, path)
+
     def take(m: np.ndarray) -> WindowDataset:
-        return WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch)
+        ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch)
+        if window is None:
+            return ds
+        return cut_windows(ds, *window, class_signal=None if signal is None else signal[m])
 
     return take(split == 0), take(split == 1)
+
+
+def _class_signal(arrays: dict[str, np.ndarray], shape: tuple[int, ...],
+                  path: Path | str) -> np.ndarray | None:  # fmt: skip
+    """The optional ``class_signal [N, samples]`` (>= 0, finite: how much of each sample is the
+    class's own signal, as a renderer knows it; ``tactilesnn generate`` writes it for tasks
+    that can render a trial without its class), checked against ``X``."""
+    sig = arrays.get("class_signal")
+    if sig is None:
+        return None
+    sig = np.asarray(sig)
+    if sig.shape != (shape[0], shape[-1]) or sig.dtype.kind not in "fiu":
+        raise ValueError(f"{path}: class_signal must be [N={shape[0]}, samples={shape[-1]}] "
+                         f"numbers, got {sig.shape} {sig.dtype}")  # fmt: skip
+    if not np.all(np.isfinite(sig)) or np.any(sig < 0):
+        raise ValueError(f"{path}: class_signal must be finite and >= 0")
+    return sig
 
 
 #: recordings at least this long (and of ``AUTO_CUT_MIN_SAMPLES``) are cut by default

@@ -320,6 +320,51 @@ def test_a_generated_folder_is_data_whose_scans_never_straddle_the_split(tmp_pat
         load_data_file(tmp_path, seed=0)
 
 
+def test_a_generated_trial_folder_carries_its_class_signal_into_window_confidences(tmp_path):
+    """``generate`` writes a trial task's class signal (Braille: the slide minus the same slide
+    without its letter) beside ``X``; ``load_data_file`` cut into windows gives each window its
+    share of it as a confidence (the windows before the letter none); whole rows, a task that
+    cannot render one, and a user's file without one carry none; a malformed one is refused."""
+    from tactilesnn.datasets_synth import get_task
+    from tactilesnn.datasets_synth.generate import generate
+
+    out = tmp_path / "braille"
+    m = generate("braille", 12, 0, out, shard_size=3, workers=1, progress=False,
+                 task_kwargs={"letters": "abc"})  # fmt: skip
+    assert all(sh["class_signal"] for sh in m["shards"])
+    task = get_task("braille", seed=0, letters="abc")
+    _, _, info = task.sample(4, class_signal=True)
+    with np.load(out / "shard-00001.npz") as z:
+        np.testing.assert_array_equal(z["class_signal"][1], info["class_signal"])
+        assert z["class_signal"].shape == (3, task.window)
+    whole, _ = load_data_file(out, seed=0)
+    assert whole.confidence is None
+    window_s = task.window / 4 / task.fs_hz
+    train, test = load_data_file(out, seed=0, window_s=window_s)
+    assert train.confidence is not None and test.confidence is not None
+    assert train.confidence.min() == 0.0 and train.confidence.max() == 1.0
+    from tactilesnn.core.dataset_folder import read_dataset_folder
+
+    plain = generate("texture", 2, 0, tmp_path / "texture", workers=1, progress=False)
+    assert not any(sh["class_signal"] for sh in plain["shards"])
+    assert "class_signal" not in read_dataset_folder(tmp_path / "texture")
+    # a user's file: the signal is optional, checked where given
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(8, 2, 400)).astype(np.float32)
+    base = {"X": X, "y": np.arange(8) % 2, "fs": 100.0, "class_names": np.array(["a", "b"])}
+    sig = np.zeros((8, 400))
+    sig[:, 300:] = 1.0  # the class shows in the last quarter
+    np.savez(tmp_path / "f.npz", class_signal=sig, **base)
+    tr, _ = load_data_file(tmp_path / "f.npz", seed=0, window_s=1.0, hop_s=1.0)
+    np.testing.assert_array_equal(tr.confidence.reshape(-1, 4), [[0, 0, 0, 1]] * (tr.y.size // 4))
+    np.savez(tmp_path / "g.npz", class_signal=-sig, **base)
+    with pytest.raises(ValueError, match="class_signal must be finite and >= 0"):
+        load_data_file(tmp_path / "g.npz", seed=0, window_s=1.0)
+    np.savez(tmp_path / "h.npz", class_signal=sig[:, :10], **base)
+    with pytest.raises(ValueError, match=r"class_signal must be \[N=8, samples=400\]"):
+        load_data_file(tmp_path / "h.npz", seed=0)
+
+
 def test_sizes_no_sensor_has_are_refused_before_anything_is_built(tmp_path):
     import numpy as np
 

@@ -47,8 +47,8 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
         shards.append(_read_shard(f, channels, window))
     if not shards:
         raise ValueError(f"{folder}: the manifest lists no shards")
-    xs, ys, ids = zip(*shards, strict=True)
-    return {
+    xs, ys, ids, sigs = zip(*shards, strict=True)
+    out = {
         "X": np.concatenate(xs),
         "y": np.concatenate(ys),
         "recording": np.concatenate(ids),
@@ -56,10 +56,14 @@ def read_dataset_folder(folder: Path) -> dict[str, np.ndarray]:
         "class_names": np.asarray(m["class_names"]),
         "channel_names": np.asarray(m["channel_names"]),
     }
+    if all(s is not None for s in sigs):  # every shard knows its class's signal
+        out["class_signal"] = np.concatenate(sigs)
+    return out
 
 
 def _read_shard(f: Path, channels: int, window: int) -> tuple[np.ndarray, ...]:
-    """``(X [n, channels, window], y [n], sample [n])`` of one shard, each member present and
+    """``(X [n, channels, window], y [n], sample [n], class_signal [n, window] or None)`` of
+    one shard, each member present and
     of the manifest's shape, else a ValueError naming the shard (its hash may have been
     rewritten with its content)."""
     try:
@@ -68,13 +72,16 @@ def _read_shard(f: Path, channels: int, window: int) -> tuple[np.ndarray, ...]:
             if missing:
                 raise ValueError(f"{f}: lacks {missing} (a shard holds X, y and sample)")
             X, y, sample = z["X"], z["y"], z["sample"]
+            sig = z["class_signal"] if "class_signal" in z.files else None
     except (OSError, EOFError, zipfile.BadZipFile) as e:
         raise ValueError(f"{f}: not a readable shard ({e})") from None
     n = len(X)
     if X.shape != (n, channels, window) or y.shape != (n,) or sample.shape != (n,):
         raise ValueError(f"{f}: X {X.shape}, y {y.shape}, sample {sample.shape}; the manifest "
                          f"says X [n, {channels}, {window}], y [n], sample [n]")  # fmt: skip
-    return X, y, sample
+    if sig is not None and sig.shape != (n, window):
+        raise ValueError(f"{f}: class_signal {sig.shape}; X says [{n}, {window}]")
+    return X, y, sample, sig
 
 
 def manifest(path: Path) -> dict:

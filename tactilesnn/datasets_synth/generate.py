@@ -4,7 +4,9 @@
 ``generate(task, n, seed, out)`` renders samples ``0..n-1`` of any registered task (``task.render``:
 for ``hook_loop`` a sample is one scan, cut into its labelled windows; for the trial tasks one
 trial) in parallel worker processes, ``shard_size`` samples per
-``shard-XXXXX.npz`` (``X [windows, channels, samples]`` float32, ``y``, ``sample``), and writes
+``shard-XXXXX.npz`` (``X [windows, channels, samples]`` float32, ``y``, ``sample``, and for a
+trial task that can render a trial without its class ``class_signal [windows, samples]``: the
+class's own signal per sample, which ``train --data`` turns into window confidences), and writes
 ``manifest.json`` (task, parameters, seed, generator version, shapes, units, rate, class and
 channel names, and per shard its sample range, window count and SHA-256). Sample ``i`` depends
 only on (task, seed, i), so any worker count gives identical files.
@@ -37,9 +39,14 @@ GENERATOR_VERSION = f"tactilesnn {__version__} / tasks v2"
 def _render_shard(args: tuple) -> dict:
     task_name, task_kwargs, first, last, path = args
     task = get_task(task_name, **task_kwargs)
-    xs, ys, ids = [], [], []
+    xs, ys, ids, sigs = [], [], [], []
+    with_signal = getattr(task, "render_with_signal", None)  # trial tasks: the class's own signal
     for i in range(first, last):
-        X, y = task.render(i)
+        if with_signal is not None:
+            X, y, sig = with_signal(i)
+            sigs.append(sig)
+        else:
+            X, y = task.render(i)
         xs.append(X)
         ys.append(y)
         ids.append(np.full(y.size, i, np.int64))
@@ -49,9 +56,12 @@ def _render_shard(args: tuple) -> dict:
         else np.zeros((0, len(task.channel_names), task.window), np.float32)
     )
     y, sample = np.concatenate(ys), np.concatenate(ids)
-    replace_atomically(path, lambda tmp: np.savez(tmp, X=X, y=y, sample=sample), ".npz")
+    extra = {}
+    if sigs and all(s is not None for s in sigs):
+        extra["class_signal"] = np.concatenate(sigs).astype(np.float32)
+    replace_atomically(path, lambda tmp: np.savez(tmp, X=X, y=y, sample=sample, **extra), ".npz")
     return {"file": Path(path).name, "first": first, "last": last, "windows": len(X),
-            "sha256": _sha256(Path(path))}  # fmt: skip
+            "sha256": _sha256(Path(path)), "class_signal": bool(extra)}  # fmt: skip
 
 
 def generate(

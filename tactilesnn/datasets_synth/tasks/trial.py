@@ -133,6 +133,13 @@ class TrialTask(ABC):
         x, y, _ = self.sample(index)
         return x[None], np.array([y], np.int64)
 
+    def render_with_signal(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`render` and the trial's class signal ``[1, W]`` float32 (``sample(index,
+        class_signal=True)``), or None where the task cannot render a trial without its class."""
+        x, y, info = self.sample(index, class_signal=True)
+        sig = info.get("class_signal")
+        return x[None], np.array([y], np.int64), None if sig is None else sig[None]
+
     def split(self) -> tuple[np.ndarray, np.ndarray]:
         """Train / test sample indices, a permutation fixed by the seed (stratified by class)."""
         k = len(self.class_names)
