@@ -1,5 +1,6 @@
 """Recordings with sensors at several sampling rates form one recording (resampled channels)."""
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -343,6 +344,13 @@ def test_a_generated_trial_folder_carries_its_class_signal_into_window_confidenc
     train, test = load_data_file(out, seed=0, window_s=window_s)
     assert train.confidence is not None and test.confidence is not None
     assert train.confidence.min() == 0.0 and train.confidence.max() == 1.0
+    from tactilesnn.cli import main  # train --data on it: the read-out on the soft targets
+
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(out), "--data-window-s", str(window_s), "--encoder",
+                 "lif", "--quiet", "--no-export", "--out", str(run)]) == 0  # fmt: skip
+    soft = json.loads((run / "metrics.json").read_text())["train_window_confidence"]
+    assert 0.0 < soft["none"] < 1.0 and 0.0 < soft["mean"] < 1.0
     from tactilesnn.core.dataset_folder import read_dataset_folder
 
     plain = generate("texture", 2, 0, tmp_path / "texture", workers=1, progress=False)
