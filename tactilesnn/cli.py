@@ -171,7 +171,8 @@ def cmd_finetune(args: argparse.Namespace) -> int:
 
     m = finetune_run(Path(args.run_dir), Path(args.data), Path(args.out) if args.out else None,
                      overwrite=args.overwrite, export=not args.no_export, fs_hz=args.fs,
-                     choose_prior=args.choose_prior, progress=not args.quiet)  # fmt: skip
+                     choose_prior=args.choose_prior, class_share=args.class_share,
+                     progress=not args.quiet)  # fmt: skip
     if args.json:
         print(json.dumps({k: m[k] for k in ("path", "test_accuracy", "n_test_windows",
                                             "test_accuracy_per_recording", "pretrained")
@@ -332,6 +333,9 @@ def _parse_finetune(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--choose-prior", action="store_true", help="the prior's strength by "
                    "leave-one-recording-out cross-validation on the training split (default: "
                    "the model's own)")  # fmt: skip
+    p.add_argument("--class-share", action="store_true", help="fit each window to its share "
+                   "of its class's signal as the run's generated recordings hold it (the same "
+                   "length and protocol; better per recording, worse per window)")  # fmt: skip
     p.add_argument("--no-export", action="store_true", help="skip the verified ONNX export")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -26,7 +26,7 @@ from ..core.files import file_sha256
 from ..core.version import __version__
 from ..models.base import seeded
 from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
-from ..recordings import load_data_file
+from ..recordings import datasets_from_arrays, expected_class_signal, read_data_arrays
 from ..training import adapt_pipeline, finetune_pipeline
 from .run import RUNS_ROOT, FileSource, export_into_run, load_run, match_channels, match_classes
 from .runs import OutLock, RunWriter, default_run_dir
@@ -48,12 +48,14 @@ def _scores(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray)
 
 def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: bool = False,
                  export: bool = True, fs_hz: float | None = None, choose_prior: bool = False,
-                 progress: bool = True) -> dict[str, Any]:  # fmt: skip
+                 class_share: bool = False, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     """Fine-tune the run at ``run_dir`` on ``data``'s training split (see the module doc) and
     write the result to ``out`` (default ``runs/<data>-finetuned-<encoder>-<model>-<time>``).
     ``fs_hz``: the file's rate where it states none. ``choose_prior``: the prior's strength by
-    leave-one-recording-out cross-validation on the training split. Returns the metrics with
-    ``"path"``."""
+    leave-one-recording-out cross-validation on the training split. ``class_share``: each
+    training window fitted to its share of its class's signal as the pretraining recordings
+    hold it (:func:`_class_share`; ``bench sim2real``: per slide 8.4 points ahead of the
+    labels' fine-tune, per window 4.8 behind). Returns the metrics with ``"path"``."""
     run_dir = Path(run_dir)
     pipe, record = load_run(run_dir)
     if not pipe.model.finetune_parameters():
@@ -63,19 +65,18 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
     hop_s = record.get("data_hop_s") or window_s / 2
     source = FileSource(Path(data), window_s, hop_s, fs_hz=fs_hz)
 
-    def check_rate(rate: float) -> None:
-        if abs(rate - pipe.fs_hz) > RATE_TOLERANCE * pipe.fs_hz:
-            raise ValueError(f"{data} is sampled at {rate:g} Hz, the run at {pipe.fs_hz:g} Hz: "
-                             "record or resample the data at the run's rate")  # fmt: skip
-
+    arrays = read_data_arrays(Path(data), fs_hz)
+    rate = float(np.asarray(arrays.get("fs", np.nan), np.float64).reshape(-1)[0])
+    if abs(rate - pipe.fs_hz) > RATE_TOLERANCE * pipe.fs_hz:  # (no rate: the loader says so)
+        raise ValueError(f"{data} is sampled at {rate:g} Hz, the run at {pipe.fs_hz:g} Hz: "
+                         "record or resample the data at the run's rate")  # fmt: skip
+    if class_share:
+        arrays = {**arrays, "class_signal": _class_share(record, arrays, data)}
     try:
-        train, test = load_data_file(Path(data), pipe.config.seed, window_s=window_s,
-                                     hop_s=hop_s, fs_hz=fs_hz)  # fmt: skip
-    except ValueError as e:  # the run's window may not fit: the rate is the likelier cause
-        check_rate(load_data_file(Path(data), pipe.config.seed, fs_hz=fs_hz)[0].fs_hz)
-        raise ValueError(f"{data}: {e} (the run's windows: {pipe.window} samples, "
-                         f"{window_s:g} s)") from e  # fmt: skip
-    check_rate(train.fs_hz)
+        train, test = datasets_from_arrays(arrays, Path(data), pipe.config.seed,
+                                           window=(window_s, hop_s))  # fmt: skip
+    except ValueError as e:
+        raise ValueError(f"{e} (the run's windows: {pipe.window} samples, {window_s:g} s)") from e
     train, test = (match_classes(match_channels(d, pipe.channel_names), pipe.class_names)
                    for d in (train, test))  # fmt: skip
     if train.y.size < 2 or test.y.size == 0:
@@ -97,6 +98,8 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
                 report = finetune_pipeline(pipe, train, progress=progress,
                                            choose_prior=choose_prior)  # fmt: skip
             metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before,
+                       **({"train_window_confidence": _summary(train.confidence)}
+                          if train.confidence is not None else {}),
                        "adapt": adapt, "finetune": report, "n_train_windows": int(train.y.size),
                        "n_test_windows": int(test.y.size),
                        "n_train_recordings": int(np.unique(train.scan).size),
@@ -123,6 +126,41 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
         metrics["onnx"] = export_into_run(pipe, path, test.X, config, progress)
         write_json_atomic(path / "metrics.json", metrics)
     return {**metrics, "path": str(path)}
+
+
+def _summary(c: np.ndarray) -> dict[str, float]:
+    return {"mean": float(c.mean()), "none": float((c == 0).mean()), "full": float((c == 1).mean())}
+
+
+def _class_share(record: dict, arrays: dict[str, np.ndarray], data: Path) -> np.ndarray:
+    """The class signal ``[N, samples]`` the recordings in ``arrays`` would have if they
+    followed the pretraining recordings' protocol: each its class's mean rendered signal
+    (:func:`~tactilesnn.recordings.expected_class_signal`) from the folder the run was trained
+    on (``generate`` stores one for tasks that render a trial without its class), classes
+    matched by name (ignoring case)."""
+    src = record.get("data")
+    if not src:
+        raise ValueError("--class-share needs a run trained on a generated folder (train --data "
+                         "FOLDER); this run was trained on a task")  # fmt: skip
+    syn = read_data_arrays(Path(src))
+    if "class_signal" not in syn:
+        raise ValueError(f"{src} holds no class signal: generate writes one for tasks that can "
+                         "render a trial without its class (braille)")  # fmt: skip
+    sig, X = np.asarray(syn["class_signal"]), np.asarray(arrays["X"])
+    if X.ndim != 3 or sig.shape[1] != X.shape[-1]:
+        raise ValueError(f"{data}: recordings of {X.shape[-1]} samples, the pretraining's "
+                         f"{sig.shape[1]}: --class-share needs the same length (the signal is "
+                         "taken sample by sample)")  # fmt: skip
+    if "class_names" not in arrays:
+        raise ValueError(f"{data}: --class-share matches classes by name; the file names none "
+                         "(add class_names)")  # fmt: skip
+    names = [str(c).casefold() for c in syn["class_names"]]
+    mine = [str(c).casefold() for c in np.atleast_1d(arrays["class_names"])]
+    missing = sorted({c for c in mine if c not in names})
+    if missing:
+        raise ValueError(f"{data}: classes {missing} are not among the pretraining's {names}")
+    to_syn = np.array([names.index(c) for c in mine])
+    return expected_class_signal(sig, np.asarray(syn["y"]), to_syn[np.asarray(arrays["y"])])
 
 
 def finetune_lines(m: dict[str, Any]) -> list[str]:

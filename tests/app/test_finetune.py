@@ -82,3 +82,41 @@ def test_finetune_refuses_what_it_cannot_use(pretrained, tmp_path):
         finetune_run(pretrained, tmp_path / "other.npz", tmp_path / "y", export=False,
                      progress=False)  # fmt: skip
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_class_share_weights_the_real_windows_by_the_generated_class_signal(pretrained, tmp_path):
+    """Pretrained on a generated Braille folder (whose shards hold each slide's letter signal),
+    fine-tuned with --class-share on plain recordings of the same protocol: the training
+    windows before the letter get no share of it (soft targets), the others some; a run whose
+    data holds no signal, and recordings of another length, are refused by name."""
+    from tactilesnn.app.finetune import finetune_run
+    from tactilesnn.core.dataset_folder import read_dataset_folder
+    from tactilesnn.datasets_synth.generate import generate
+
+    kw = {"letters": "abc", "duration_s": 2.0}
+    generate("braille", 24, 0, tmp_path / "synth", workers=1, progress=False, task_kwargs=kw)
+    generate("braille", 24, 1, tmp_path / "real", workers=1, progress=False, task_kwargs=kw)
+    real = read_dataset_folder(tmp_path / "real")
+    np.savez(tmp_path / "real.npz", X=real["X"], y=real["y"], fs=real["fs"],
+             class_names=np.char.upper(real["class_names"].astype(str)))  # fmt: skip
+    window = real["X"].shape[-1] / 4 / float(real["fs"])
+    run = tmp_path / "pre"
+    assert main(["train", "--data", str(tmp_path / "synth"), "--data-window-s", str(window),
+                 "--encoder", "lif", "--quiet", "--no-export", "--out", str(run)]) == 0  # fmt: skip
+    m = finetune_run(run, tmp_path / "real.npz", tmp_path / "tuned", export=False,
+                     class_share=True, progress=False)  # fmt: skip
+    c = m["train_window_confidence"]
+    assert 0.0 < c["none"] < 1.0 and 0.0 < c["mean"] < 1.0
+    plain = finetune_run(run, tmp_path / "real.npz", tmp_path / "plain", export=False,
+                         progress=False)  # fmt: skip
+    assert "train_window_confidence" not in plain
+    assert plain["pretrained"] == m["pretrained"]  # the same split, the same pretrained run
+    src = _file(tmp_path / "levels.npz", LEVELS, 5)  # the fixture's run: a file, no signal
+    with pytest.raises(ValueError, match="holds no class signal"):
+        finetune_run(pretrained, src, tmp_path / "x", export=False, class_share=True,
+                     progress=False)  # fmt: skip
+    np.savez(tmp_path / "short.npz", X=real["X"][..., :-10], y=real["y"], fs=real["fs"],
+             class_names=real["class_names"])  # fmt: skip
+    with pytest.raises(ValueError, match="the same length"):
+        finetune_run(run, tmp_path / "short.npz", tmp_path / "y", export=False,
+                     class_share=True, progress=False)  # fmt: skip
