@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..core.files import file_sha256
+from ..core.files import file_sha256, write_json_atomic
 from ..core.version import __version__
 from ..models.base import seeded
 from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
@@ -121,8 +121,6 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
             writer.abort()
             raise
     if export:  # after the run is written: an export failure never loses it
-        from ..core.files import write_json_atomic
-
         metrics["onnx"] = export_into_run(pipe, path, test.X, config, progress)
         write_json_atomic(path / "metrics.json", metrics)
     return {**metrics, "path": str(path)}
