@@ -333,9 +333,9 @@ def _parse_finetune(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--choose-prior", action="store_true", help="the prior's strength by "
                    "leave-one-recording-out cross-validation on the training split (default: "
                    "the model's own)")  # fmt: skip
-    p.add_argument("--class-share", action="store_true", help="fit each window to its share "
-                   "of its class's signal as the run's generated recordings hold it (the same "
-                   "length and protocol; better per recording, worse per window)")  # fmt: skip
+    p.add_argument("--class-share", action="store_true", help="also fine-tune each window on "
+                   "its share of its class's signal as the run's generated recordings hold it "
+                   "(the same length and protocol), and keep the mean of the two read-outs")  # fmt: skip
     p.add_argument("--no-export", action="store_true", help="skip the verified ONNX export")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

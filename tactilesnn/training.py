@@ -188,6 +188,27 @@ def finetune_pipeline(pipe: SpikePipeline, data: WindowDataset, progress: bool =
         pipe.model.eval()
 
 
+@torch.no_grad()
+def blend_finetuned(pipe: SpikePipeline, *others: SpikePipeline) -> None:
+    """``pipe``'s fine-tuned parameters (:meth:`~.models.base.SpikeModel.finetune_parameters`)
+    set to their mean over ``pipe`` and ``others``: copies of one pretrained pipeline fine-tuned
+    on different targets (the labels; each window's share of its class, which says nothing
+    before and after the class's signal). For a linear read-out on shared features the result
+    scores every window with the mean of their logits: one read-out, exported like any other.
+    iCub Braille (``bench sim2real``, the labels' and the letter's share's fine-tunes, nine
+    draws x two seeds): 61.1 / 72.3 / 90.2 % per window at k = 1 / 2 / 5 against 58.5 / 70.7 /
+    89.3 % for the labels' alone, per slide 68.7 / 74.8 / 88.9 against 65.1 / 72.2 / 88.9 %."""
+    mine = pipe.model.finetune_parameters()
+    theirs = [o.model.finetune_parameters() for o in others]
+    if not mine or any(len(t) != len(mine) for t in theirs):
+        raise ValueError("blending needs copies of one pipeline whose model fine-tunes")
+    for i, q in enumerate(mine):
+        parts = [q, *(t[i] for t in theirs)]
+        if any(x.shape != q.shape for x in parts):
+            raise ValueError("blending needs copies of one pipeline (parameter shapes differ)")
+        q.copy_(torch.stack(parts).mean(0))
+
+
 def fit_and_evaluate(
     config: PipelineConfig,
     train: WindowDataset,

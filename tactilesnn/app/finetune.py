@@ -14,8 +14,10 @@ pretrained run, ``weights.npz``, ``metrics.json``, ``model.onnx``) that ``evalua
 
 from __future__ import annotations
 
+import copy
 import logging
 import platform
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +29,7 @@ from ..core.version import __version__
 from ..models.base import seeded
 from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
 from ..recordings import datasets_from_arrays, expected_class_signal, read_data_arrays
-from ..training import adapt_pipeline, finetune_pipeline
+from ..training import adapt_pipeline, blend_finetuned, finetune_pipeline
 from .run import RUNS_ROOT, FileSource, export_into_run, load_run, match_channels, match_classes
 from .runs import OutLock, RunWriter, default_run_dir
 
@@ -52,10 +54,11 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
     """Fine-tune the run at ``run_dir`` on ``data``'s training split (see the module doc) and
     write the result to ``out`` (default ``runs/<data>-finetuned-<encoder>-<model>-<time>``).
     ``fs_hz``: the file's rate where it states none. ``choose_prior``: the prior's strength by
-    leave-one-recording-out cross-validation on the training split. ``class_share``: each
-    training window fitted to its share of its class's signal as the pretraining recordings
-    hold it (:func:`_class_share`; ``bench sim2real``: per slide 8.4 points ahead of the
-    labels' fine-tune, per window 4.8 behind). Returns the metrics with ``"path"``."""
+    leave-one-recording-out cross-validation on the training split. ``class_share``: a second
+    fine-tune, each training window fitted to its share of its class's signal as the
+    pretraining recordings hold it (:func:`_class_share`), and the result the mean of the two
+    read-outs (:func:`~tactilesnn.training.blend_finetuned`, as ``bench sim2real``'s pretrained
+    arm). Returns the metrics with ``"path"``."""
     run_dir = Path(run_dir)
     pipe, record = load_run(run_dir)
     if not pipe.model.finetune_parameters():
@@ -94,10 +97,19 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
             log.info("pretrained run on %s's test split: %.2f %% per window", Path(data).name,
                      100 * before["test_accuracy"])  # fmt: skip
             adapt = adapt_pipeline(pipe, train, progress=progress)
+            soft = copy.deepcopy(pipe) if class_share else None
             with seeded(pipe.config.seed):
-                report = finetune_pipeline(pipe, train, progress=progress,
-                                           choose_prior=choose_prior)  # fmt: skip
-            metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before,
+                report = finetune_pipeline(pipe, replace(train, confidence=None),
+                                           progress=progress, choose_prior=choose_prior)  # fmt: skip
+            extra = {}
+            if soft is not None:  # the mean of the labels' and the class share's read-outs
+                with seeded(pipe.config.seed):
+                    extra["finetune_class_share"] = finetune_pipeline(
+                        soft, train, progress=progress, choose_prior=choose_prior)  # fmt: skip
+                extra["finetuned_on_labels"] = _scores(pipe, test.X, test.y, test.scan)
+                extra["finetuned_on_class_share"] = _scores(soft, test.X, test.y, test.scan)
+                blend_finetuned(pipe, soft)
+            metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before, **extra,
                        **({"train_window_confidence": _summary(train.confidence)}
                           if train.confidence is not None else {}),
                        "adapt": adapt, "finetune": report, "n_train_windows": int(train.y.size),

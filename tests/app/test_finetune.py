@@ -86,9 +86,10 @@ def test_finetune_refuses_what_it_cannot_use(pretrained, tmp_path):
 
 def test_class_share_weights_the_real_windows_by_the_generated_class_signal(pretrained, tmp_path):
     """Pretrained on a generated Braille folder (whose shards hold each slide's letter signal),
-    fine-tuned with --class-share on plain recordings of the same protocol: the training
-    windows before the letter get no share of it (soft targets), the others some; a run whose
-    data holds no signal, and recordings of another length, are refused by name."""
+    fine-tuned with --class-share on plain recordings of the same protocol: a second fine-tune
+    in which the training windows before the letter get no share of it (soft targets), the
+    others some, blended with the labels' one; a run whose data holds no signal, and
+    recordings of another length, are refused by name."""
     from tactilesnn.app.finetune import finetune_run
     from tactilesnn.core.dataset_folder import read_dataset_folder
     from tactilesnn.datasets_synth.generate import generate
@@ -111,6 +112,10 @@ def test_class_share_weights_the_real_windows_by_the_generated_class_signal(pret
                          progress=False)  # fmt: skip
     assert "train_window_confidence" not in plain
     assert plain["pretrained"] == m["pretrained"]  # the same split, the same pretrained run
+    # the labels' fine-tune is the plain run's; the kept read-out is the mean of the two
+    assert m["finetuned_on_labels"]["test_accuracy"] == plain["test_accuracy"]
+    assert m["finetuned_on_class_share"]["test_accuracy"] != plain["test_accuracy"] or (
+        m["finetune_class_share"]["loss_after"] != m["finetune"]["loss_after"])  # fmt: skip
     src = _file(tmp_path / "levels.npz", LEVELS, 5)  # the fixture's run: a file, no signal
     with pytest.raises(ValueError, match="holds no class signal"):
         finetune_run(pretrained, src, tmp_path / "x", export=False, class_share=True,

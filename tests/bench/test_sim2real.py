@@ -153,9 +153,9 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     assert [set(s.tolist()) for s in seen["adapt"]] == [train_ids]
     assert row["adapt"]["windows"] == seen["adapt"][0].size  # every training window
     # scored: the encoders' candidates on the training slides (the choice), the three arms
-    # (synthetic only before and after the re-estimate; the two fine-tunes) on the test slides
+    # (synthetic only before and after the re-estimate; the two fine-tunes and their blend)
     on_test = [s for s in seen["scored"] if set(s.tolist()) == test_ids]
-    assert len(on_test) == 5
+    assert len(on_test) == 6
     assert all(set(s.tolist()) in (test_ids, train_ids) for s in seen["scored"])
     for key in (
         "synthetic_only",
@@ -163,6 +163,8 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         "pretrained",
         "pretrained_letter",
         "pretrained_letter_per_slide",
+        "pretrained_labels",
+        "pretrained_labels_per_slide",
         "synthetic_only_per_slide",
         "synthetic_only_unadapted",
         "synthetic_only_unadapted_per_slide",

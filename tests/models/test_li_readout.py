@@ -335,6 +335,35 @@ def test_finetune_on_confidences_takes_soft_targets():
         model.finetune(few, y, confidence=torch.ones(yf.size))
 
 
+def test_blended_finetunes_score_with_the_mean_of_their_logits():
+    """Two copies of one pretrained pipeline fine-tuned on different targets, blended: one
+    read-out whose scores are the mean of theirs (float64 reference); the features' scaling
+    (not fine-tuned) untouched; a pipeline of another shape refused."""
+    import copy
+
+    from tactilesnn.training import blend_finetuned
+
+    model, proto = _pretrained(np.random.default_rng(9))
+    few, yf = _domain(np.random.default_rng(90), proto, 3)
+    y = torch.from_numpy(yf)
+
+    class Pipe:  # the part of a pipeline blend_finetuned reads
+        def __init__(self, m):
+            self.model = m
+
+    a, b = Pipe(copy.deepcopy(model)), Pipe(copy.deepcopy(model))
+    a.model.finetune(few, y)
+    b.model.finetune(few, y, confidence=torch.zeros(yf.size))
+    want = (a.model.scores(few).double() + b.model.scores(few).double()) / 2
+    scale = a.model.feat_scale.clone()
+    blend_finetuned(a, b)
+    torch.testing.assert_close(a.model.scores(few).double(), want, atol=1e-5, rtol=0)
+    torch.testing.assert_close(a.model.feat_scale, scale)
+    other = Pipe(build_model(ReadoutConfig(), 6, 1, 3, 500.0))
+    with pytest.raises(ValueError, match="shapes differ"):
+        blend_finetuned(a, other)
+
+
 def test_finetune_chooses_its_prior_by_leaving_recordings_out():
     model, proto = _pretrained(np.random.default_rng(5))
     few, yf = _domain(np.random.default_rng(50), proto, 4)

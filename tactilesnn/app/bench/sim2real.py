@@ -269,7 +269,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     (:func:`reference_scores`), as ``row["references"]``."""
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
-    from ...training import adapt_pipeline, finetune_pipeline, fit_pipeline
+    from ...training import adapt_pipeline, blend_finetuned, finetune_pipeline, fit_pipeline
 
     if np.intersect1d(train_idx, test_idx).size:
         raise ValueError("a slide is in both the training and the test draw")
@@ -358,6 +358,10 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     row["pretrained_letter"], row["pretrained_letter_per_slide"] = _accuracy(soft, test_w)
     with seeded(seed):
         report = finetune_pipeline(pre, train_w)
+    row["pretrained_labels"], row["pretrained_labels_per_slide"] = _accuracy(pre, test_w)
+    # the pretrained arm: the mean of the two fine-tuned read-outs (the labels teach the windows
+    # without the letter the session's rest level, the letter's share the letter's windows)
+    blend_finetuned(pre, soft)
     row["pretrained"], row["pretrained_per_slide"] = _accuracy(pre, test_w)
     row["finetune"] = report
     with seeded(seed):
@@ -483,7 +487,9 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                               ("synthetic_only_unadapted_per_slide",
                                "synthetic_only_unadapted_per_slide"),
                               ("pretrained_letter_per_window", "pretrained_letter"),
-                              ("pretrained_letter_per_slide", "pretrained_letter_per_slide"))
+                              ("pretrained_letter_per_slide", "pretrained_letter_per_slide"),
+                              ("pretrained_labels_per_window", "pretrained_labels"),
+                              ("pretrained_labels_per_slide", "pretrained_labels_per_slide"))
             if all(key in r for r in sel)
         }  # fmt: skip
         out["shots"][str(k)]["draws"] = count_draws(sel)
@@ -939,10 +945,15 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                if rb else "-") + f" | {_cell(draw_means(sel, 'real_only'))} / "
             f"{_cell(draw_means(sel, 'real_only_per_slide'))} |",
             f"| {k} | {n} | synthetic + real: joint (before), pretrained + fine-tuned "
-            "(after) | "
+            + ("(after: the mean of the labels' and the letter's share's read-outs) | "
+               if all("pretrained_labels" in x for x in sel) else "(after) | ")
             + (f"{_cell([x['accuracy'] for x in jb])} / {_cell([x['per_slide'] for x in jb])}"
                if jb else "-") + f" | {_cell(draw_means(sel, 'pretrained'))} / "
             f"{_cell(draw_means(sel, 'pretrained_per_slide'))} |",
+            *([f"| {k} | {n} | pretrained + fine-tuned on the labels alone | - | "
+               f"{_cell(draw_means(sel, 'pretrained_labels'))} / "
+               f"{_cell(draw_means(sel, 'pretrained_labels_per_slide'))} |"]
+              if all("pretrained_labels" in x for x in sel) else []),
             *([f"| {k} | {n} | pretrained + fine-tuned, each real window weighted by its share "
                "of the letter in the fitted model | - | "
                f"{_cell(draw_means(sel, 'pretrained_letter'))} / "
