@@ -19,7 +19,7 @@ import torch
 from sklearn.metrics import confusion_matrix
 
 from .config import PipelineConfig
-from .core.data import WindowDataset
+from .core.data import WindowDataset, confidence_summary
 from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
@@ -121,9 +121,10 @@ def fit_pipeline(
         log.info("%s trains on hard labels: the windows' confidences are not used",
                  type(pipe.model).registry_name)  # fmt: skip
     elif conf is not None:
+        share = confidence_summary(conf)
         log.info("soft targets: each window trained on its share of its class's signal (%.0f %% "
-                 "of the windows hold none, %.0f %% all)", 100 * float((conf == 0).mean()),
-                 100 * float((conf == 1).mean()))  # fmt: skip
+                 "of the windows hold none, %.0f %% all)", 100 * share["none"],
+                 100 * share["full"])  # fmt: skip
     in_rec = pipe.encode_in_recordings(fit_set.X, fit_set.scan) if with_past else None
     if in_rec is not None:
         at, s_past = in_rec
@@ -265,9 +266,7 @@ def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bo
         metrics["early_decision"] = early
     c = fit_set.confidence
     if c is not None and pipe.model.trains_on_confidence:  # trained on soft targets
-        metrics["train_window_confidence"] = {"mean": float(c.mean()),
-                                              "none": float((c == 0).mean()),
-                                              "full": float((c == 1).mean())}  # fmt: skip
+        metrics["train_window_confidence"] = confidence_summary(c)
     if test_rec is not None or in_rec is not None:
         metrics["in_stream"] = stream_metrics(pipe, test_scores, test_rec, test.y, in_rec)
     frames = stream_evaluation(pipe, test.X, test.y, test.scan, test_scores)

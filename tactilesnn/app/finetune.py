@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..core.data import confidence_summary
 from ..core.files import file_sha256, write_json_atomic
 from ..core.version import __version__
 from ..models.base import seeded
@@ -110,7 +111,7 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
                 extra["finetuned_on_class_share"] = _scores(soft, test.X, test.y, test.scan)
                 blend_finetuned(pipe, soft)
             metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before, **extra,
-                       **({"train_window_confidence": _summary(train.confidence)}
+                       **({"train_window_confidence": confidence_summary(train.confidence)}
                           if train.confidence is not None else {}),
                        "adapt": adapt, "finetune": report, "n_train_windows": int(train.y.size),
                        "n_test_windows": int(test.y.size),
@@ -136,10 +137,6 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
         metrics["onnx"] = export_into_run(pipe, path, test.X, config, progress)
         write_json_atomic(path / "metrics.json", metrics)
     return {**metrics, "path": str(path)}
-
-
-def _summary(c: np.ndarray) -> dict[str, float]:
-    return {"mean": float(c.mean()), "none": float((c == 0).mean()), "full": float((c == 1).mean())}
 
 
 def _class_share(record: dict, arrays: dict[str, np.ndarray], data: Path) -> np.ndarray:

@@ -81,6 +81,13 @@ class WindowDataset:
         )
 
 
+def confidence_summary(c: np.ndarray) -> dict[str, float]:
+    """Window confidences ``[N]`` in a report: their mean and the shares at 0 (no share of the
+    class's signal) and at 1 (a full share)."""
+    c = np.asarray(c)
+    return {"mean": float(c.mean()), "none": float((c == 0).mean()), "full": float((c == 1).mean())}
+
+
 def _confidence(ds: WindowDataset) -> np.ndarray:
     """``ds``'s window confidences, all 1 where it has none."""
     return np.ones(len(ds.y), np.float32) if ds.confidence is None else ds.confidence

@@ -267,6 +267,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     calibration holds fixed (measured, e.g. the arm's speed over the training slides).
     ``references``: also the non-spiking references on the identical split
     (:func:`reference_scores`), as ``row["references"]``."""
+    from ...core.data import confidence_summary
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
     from ...training import adapt_pipeline, blend_finetuned, finetune_pipeline, fit_pipeline
@@ -336,9 +337,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                  "calibration_s": t_cal, "objective": fit.objective["value"],
                  "distances": fit.objective["distances"], "encoder": chosen,
                  "encoder_scores_on_training_slides": scores,
-                 "synthetic_confidence": {"mean": float(synth_w.confidence.mean()),
-                                          "none": float((synth_w.confidence == 0).mean()),
-                                          "full": float((synth_w.confidence == 1).mean())}}  # fmt: skip
+                 "synthetic_confidence": confidence_summary(synth_w.confidence)}  # fmt: skip
     row["synthetic_only_unadapted"], row["synthetic_only_unadapted_per_slide"] = _accuracy(
         pre, test_w
     )
@@ -824,9 +823,11 @@ k real training slides' letters the highest mean log-probability), whose read-ou
 standardisation is re-estimated on the k real training slides' windows (labels unused), which
 is scored on the other real slides (synthetic only) and then fine-tuned on the k real slides
 (pretrained + fine-tuned: the read-out re-fitted with a prior centred on the pretrained
-weights), next to the same pipeline trained on the k real slides alone (real only). No test
-slide is seen by the fit, the choice of encoder, the re-estimate, the training or the fine-tune
-(no early stopping); `tests/bench/test_sim2real.py` checks the split through every call.
+weights, once on the labels and once on each window's share of the letter as the fitted model
+places it, the two read-outs averaged into one), next to the same pipeline trained on the k
+real slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
+re-estimate, the training or the fine-tune (no early stopping); `tests/bench/test_sim2real.py`
+checks the split through every call.
 """
 
 
