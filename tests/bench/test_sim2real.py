@@ -5,8 +5,10 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from tactilesnn.app.bench import sim2real
+from tactilesnn.core.data import WindowDataset
 from tactilesnn.datasets_synth import get_task
 
 PERM = np.array([3, 7, 0, 11, 5, 1, 9, 2, 10, 4, 8, 6])  # file channel i = synthetic taxel PERM[i]
@@ -292,3 +294,64 @@ def test_the_score_before_the_restandardisation_is_summarised_and_shown():
     old = [{k: v for k, v in x.items() if "unadapted" not in k} for x in rows]
     assert "unadapted" not in json.dumps(sim2real.summarise_calibrated(old))
     assert "not re-estimated" not in sim2real.page({"seconds": 60.0, "calibrated": old}, {}, "cmd")
+
+
+def test_recording_runs_are_five_consecutive_slides_of_one_letter():
+    assert sim2real.recording_run(np.array([0, 4, 5, 9, 44])).tolist() == [0, 0, 1, 1, 8]
+    # a file whose runs of five have their own rest level: far apart between, equal within
+    X = np.zeros((15, 2, 100), np.float32)
+    for run in range(3):
+        X[5 * run : 5 * run + 5] += 10.0 * run
+    ds = WindowDataset(X, np.repeat([0, 1, 2], 5), np.arange(15), 100.0, ("A", "B", "C"),
+                       ("t0", "t1"))  # fmt: skip
+    spread = sim2real.run_rest_spread(ds)
+    assert spread["within_run_counts"] == 0.0
+    assert spread["between_runs_counts"] == pytest.approx(np.std([0.0, 10.0, 20.0]))
+
+
+class _Fixed:
+    """A stand-in pipeline: its class scores are given per window."""
+
+    def __init__(self, scores):
+        self._s = torch.as_tensor(scores)
+
+    def encode(self, X):
+        return X
+
+    def scores(self, spikes):
+        return self._s
+
+
+def test_seen_run_accuracy_splits_the_test_windows_by_the_training_slides_runs():
+    # test slides 1 (run 0, which training slide 0 shares) and 7 (run 1, unseen), two windows each
+    test = WindowDataset(np.zeros((4, 1, 8), np.float32), np.array([0, 0, 1, 1]),
+                         np.array([1, 1, 7, 7]), 10.0, ("A", "B"), ("t",))  # fmt: skip
+    right = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])  # 1 of 2, then 2 of 2
+    assert sim2real._seen_run_accuracy(_Fixed(right), test, np.array([0])) == [0.5, 1.0]
+    seen, unseen = sim2real._seen_run_accuracy(_Fixed(right), test, np.array([20]))
+    assert np.isnan(seen) and unseen == 0.75
+
+
+def test_by_run_summary_and_table():
+    def row(d, unseen_pre):
+        parts = {a: [0.9, 0.4] for a in sim2real.RUN_ARMS}
+        parts["pretrained"] = [0.9, unseen_pre]
+        return {"k": 1, "draw": d, "seed": d, "synthetic_only_per_slide": 0.6,
+                "synthetic_only": 0.5, "real_only": 0.5, "pretrained": 0.6,
+                "real_only_per_slide": 0.6, "pretrained_per_slide": 0.7, "calibration_s": 1.0,
+                "objective": 0.5, "encoder": "lif",
+                "by_run": {"seen_fraction": 0.25 + 0.1 * d, **parts}}  # fmt: skip
+
+    rows = [row(0, 0.5), row(1, 0.6)]
+    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
+    assert s["seen_fraction"] == pytest.approx(0.3)
+    assert s["pretrained_unseen"] == pytest.approx(0.55) and s["real_only_unseen"] == 0.4
+    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    assert "| 1 | 30 % | 90.0 / 40.0 | 90.0 / 40.0 | 90.0 / 55.0 |" in text
+    assert "+15.0 (" in text  # pretrained minus real only on the unseen runs, with its interval
+    # a draw whose training slides cover every run has no unseen part: skipped, not NaN
+    rows[1]["by_run"] = {"seen_fraction": 1.0, **{a: [0.9, float("nan")]
+                                                   for a in sim2real.RUN_ARMS}}  # fmt: skip
+    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
+    assert s["pretrained_unseen"] == pytest.approx(0.5)
+    assert "nan" not in sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")

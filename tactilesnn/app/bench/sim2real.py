@@ -234,6 +234,39 @@ def few_shot_split(
     return np.sort(train), np.setdiff1d(np.arange(real.y.size), train)
 
 
+#: slides per recording run in the real file: each letter's 15 trials are three runs of five
+#: consecutive slides (the file's README: 5 unperturbed, 10 with a sub-millimetre offset), each
+#: run with its own rest levels (:func:`run_rest_spread` measures it)
+RUN_SLIDES = 5
+
+
+def recording_run(slide: np.ndarray) -> np.ndarray:
+    """The recording run (:data:`RUN_SLIDES` consecutive slides of one letter) of each slide
+    index of the real file."""
+    return np.asarray(slide) // RUN_SLIDES
+
+
+def run_rest_spread(real: WindowDataset) -> dict[str, float]:
+    """How far apart the runs' rest levels are: the median over taxels of the spread (sd, counts)
+    of the slides' rest levels (median of the first 10 % of the slide) within a run, and of the
+    runs' mean levels between runs. Within much smaller than between: a classifier can name a
+    run, and with it the letter, from the level before the letter arrives."""
+    rest = np.median(real.X[..., : max(1, real.X.shape[-1] // 10)], -1)  # [slides, taxels]
+    runs = recording_run(np.arange(len(rest)))
+    means = np.stack([rest[runs == r].mean(0) for r in np.unique(runs)])
+    within = np.sqrt(np.mean([rest[runs == r].var(0) for r in np.unique(runs)], 0))
+    return {"within_run_counts": float(np.median(within)),
+            "between_runs_counts": float(np.median(means.std(0)))}  # fmt: skip
+
+
+def _seen_run_accuracy(pipe, test: WindowDataset, train_idx: np.ndarray) -> list[float]:
+    """Per window accuracy ``[on the test windows of runs a training slide comes from, on the
+    others]`` (:func:`recording_run`; NaN where a part is empty)."""
+    hits = pipe.scores(pipe.encode(test.X)).numpy().argmax(1) == test.y
+    seen = np.isin(recording_run(test.scan), recording_run(train_idx))
+    return [float(hits[part].mean()) if part.any() else float("nan") for part in (seen, ~seen)]
+
+
 def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False) -> tuple:
     """Per window and per slide (window scores summed) accuracy of a fitted pipeline; with
     ``log_likelihood``, also the mean log-probability (nats) it gives each window's own class
@@ -345,6 +378,11 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     # unused): the synthetic-trained weights then read the real sensor's features on their scale
     row["adapt"] = adapt_pipeline(pre, train_w)
     row["synthetic_only"], row["synthetic_only_per_slide"] = _accuracy(pre, test_w)
+    # each arm per window on the test slides of recording runs the k slides come from and on
+    # the others: the runs' rest levels name the letter to whatever saw the run
+    seen = np.isin(recording_run(test_idx), recording_run(train_idx))
+    by_run = {"seen_fraction": float(seen.mean()),
+              "synthetic_only": _seen_run_accuracy(pre, test_w, train_idx)}  # fmt: skip
     # a second fine-tune: each real training window weighted by its share of the letter as the
     # fitted model renders it at that place in the slide (the class's mean synthetic signal;
     # the fit matched the letter's timing to these slides), as the synthetic windows were
@@ -355,17 +393,22 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     with seeded(seed):
         row["finetune_letter"] = finetune_pipeline(soft, lettered)
     row["pretrained_letter"], row["pretrained_letter_per_slide"] = _accuracy(soft, test_w)
+    by_run["pretrained_letter"] = _seen_run_accuracy(soft, test_w, train_idx)
     with seeded(seed):
         report = finetune_pipeline(pre, train_w)
     row["pretrained_labels"], row["pretrained_labels_per_slide"] = _accuracy(pre, test_w)
+    by_run["pretrained_labels"] = _seen_run_accuracy(pre, test_w, train_idx)
     # the pretrained arm: the mean of the two fine-tuned read-outs (the labels teach the windows
     # without the letter the session's rest level, the letter's share the letter's windows)
     blend_finetuned(pre, soft)
     row["pretrained"], row["pretrained_per_slide"] = _accuracy(pre, test_w)
+    by_run["pretrained"] = _seen_run_accuracy(pre, test_w, train_idx)
     row["finetune"] = report
     with seeded(seed):
         alone = fit_pipeline(cfg, train_w, with_past=False).pipeline
     row["real_only"], row["real_only_per_slide"] = _accuracy(alone, test_w)
+    by_run["real_only"] = _seen_run_accuracy(alone, test_w, train_idx)
+    row["by_run"] = by_run
     if references:
         row["references"] = reference_scores(synth_w, train_w, test_w, seed)
     return row
@@ -462,6 +505,23 @@ def count_draws(rows: list[dict]) -> int:
     return len(draw_means(rows, "k"))
 
 
+#: the arms :func:`calibrated_draw` splits by recording run (``row["by_run"]``)
+RUN_ARMS = ("real_only", "pretrained", "pretrained_labels", "pretrained_letter", "synthetic_only")
+
+
+def by_run_summary(rows: list[dict]) -> dict:
+    """Each arm's per-window accuracy on the test windows of recording runs the training slides
+    come from (``seen``) and of the others (``unseen``): means over draws (NaN parts skipped:
+    at k = 5 a draw may cover every run), with the test windows' seen fraction."""
+    out: dict = {"seen_fraction": float(np.mean(draw_means(
+        rows, fn=lambda r: r["by_run"]["seen_fraction"])))}  # fmt: skip
+    for arm in RUN_ARMS:
+        for i, part in enumerate(("seen", "unseen")):
+            v = np.asarray(draw_means(rows, fn=lambda r, a=arm, i=i: r["by_run"][a][i]))
+            out[f"{arm}_{part}"] = float(np.nanmean(v)) if np.isfinite(v).any() else None
+    return out
+
+
 def summarise_calibrated(rows: list[dict]) -> dict:
     """The calibrated section's summary: means (fractions) over draws (each draw the mean over
     its training seeds), per ``k``; over every ``k`` for the synthetic-only figures."""
@@ -491,6 +551,8 @@ def summarise_calibrated(rows: list[dict]) -> dict:
                               ("pretrained_labels_per_slide", "pretrained_labels_per_slide"))
             if all(key in r for r in sel)
         }  # fmt: skip
+        if all("by_run" in r for r in sel):
+            out["shots"][str(k)]["by_run"] = by_run_summary(sel)
         out["shots"][str(k)]["draws"] = count_draws(sel)
         out["shots"][str(k)]["runs"] = len(sel)
     return out
@@ -612,6 +674,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                              **x.pop("references")} for x in cal_rows if "references" in x]  # fmt: skip
     if cal_rows:
         result.update(summarise_calibrated(cal_rows))
+        result["run_rest_spread"] = run_rest_spread(real)
     if optimisers:
         result["optimisers"] = compare_optimisers(real, shots, optimisers)
     result["seconds"] = time.perf_counter() - t_start
@@ -908,6 +971,34 @@ def _fabric_section(fab: dict) -> list[str]:
             "![FabricSlide against the texture task's stack](sim2real_fabric.png)"]  # fmt: skip
 
 
+def _by_run_table(cal: list[dict], ks: list[int]) -> list[str]:
+    """The page's table of each arm per window by recording run (rows with ``by_run``)."""
+    if not all("by_run" in x for x in cal):
+        return []
+    lines = ["", "By recording run (per window, %; a run: five consecutive slides of one "
+             "letter, `RUN_SLIDES`): on the test slides of the runs the k training slides come "
+             "from (seen) and of the other runs (unseen); the last column pretrained minus real "
+             "only on the unseen runs (points).", "",
+             "| k | test windows in seen runs | real only: seen / unseen | synthetic only | "
+             "pretrained (the mean) | labels' fine-tune | letter's share's | pretrained minus "
+             "real only, unseen runs |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for k in ks:
+        sel = [x for x in cal if x["k"] == k]
+        b = by_run_summary(sel)
+
+        def pair(arm: str, b: dict = b) -> str:
+            return " / ".join("-" if b[f"{arm}_{p}"] is None else f"{100 * b[f'{arm}_{p}']:.1f}"
+                              for p in ("seen", "unseen"))  # fmt: skip
+
+        gain = [v for v in draw_means(sel, fn=lambda x: x["by_run"]["pretrained"][1]
+                                      - x["by_run"]["real_only"][1]) if np.isfinite(v)]  # fmt: skip
+        lines.append(f"| {k} | {100 * b['seen_fraction']:.0f} % | {pair('real_only')} | "
+                     f"{pair('synthetic_only')} | {pair('pretrained')} | "
+                     f"{pair('pretrained_labels')} | {pair('pretrained_letter')} | "
+                     + (_cell(gain, sign="+") if gain else "-") + " |")  # fmt: skip
+    return lines
+
+
 def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = None) -> str:
     """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values,
     ``fabric``: the second sensor's statistics-only comparison)."""
@@ -981,6 +1072,7 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
             lines.append(f"| {k} | {_cell(gain, sign='+')} | {soft}{enc} | "
                          f"{np.median([x['calibration_s'] for x in sel]):.0f} | "
                          f"{np.median([x['objective'] for x in sel]):.3f} |")  # fmt: skip
+        lines += _by_run_table(cal, ks)
         summary = summarise_calibrated(cal)
         lines += ["", "In `sim2real.json`: `synthetic_only_per_slide` "
                   f"{summary['synthetic_only_per_slide']:.3f}; `shots`: "
