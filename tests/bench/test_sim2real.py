@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from tactilesnn.app.bench import sim2real
 from tactilesnn.core.data import WindowDataset
@@ -309,26 +308,13 @@ def test_recording_runs_are_five_consecutive_slides_of_one_letter():
     assert spread["between_runs_counts"] == pytest.approx(np.std([0.0, 10.0, 20.0]))
 
 
-class _Fixed:
-    """A stand-in pipeline: its class scores are given per window."""
-
-    def __init__(self, scores):
-        self._s = torch.as_tensor(scores)
-
-    def encode(self, X):
-        return X
-
-    def scores(self, spikes):
-        return self._s
-
-
 def test_seen_run_accuracy_splits_the_test_windows_by_the_training_slides_runs():
     # test slides 1 (run 0, which training slide 0 shares) and 7 (run 1, unseen), two windows each
     test = WindowDataset(np.zeros((4, 1, 8), np.float32), np.array([0, 0, 1, 1]),
                          np.array([1, 1, 7, 7]), 10.0, ("A", "B"), ("t",))  # fmt: skip
-    right = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.0, 1.0]])  # 1 of 2, then 2 of 2
-    assert sim2real._seen_run_accuracy(_Fixed(right), test, np.array([0])) == [0.5, 1.0]
-    seen, unseen = sim2real._seen_run_accuracy(_Fixed(right), test, np.array([20]))
+    hits = np.array([True, False, True, True])  # 1 of 2 on slide 1, 2 of 2 on slide 7
+    assert sim2real._seen_run_accuracy(hits, test, np.array([0])) == [0.5, 1.0]
+    seen, unseen = sim2real._seen_run_accuracy(hits, test, np.array([20]))
     assert np.isnan(seen) and unseen == 0.75
 
 

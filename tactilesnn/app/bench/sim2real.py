@@ -259,28 +259,33 @@ def run_rest_spread(real: WindowDataset) -> dict[str, float]:
             "between_runs_counts": float(np.median(means.std(0)))}  # fmt: skip
 
 
-def _seen_run_accuracy(pipe, test: WindowDataset, train_idx: np.ndarray) -> list[float]:
+def _seen_run_accuracy(hits: np.ndarray, test: WindowDataset, train_idx: np.ndarray) -> list[float]:
     """Per window accuracy ``[on the test windows of runs a training slide comes from, on the
-    others]`` (:func:`recording_run`; NaN where a part is empty)."""
-    hits = pipe.scores(pipe.encode(test.X)).numpy().argmax(1) == test.y
+    others]`` from each test window's ``hits`` (right or not; :func:`recording_run`; NaN where
+    a part is empty)."""
     seen = np.isin(recording_run(test.scan), recording_run(train_idx))
     return [float(hits[part].mean()) if part.any() else float("nan") for part in (seen, ~seen)]
 
 
-def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False) -> tuple:
+def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False,
+              runs_of: np.ndarray | None = None) -> tuple:  # fmt: skip
     """Per window and per slide (window scores summed) accuracy of a fitted pipeline; with
-    ``log_likelihood``, also the mean log-probability (nats) it gives each window's own class
-    (its scores through a softmax): a proper score, which a few windows rank less noisily than
-    accuracy."""
+    ``runs_of`` (the training slides' indices), then per window by recording run
+    (:func:`_seen_run_accuracy`); with ``log_likelihood``, last the mean log-probability (nats)
+    it gives each window's own class (its scores through a softmax): a proper score, which a few
+    windows rank less noisily than accuracy."""
     import torch
 
     from ...pipeline import recording_accuracy
 
     scores = pipe.scores(pipe.encode(test.X))
     s = scores.numpy()
-    per_window = float((s.argmax(1) == test.y).mean())
+    hits = s.argmax(1) == test.y
+    per_window = float(hits.mean())
     rec = recording_accuracy(s, test.y, test.scan)
     out = (per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window)
+    if runs_of is not None:
+        out = (*out, _seen_run_accuracy(hits, test, runs_of))
     if not log_likelihood:
         return out
     logp = torch.log_softmax(scores.double(), 1)
@@ -377,12 +382,13 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     # the read-out's standardisation re-estimated on the k training slides' windows (labels
     # unused): the synthetic-trained weights then read the real sensor's features on their scale
     row["adapt"] = adapt_pipeline(pre, train_w)
-    row["synthetic_only"], row["synthetic_only_per_slide"] = _accuracy(pre, test_w)
-    # each arm per window on the test slides of recording runs the k slides come from and on
-    # the others: the runs' rest levels name the letter to whatever saw the run
+    # each arm also per window on the test slides of recording runs the k slides come from and
+    # on the others: the runs' rest levels name the letter to whatever saw the run
     seen = np.isin(recording_run(test_idx), recording_run(train_idx))
-    by_run = {"seen_fraction": float(seen.mean()),
-              "synthetic_only": _seen_run_accuracy(pre, test_w, train_idx)}  # fmt: skip
+    by_run: dict = {"seen_fraction": float(seen.mean())}
+    row["synthetic_only"], row["synthetic_only_per_slide"], by_run["synthetic_only"] = _accuracy(
+        pre, test_w, runs_of=train_idx
+    )
     # a second fine-tune: each real training window weighted by its share of the letter as the
     # fitted model renders it at that place in the slide (the class's mean synthetic signal;
     # the fit matched the letter's timing to these slides), as the synthetic windows were
@@ -392,22 +398,26 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     soft = copy.deepcopy(pre)
     with seeded(seed):
         row["finetune_letter"] = finetune_pipeline(soft, lettered)
-    row["pretrained_letter"], row["pretrained_letter_per_slide"] = _accuracy(soft, test_w)
-    by_run["pretrained_letter"] = _seen_run_accuracy(soft, test_w, train_idx)
+    row["pretrained_letter"], row["pretrained_letter_per_slide"], by_run["pretrained_letter"] = (
+        _accuracy(soft, test_w, runs_of=train_idx)
+    )
     with seeded(seed):
         report = finetune_pipeline(pre, train_w)
-    row["pretrained_labels"], row["pretrained_labels_per_slide"] = _accuracy(pre, test_w)
-    by_run["pretrained_labels"] = _seen_run_accuracy(pre, test_w, train_idx)
+    row["pretrained_labels"], row["pretrained_labels_per_slide"], by_run["pretrained_labels"] = (
+        _accuracy(pre, test_w, runs_of=train_idx)
+    )
     # the pretrained arm: the mean of the two fine-tuned read-outs (the labels teach the windows
     # without the letter the session's rest level, the letter's share the letter's windows)
     blend_finetuned(pre, soft)
-    row["pretrained"], row["pretrained_per_slide"] = _accuracy(pre, test_w)
-    by_run["pretrained"] = _seen_run_accuracy(pre, test_w, train_idx)
+    row["pretrained"], row["pretrained_per_slide"], by_run["pretrained"] = _accuracy(
+        pre, test_w, runs_of=train_idx
+    )
     row["finetune"] = report
     with seeded(seed):
         alone = fit_pipeline(cfg, train_w, with_past=False).pipeline
-    row["real_only"], row["real_only_per_slide"] = _accuracy(alone, test_w)
-    by_run["real_only"] = _seen_run_accuracy(alone, test_w, train_idx)
+    row["real_only"], row["real_only_per_slide"], by_run["real_only"] = _accuracy(
+        alone, test_w, runs_of=train_idx
+    )
     row["by_run"] = by_run
     if references:
         row["references"] = reference_scores(synth_w, train_w, test_w, seed)
