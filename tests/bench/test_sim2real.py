@@ -171,6 +171,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         "synthetic_only_unadapted_per_slide",
     ):
         assert 0.0 <= row[key] <= 1.0
+    assert "by_run" not in row  # the stand-in's letters alternate: no runs of one letter
     # the non-spiking references: trained on synthetic windows, then on the training slides,
     # each scored on the test slides; the waveform ones only (no spike MLP)
     # (on the synthetic windows twice: on their labels alone, and on the pipeline's soft targets)
@@ -303,6 +304,8 @@ def test_recording_runs_are_five_consecutive_slides_of_one_letter():
         X[5 * run : 5 * run + 5] += 10.0 * run
     ds = WindowDataset(X, np.repeat([0, 1, 2], 5), np.arange(15), 100.0, ("A", "B", "C"),
                        ("t0", "t1"))  # fmt: skip
+    assert sim2real.has_letter_runs(ds.y)
+    assert not sim2real.has_letter_runs(np.arange(15) % 3)  # a file laid out otherwise
     spread = sim2real.run_rest_spread(ds)
     assert spread["within_run_counts"] == 0.0
     assert spread["between_runs_counts"] == pytest.approx(np.std([0.0, 10.0, 20.0]))

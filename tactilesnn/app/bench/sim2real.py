@@ -246,6 +246,14 @@ def recording_run(slide: np.ndarray) -> np.ndarray:
     return np.asarray(slide) // RUN_SLIDES
 
 
+def has_letter_runs(y: np.ndarray) -> bool:
+    """Whether every run of :data:`RUN_SLIDES` consecutive slides holds one letter (the iCub
+    file's layout; a file laid out otherwise gets no split by run)."""
+    y = np.asarray(y)
+    runs = recording_run(np.arange(y.size))
+    return all(np.unique(y[runs == r]).size == 1 for r in np.unique(runs))
+
+
 def run_rest_spread(real: WindowDataset) -> dict[str, float]:
     """How far apart the runs' rest levels are: the median over taxels of the spread (sd, counts)
     of the slides' rest levels (median of the first 10 % of the slide) within a run, and of the
@@ -383,12 +391,20 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     # unused): the synthetic-trained weights then read the real sensor's features on their scale
     row["adapt"] = adapt_pipeline(pre, train_w)
     # each arm also per window on the test slides of recording runs the k slides come from and
-    # on the others: the runs' rest levels name the letter to whatever saw the run
-    seen = np.isin(recording_run(test_idx), recording_run(train_idx))
-    by_run: dict = {"seen_fraction": float(seen.mean())}
-    row["synthetic_only"], row["synthetic_only_per_slide"], by_run["synthetic_only"] = _accuracy(
-        pre, test_w, runs_of=train_idx
-    )
+    # on the others (a file laid out in runs of one letter): the runs' rest levels name the
+    # letter to whatever saw the run
+    runs_of = train_idx if has_letter_runs(real.y) else None
+    by_run: dict = {
+        "seen_fraction": float(np.isin(recording_run(test_idx), recording_run(train_idx)).mean())
+    }
+
+    def score(arm: str, pipe) -> None:
+        got = _accuracy(pipe, test_w, runs_of=runs_of)
+        row[arm], row[f"{arm}_per_slide"] = got[:2]
+        if runs_of is not None:
+            by_run[arm] = got[2]
+
+    score("synthetic_only", pre)
     # a second fine-tune: each real training window weighted by its share of the letter as the
     # fitted model renders it at that place in the slide (the class's mean synthetic signal;
     # the fit matched the letter's timing to these slides), as the synthetic windows were
@@ -398,27 +414,20 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     soft = copy.deepcopy(pre)
     with seeded(seed):
         row["finetune_letter"] = finetune_pipeline(soft, lettered)
-    row["pretrained_letter"], row["pretrained_letter_per_slide"], by_run["pretrained_letter"] = (
-        _accuracy(soft, test_w, runs_of=train_idx)
-    )
+    score("pretrained_letter", soft)
     with seeded(seed):
         report = finetune_pipeline(pre, train_w)
-    row["pretrained_labels"], row["pretrained_labels_per_slide"], by_run["pretrained_labels"] = (
-        _accuracy(pre, test_w, runs_of=train_idx)
-    )
+    score("pretrained_labels", pre)
     # the pretrained arm: the mean of the two fine-tuned read-outs (the labels teach the windows
     # without the letter the session's rest level, the letter's share the letter's windows)
     blend_finetuned(pre, soft)
-    row["pretrained"], row["pretrained_per_slide"], by_run["pretrained"] = _accuracy(
-        pre, test_w, runs_of=train_idx
-    )
+    score("pretrained", pre)
     row["finetune"] = report
     with seeded(seed):
         alone = fit_pipeline(cfg, train_w, with_past=False).pipeline
-    row["real_only"], row["real_only_per_slide"], by_run["real_only"] = _accuracy(
-        alone, test_w, runs_of=train_idx
-    )
-    row["by_run"] = by_run
+    score("real_only", alone)
+    if runs_of is not None:
+        row["by_run"] = by_run
     if references:
         row["references"] = reference_scores(synth_w, train_w, test_w, seed)
     return row
@@ -684,7 +693,8 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                              **x.pop("references")} for x in cal_rows if "references" in x]  # fmt: skip
     if cal_rows:
         result.update(summarise_calibrated(cal_rows))
-        result["run_rest_spread"] = run_rest_spread(real)
+        if has_letter_runs(real.y):
+            result["run_rest_spread"] = run_rest_spread(real)
     if optimisers:
         result["optimisers"] = compare_optimisers(real, shots, optimisers)
     result["seconds"] = time.perf_counter() - t_start
