@@ -183,12 +183,18 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     assert set(row["references"]) == {"synthetic", "synthetic_confidence", "real"}
     assert "mlp_spikes" not in row["references"]["real"] and len(row["references"]["real"]) == 5
     assert all(0.0 <= s <= 1.0 for acc in row["references"]["real"].values() for s in acc)
-    # --references-from: the same references for a run's saved fit, into its JSON
-    (run_dir / "sim2real.json").write_text(json.dumps({"calibrated": [{"k": 1, "draw": 0,
-                                                                       "seed": 0}]}))  # fmt: skip
-    seen["references"] = []
+    # and a forest on the spike pipeline's own read-out features, trained on the soft targets
+    forest = row["references"]["synthetic_confidence"]["rf_spike_traces"]
+    assert len(forest) == 2 and all(0.0 <= v <= 1.0 for v in forest)
+    # --references-from: the same references for a run's saved fit, into its JSON (the forest
+    # on the row's encoder's pipeline, fitted again on the synthetic windows)
+    (run_dir / "sim2real.json").write_text(json.dumps({"calibrated": [{
+        "k": 1, "draw": 0, "seed": 0, "encoder": row["encoder"]}]}))  # fmt: skip
+    seen["references"], seen["fit"] = [], []
     rows = sim2real.add_references(run_dir, real, synthetic=12)
     assert rows[0]["real"] == row["references"]["real"]  # the same split, the same references
+    assert len(rows[0]["synthetic_confidence"]["rf_spike_traces"]) == 2
+    assert [s.min() >= 10**6 for s in seen["fit"]] == [True]  # on the synthetic windows only
     assert json.loads((run_dir / "sim2real.json").read_text())["references"] == rows
     assert all(set(te_.tolist()) == test_ids for _, te_ in seen["references"])
     with pytest.raises(ValueError, match="both the training and the test"):

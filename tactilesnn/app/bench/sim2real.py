@@ -389,6 +389,9 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     )
     # the read-out's standardisation re-estimated on the k training slides' windows (labels
     # unused): the synthetic-trained weights then read the real sensor's features on their scale
+    # the read-out's features on the synthetic windows, before the re-estimate (the references'
+    # forest on the spike pipeline's own features)
+    synth_feats = read_out_features(pre, synth_w) if references else None
     row["adapt"] = adapt_pipeline(pre, train_w)
     # each arm also per window on the test slides of recording runs the k slides come from and
     # on the others (a file laid out in runs of one letter): the runs' rest levels name the
@@ -405,6 +408,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
             by_run[arm] = got[2]
 
     score("synthetic_only", pre)
+    test_feats = None if synth_feats is None else read_out_features(pre, test_w)
     # a second fine-tune: each real training window weighted by its share of the letter as the
     # fitted model renders it at that place in the slide (the class's mean synthetic signal;
     # the fit matched the letter's timing to these slides), as the synthetic windows were
@@ -430,6 +434,10 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
         row["by_run"] = by_run
     if references:
         row["references"] = reference_scores(synth_w, train_w, test_w, seed)
+        if test_feats is not None and "synthetic_confidence" in row["references"]:
+            row["references"]["synthetic_confidence"]["rf_spike_traces"] = spike_trace_forest(
+                synth_feats, synth_w, test_feats, test_w, seed
+            )
     return row
 
 
@@ -448,6 +456,48 @@ def reference_scores(synth_w: WindowDataset, train_w: WindowDataset, test_w: Win
         arms.insert(1, ("synthetic_confidence", synth_w))
     return {arm: {name: list(acc) for name, acc in references(train, test_w, None, seed).items()}
             for arm, train in arms}  # fmt: skip
+
+
+def read_out_features(pipe, ds: WindowDataset) -> np.ndarray | None:
+    """The features ``pipe``'s read-out scores ``ds``'s windows from (``[N, features]``, on its
+    current standardisation; the columns its fit uses), or None for a model without them."""
+    import torch
+
+    features = getattr(pipe.model, "features", None)
+    if features is None:
+        return None
+    with torch.no_grad():
+        f = features(pipe.encode(ds.X)).numpy()
+    mask = getattr(pipe.model, "instant_mask", None)
+    return f if mask is None else f[:, mask.numpy() > 0]
+
+
+def spike_trace_forest(synth_feats: np.ndarray, synth_w: WindowDataset, test_feats: np.ndarray,
+                       test_w: WindowDataset, seed: int) -> list[float]:  # fmt: skip
+    """A random forest on the spike pipeline's own read-out features (:func:`read_out_features`):
+    trained on the synthetic windows' (the pipeline's synthetic standardisation; their soft
+    targets as sample weights, as the references'), scored on the test windows' standardised on
+    the k training slides as :func:`~tactilesnn.training.adapt_pipeline` does -> ``[per window,
+    per slide]`` (the class probabilities summed per slide). What a read-out that does not
+    extrapolate linearly from the fitted model's levels makes of the same spikes."""
+    from sklearn.ensemble import RandomForestClassifier
+
+    from ...pipeline import recording_accuracy
+    from .real import FOREST_TREES, soft_target_rows
+
+    n = len(synth_w.class_names)
+    forest = RandomForestClassifier(n_estimators=FOREST_TREES, min_samples_leaf=2,
+                                    random_state=seed, n_jobs=-1)  # fmt: skip
+    if synth_w.confidence is None:
+        forest.fit(synth_feats, synth_w.y)
+    else:
+        rows, labels, weights = soft_target_rows(synth_w.y, synth_w.confidence, n)
+        forest.fit(synth_feats[rows], labels, sample_weight=weights)
+    proba = np.zeros((test_w.y.size, n))
+    proba[:, forest.classes_] = forest.predict_proba(test_feats)
+    rec = recording_accuracy(proba, test_w.y, test_w.scan)
+    per_window = float((proba.argmax(1) == test_w.y).mean())
+    return [per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window]
 
 
 def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> list[dict]:
@@ -473,8 +523,25 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
                                             calibration=str(path))  # fmt: skip
         train_w = cut(slides(real, tr))
         test_w = cut(slides(real, te))
-        rows.append({"k": k, "draw": d, "seed": d,
-                     **reference_scores(cut(synth, letter), train_w, test_w, d)})  # fmt: skip
+        synth_w = cut(synth, letter)
+        refs = reference_scores(synth_w, train_w, test_w, d)
+        if "encoder" in x:  # the forest on the run's chosen encoder's pipeline, fitted again
+            from ...models.base import seeded
+            from ...selection import candidate_configs
+            from ...training import adapt_pipeline, fit_pipeline
+            from .real import default_config
+
+            cfg = candidate_configs(default_config(False, None, "readout", d), synth_w,
+                                    (x["encoder"],))[x["encoder"]]  # fmt: skip
+            with seeded(d):
+                pipe = fit_pipeline(with_seed(cfg, d), synth_w, with_past=False).pipeline
+            feats = read_out_features(pipe, synth_w)
+            adapt_pipeline(pipe, train_w)
+            if feats is not None:
+                refs["synthetic_confidence"]["rf_spike_traces"] = spike_trace_forest(
+                    feats, synth_w, read_out_features(pipe, test_w), test_w, d
+                )
+        rows.append({"k": k, "draw": d, "seed": d, **refs})
         log.info("references k=%d draw %d done", k, d)
     result["references"] = rows
     write_json_atomic(run_dir / "sim2real.json", result)
@@ -871,8 +938,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
     p.add_argument("--references-from", default=None,
-                   help="an earlier run's --out: add the non-spiking references on its calibrated "
-                   "draws to its sim2real.json (no run)")  # fmt: skip
+                   help="an earlier run's --out: add the non-spiking references (and a forest "
+                   "on the spike read-out's features) on its calibrated draws to its "
+                   "sim2real.json (no run)")  # fmt: skip
     p.add_argument("--from-json", default=None,
                    help="only rewrite --docs from a run's sim2real.json (no run)")  # fmt: skip
     p.add_argument("--level-neurons", type=int, default=None,
@@ -957,7 +1025,7 @@ def _references_section(refs: list[dict], cal: list[dict]) -> list[str]:
     for arm, own, label in arms:
         if not all(arm in x for x in refs):
             continue
-        for name in refs[0][arm]:
+        for name in [n for n in refs[0][arm] if all(n in x[arm] for x in refs)]:
             lines.append(
                 f"| {label} | {name} | " + cells(lambda x, a=arm, n=name: x[a][n][1]) + " |"
             )
