@@ -1015,7 +1015,8 @@ def _references_section(refs: list[dict], cal: list[dict]) -> list[str]:
              "Per slide (%), means over the draws: the waveform references of `bench real` "
              "trained on each draw's synthetic slides (its first training seed's, render seed = "
              "the draw) or on its k real slides, scored on the same test slides, next to the "
-             "spike pipeline of the same seed.", "",
+             "spike pipeline of the same seed; `rf_spike_traces`: a forest on that pipeline's own "
+             "read-out features (`spike_trace_forest`), where the run has it.", "",
              "| trained on | classifier | " + " | ".join(f"k = {k}" for k in ks) + " | all |",
              "|---|---|" + "---|" * (len(ks) + 1)]  # fmt: skip
     arms = [("synthetic", "synthetic_only_per_slide", "synthetic slides, labels alone"),
