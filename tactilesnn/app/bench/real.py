@@ -193,21 +193,9 @@ def references(
     from sklearn.preprocessing import StandardScaler
 
     from ...baselines import amplitude_stats
-    from ...training import recording_accuracy
 
     def scored(clf, f_train: np.ndarray, f_test: np.ndarray) -> tuple[float, float | None]:
-        if train.confidence is None:
-            clf.fit(f_train, train.y)
-        else:  # the same soft targets as the spike pipeline's: each window once per class
-            rows, labels, weights = soft_target_rows(train.y, train.confidence,
-                                                     len(train.class_names))  # fmt: skip
-            last = clf.steps[-1][0] + "__" if hasattr(clf, "steps") else ""
-            clf.fit(f_train[rows], labels, **{last + "sample_weight": weights})
-        proba = np.zeros((test.y.size, len(test.class_names)))
-        proba[:, clf.classes_] = clf.predict_proba(f_test)
-        per_rec = recording_accuracy(proba, test.y, test.scan)
-        acc = float((proba.argmax(1) == test.y).mean())
-        return acc, None if per_rec is None else per_rec["test_accuracy_per_recording"]
+        return fit_and_score(clf, f_train, train, f_test, test)
 
     lr = make_pipeline(StandardScaler(), LogisticRegression(max_iter=3000))
     rf = RandomForestClassifier(n_estimators=FOREST_TREES, random_state=seed, n_jobs=-1)
@@ -228,6 +216,28 @@ def references(
         out["mlp_spikes"] = scored(mlp, spike_features(pipe.encode(train.X), pipe.duration_ms),
                                    spike_features(pipe.encode(test.X), pipe.duration_ms))  # fmt: skip
     return out
+
+
+def fit_and_score(clf, f_train: np.ndarray, train: WindowDataset, f_test: np.ndarray,
+                  test: WindowDataset) -> tuple[float, float | None]:  # fmt: skip
+    """A scikit-learn classifier fitted on ``train``'s features ``f_train`` (its windows'
+    confidences, where set, as soft targets: :func:`soft_target_rows`) and scored on ``test``'s
+    ``f_test`` -> (accuracy per window, per recording from the class probabilities summed over
+    the recording's windows, or None)."""
+    from ...training import recording_accuracy
+
+    if train.confidence is None:
+        clf.fit(f_train, train.y)
+    else:  # the same soft targets as the spike pipeline's: each window once per class
+        rows, labels, weights = soft_target_rows(train.y, train.confidence,
+                                                 len(train.class_names))  # fmt: skip
+        last = clf.steps[-1][0] + "__" if hasattr(clf, "steps") else ""
+        clf.fit(f_train[rows], labels, **{last + "sample_weight": weights})
+    proba = np.zeros((test.y.size, len(test.class_names)))
+    proba[:, clf.classes_] = clf.predict_proba(f_test)
+    per_rec = recording_accuracy(proba, test.y, test.scan)
+    acc = float((proba.argmax(1) == test.y).mean())
+    return acc, None if per_rec is None else per_rec["test_accuracy_per_recording"]
 
 
 def soft_target_rows(y: np.ndarray, confidence: np.ndarray,

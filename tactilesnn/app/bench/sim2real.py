@@ -482,22 +482,12 @@ def spike_trace_forest(synth_feats: np.ndarray, synth_w: WindowDataset, test_fea
     extrapolate linearly from the fitted model's levels makes of the same spikes."""
     from sklearn.ensemble import RandomForestClassifier
 
-    from ...pipeline import recording_accuracy
-    from .real import FOREST_TREES, soft_target_rows
+    from .real import FOREST_TREES, fit_and_score
 
-    n = len(synth_w.class_names)
     forest = RandomForestClassifier(n_estimators=FOREST_TREES, min_samples_leaf=2,
                                     random_state=seed, n_jobs=-1)  # fmt: skip
-    if synth_w.confidence is None:
-        forest.fit(synth_feats, synth_w.y)
-    else:
-        rows, labels, weights = soft_target_rows(synth_w.y, synth_w.confidence, n)
-        forest.fit(synth_feats[rows], labels, sample_weight=weights)
-    proba = np.zeros((test_w.y.size, n))
-    proba[:, forest.classes_] = forest.predict_proba(test_feats)
-    rec = recording_accuracy(proba, test_w.y, test_w.scan)
-    per_window = float((proba.argmax(1) == test_w.y).mean())
-    return [per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window]
+    per_window, per_slide = fit_and_score(forest, synth_feats, synth_w, test_feats, test_w)
+    return [per_window, per_window if per_slide is None else float(per_slide)]
 
 
 def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> list[dict]:
