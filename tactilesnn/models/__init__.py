@@ -6,6 +6,7 @@ are the registry's list of shipped models.
 
 from .base import MODELS, SpikeModel, build_model, register_model
 from .conv_snn import ConvSNNConfig, ConvSNNModel
+from .forest_readout import ForestConfig, ForestReadout
 from .li_readout import LIReadout, ReadoutConfig
 from .snn import SNNClassifier, SNNConfig, SNNModel
 from .stream_snn import StreamSNNConfig, StreamSNNModel
@@ -15,6 +16,8 @@ __all__ = [
     "MODELS",
     "ConvSNNConfig",
     "ConvSNNModel",
+    "ForestConfig",
+    "ForestReadout",
     "LIReadout",
     "ReadoutConfig",
     "SNNClassifier",

@@ -350,3 +350,32 @@ def test_by_run_summary_and_table():
     s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
     assert s["pretrained_unseen"] == pytest.approx(0.5)
     assert "nan" not in sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+
+
+def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeypatch):
+    """``--model forest``: every pipeline of the draw (the candidates, the real-only arm) is a
+    forest, adapted and fine-tuned on the training slides (its leaves re-estimated, blended),
+    every arm scored; the page's model table names both models."""
+    from tactilesnn import training
+
+    _stand_in(tmp_path / "data", n=18)
+    real = sim2real.load_real(tmp_path / "data")
+    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng(0))
+    models = []
+    fit = training.fit_pipeline
+
+    def spy_fit(cfg, data, *a, **kw):
+        models.append(cfg.model_type)
+        return fit(cfg, data, *a, **kw)
+
+    monkeypatch.setattr(training, "fit_pipeline", spy_fit)
+    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
+                                   model="forest")  # fmt: skip
+    assert models and set(models) == {"forest"}
+    assert row["finetune"]["prior_windows"] > 0 and row["adapt"]["windows"] > 0
+    for key in ("synthetic_only", "synthetic_only_per_slide", "real_only", "pretrained"):
+        assert 0.0 <= row[key] <= 1.0
+    r = {"model": "readout", "other_models": {"forest": {"command": "x", "calibrated": [
+        {**row, "k": 1, "draw": 0}]}}}  # fmt: skip
+    text = "\n".join(sim2real._models_section(r, [{**row, "k": 1, "draw": 0}]))
+    assert "| 1 | readout |" in text and "| 1 | forest |" in text

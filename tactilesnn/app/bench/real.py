@@ -97,6 +97,8 @@ PIPELINES = (
     ("default+tempotron", None, "tempotron", "any", {}),
     ("default+readout", None, "readout", "any", {}),
     ("default+snn", None, "snn", "any", {}),
+    # a random forest on the readout's traces (does not extrapolate: the sim-to-real read-out)
+    ("default+forest", None, "forest", "any", {}),
     ("lif+readout", "lif", "readout", "analog", {}),  # a level converter: not for event counts
     # the Gabor latency code on the windowed FFT scalogram and on the causal (streamable) bank
     ("gwt+readout", "gwt", "readout", "analog", {}),

@@ -208,13 +208,15 @@ def fit_score(
     )
 
 
-def base_config(synth_windows: WindowDataset, seed: int, epochs: int | None):
-    """The ``train --data`` defaults, the encoder chosen on the synthetic training windows."""
+def base_config(synth_windows: WindowDataset, seed: int, epochs: int | None,
+                model: str = "readout"):  # fmt: skip
+    """The ``train --data`` defaults (with ``model``), the encoder chosen on the synthetic
+    training windows."""
     from ...data_policy import DATA_ENCODER_CANDIDATES
     from ...selection import select_encoder
     from .real import default_config
 
-    cfg = default_config(False, None, "readout", seed)
+    cfg = default_config(False, None, model, seed)
     if epochs is not None:
         cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
     cfg, report = select_encoder(cfg, synth_windows, DATA_ENCODER_CANDIDATES)
@@ -304,7 +306,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
                     fit_path: Path | None = None, plot_path: Path | None = None,
                     reuse: Path | None = None, train_seed: int | None = None,
-                    known: dict[str, float] | None = None, references: bool = False) -> dict:  # fmt: skip
+                    known: dict[str, float] | None = None, references: bool = False,
+                    model: str = "readout") -> dict:  # fmt: skip
     """One few-shot draw of the calibrated protocol (see the module doc): the calibration,
     synthetic-only, real-only and pretrained + fine-tuned accuracies on ``test_idx``. ``reuse``:
     a fit file an earlier run wrote for this very draw (its training slides checked), read
@@ -312,7 +315,8 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     the synthetic slides' render and every pipeline's training. ``known``: values the
     calibration holds fixed (measured, e.g. the arm's speed over the training slides).
     ``references``: also the non-spiking references on the identical split
-    (:func:`reference_scores`), as ``row["references"]``."""
+    (:func:`reference_scores`), as ``row["references"]``. ``model``: the pipelines' model (one
+    that adapts and fine-tunes: ``readout``, ``forest``)."""
     from ...core.data import confidence_summary
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
@@ -368,7 +372,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     from ...selection import candidate_configs
     from .real import default_config
 
-    base = default_config(False, None, "readout", seed)
+    base = default_config(False, None, model, seed)
     if epochs is not None:
         base = base.replace(train=replace(base.train, epochs=epochs))
     scores, fitted = {}, {}
@@ -639,12 +643,13 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
         progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 600.0,
         calibrated_synthetic: int = 200, optimisers: tuple[str, ...] = (),
-        reuse_fits: Path | None = None, calibrated_seeds: int = 3) -> dict:  # fmt: skip
+        reuse_fits: Path | None = None, calibrated_seeds: int = 3,
+        model: str = "readout") -> dict:  # fmt: skip
     t_start = time.perf_counter()
     real = load_real(data_root)
     real_stats = taxel_stats(real.X, real.fs_hz)
     result: dict = {"real_file": REAL_FILE, "real_slides": int(real.y.size), "fs_hz": real.fs_hz,
-                    "synthetic_slides": synthetic}  # fmt: skip
+                    "synthetic_slides": synthetic, "model": model}  # fmt: skip
 
     # 1. statistics and the taxel correspondence (from seed 0's slides)
     synth0, synth_rise = render_synthetic(real, synthetic, 0, progress)
@@ -664,7 +669,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
     real_w = cut(real)
 
     # 2. synthetic only, every seed; the encoder chosen on seed 0's synthetic windows
-    cfg, chosen = base_config(cut(reorder(synth0, order)), 0, epochs)
+    cfg, chosen = base_config(cut(reorder(synth0, order)), 0, epochs, model)
     if level_neurons is not None:  # after the choice: the encoder is the defaults' own
         cfg = cfg.replace(level_neurons=int(level_neurons))
     result["encoder"] = chosen
@@ -738,7 +743,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
                                       out / "fits" / f"k{k}_d{d}.png" if d == s == 0 else None,
                                       reuse=old if s == 0 else fit_file,
                                       train_seed=d + 100 * s, known=known,
-                                      references=s == 0)  # fmt: skip
+                                      references=s == 0, model=model)  # fmt: skip
                 row.update(k=k, draw=d, seconds=time.perf_counter() - t0)
                 cal_rows.append(row)
                 log.info("calibrated k=%d draw %d seed %d: synthetic only %.3f / %.3f, real only "
@@ -933,6 +938,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "sim2real.json (no run)")  # fmt: skip
     p.add_argument("--from-json", default=None,
                    help="only rewrite --docs from a run's sim2real.json (no run)")  # fmt: skip
+    p.add_argument("--model", default="readout", choices=("readout", "forest"),
+                   help="the pipelines' model (one that adapts and fine-tunes)")  # fmt: skip
     p.add_argument("--level-neurons", type=int, default=None,
                    help="level code neurons (default: train --data's; 0 = scale-invariant)")  # fmt: skip
 
@@ -1078,6 +1085,52 @@ def _by_run_table(cal: list[dict], ks: list[int]) -> list[str]:
     return lines
 
 
+def _models_section(r: dict, cal: list[dict]) -> list[str]:
+    """The page's comparison of the pipelines' model: this page's rows (``r["model"]``, default
+    ``readout``) next to each run in ``r["other_models"]`` (``{model: {"command", "calibrated"}}``:
+    the same fits, draws and training seeds), per window / per slide (%), means over draws."""
+    others = r.get("other_models") or {}
+    if not others or not cal:
+        return []
+    runs = {r.get("model", "readout"): cal, **{m: o["calibrated"] for m, o in others.items()}}
+    ks = sorted({x["k"] for x in cal})
+    lines = ["", "## Which read-out: the linear one or a forest", "",
+             "The same fits, draws and training seeds, each pipeline with the named model "
+             "(`bench sim2real --model M`; `forest`: a random forest on the same leaky-integrator "
+             "traces, its fine-tune a re-estimate of its leaves' class distributions). Per "
+             "window / per slide (%), means over draws with 95 % intervals; the gain is "
+             "pretrained minus real only per window (points), over all test windows and on the "
+             "unseen recording runs.", "",
+             "| k | model | synthetic only | real only | pretrained + fine-tuned | gain per "
+             "window | gain, unseen runs |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for k in ks:
+        for model, rows in runs.items():
+            sel = [x for x in rows if x["k"] == k]
+            if not sel:
+                continue
+
+            def pair(key: str, sel: list[dict] = sel) -> str:
+                return (f"{_cell(draw_means(sel, key))} / "
+                        f"{_cell(draw_means(sel, key + '_per_slide'))}")  # fmt: skip
+
+            gain = draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"])
+            unseen = [v for v in draw_means(sel, fn=lambda x: x["by_run"]["pretrained"][1]
+                                            - x["by_run"]["real_only"][1]) if np.isfinite(v)
+                      ] if all("by_run" in x for x in sel) else []  # fmt: skip
+            lines.append(f"| {k} | {model} | {pair('synthetic_only')} | {pair('real_only')} | "
+                         f"{pair('pretrained')} | {_cell(gain, sign='+')} | "
+                         + (_cell(unseen, sign="+") if unseen else "-") + " |")  # fmt: skip
+    for model, rows in runs.items():
+        summary = summarise_calibrated(rows)
+        lines.append(
+            f"\n`{model}`: synthetic only {100 * summary['synthetic_only_per_slide']:.1f} "
+            "% per slide over every k"
+            + (f" (`{others[model]['command']}`)" if model in others else "")
+            + "."
+        )
+    return lines
+
+
 def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = None) -> str:
     """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values,
     ``fabric``: the second sensor's statistics-only comparison)."""
@@ -1203,6 +1256,7 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                     f"{np.median([x[key] for x in d]):.3f}" if all(key in x for x in d) else "-"
                     for key in ("mean_response", "class_difference", "correlation", "rest",
                                 "range")) + " |")  # fmt: skip
+    lines += _models_section(r, cal)
     if r.get("references"):
         lines += _references_section(r["references"], cal)
     if fabric:
@@ -1257,6 +1311,7 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         f"--calibrated-synthetic {options.calibrated_synthetic} --calibrated-seeds "
         f"{options.calibrated_seeds}"
         + (f" --optimisers {' '.join(options.optimisers)}" if options.optimisers else "")
+        + (f" --model {options.model}" if options.model != "readout" else "")
     ).replace("--knobs  ", "--knobs ")
     result = run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
         synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
@@ -1266,7 +1321,8 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         calibration_budget_s=options.calibration_budget_s,
         calibrated_synthetic=options.calibrated_synthetic,
         optimisers=tuple(options.optimisers), calibrated_seeds=options.calibrated_seeds,
-        reuse_fits=Path(options.reuse_fits) if options.reuse_fits else None)  # fmt: skip
+        reuse_fits=Path(options.reuse_fits) if options.reuse_fits else None,
+        model=options.model)  # fmt: skip
     import os
 
     result["command"] = command
