@@ -47,6 +47,8 @@ PROB_FLOOR = 1e-3
 FIT_BUDGET_BYTES = 256 << 20
 #: the fine-tune's candidate prior strengths (pretrained windows per leaf)
 PRIOR_WINDOWS = (0.3, 1.0, 3.0, 10.0, 30.0)
+#: the prior's strength without recordings to choose it on
+DEFAULT_PRIOR_WINDOWS = 3.0
 
 
 @dataclass(frozen=True)
@@ -286,10 +288,11 @@ class ForestReadout(SpikeModel):
                  confidence: Tensor | None = None) -> dict:  # fmt: skip
         """The leaves' class distributions re-estimated on a few windows of a new domain (see
         the module docstring): spikes ``[N, A, k]``, labels ``y [N]``, ``confidence`` ``[N]``
-        soft targets; the prior's strength (windows per leaf, one of ``factors``) chosen by
-        leave-one-recording-out cross-validation over ``groups`` where there are two recordings
-        or more, else 3. ``max_iter`` is unused (the update is closed-form). Returns the prior,
-        the cross-validation's table and the data term (cross-entropy) before and after."""
+        soft targets; the prior's strength (windows per leaf): the one of ``factors`` where it
+        names one, else chosen among them by leave-one-recording-out cross-validation over
+        ``groups`` where there are two recordings or more, else :data:`DEFAULT_PRIOR_WINDOWS`.
+        ``max_iter`` is unused (the update is closed-form). Returns the prior, the
+        cross-validation's table and the data term (cross-entropy) before and after."""
         n = int(spikes.shape[0])
         if n == 0 or y.shape[0] != n:
             raise ValueError(
@@ -322,7 +325,9 @@ class ForestReadout(SpikeModel):
         before = cross_entropy(prior, every)
         table = []
         ids = np.unique(groups) if groups is not None else np.array([])
-        if ids.size >= 2:
+        if len(factors) == 1:
+            strength = float(factors[0])
+        elif ids.size >= 2:
             for s in factors:
                 losses = [cross_entropy(posterior(np.flatnonzero(groups != g), s),
                                         np.flatnonzero(groups == g)) for g in ids]  # fmt: skip
@@ -330,7 +335,7 @@ class ForestReadout(SpikeModel):
             strength = min(table, key=lambda r: (r["cv_loss"], -r["prior_windows"]))[
                 "prior_windows"]  # fmt: skip
         else:
-            strength = 3.0
+            strength = DEFAULT_PRIOR_WINDOWS
         values = posterior(every, strength)
         self.leaf_value.copy_(values.float())
         return {"windows": n, "prior_windows": strength, "cross_validation": table,
