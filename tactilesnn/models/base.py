@@ -169,6 +169,23 @@ class SpikeModel(nn.Module):
             raise NotImplementedError(f"{type(self).__name__} does not train on confidences")
         return self.loss(spikes, y)
 
+    def check_finetune_inputs(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None,
+                              confidence: Tensor | None) -> tuple[int, Tensor | None]:  # fmt: skip
+        """:meth:`finetune`'s arguments checked -> (windows, confidence as a tensor or None)."""
+        if confidence is not None and not self.trains_on_confidence:
+            raise ValueError(f"{type(self).__name__} does not train on window confidences")
+        n = int(spikes.shape[0])
+        if n == 0 or y.shape[0] != n:
+            raise ValueError(
+                f"fine-tuning needs windows and one label each, got {n} / {y.shape[0]}"
+            )
+        if groups is not None and len(groups) != n:
+            raise ValueError(f"groups must name the recording of each of the {n} windows")
+        conf = None if confidence is None else torch.as_tensor(confidence)
+        if conf is not None and conf.shape != (n,):
+            raise ValueError(f"confidence must be [N={n}], got {tuple(conf.shape)}")
+        return n, conf
+
     def finetune(self, spikes: Tensor, y: Tensor, groups: np.ndarray | None = None,
                  factors: tuple[float, ...] = FINETUNE_FACTORS, max_iter: int = 200,
                  confidence: Tensor | None = None) -> dict:  # fmt: skip
@@ -186,18 +203,7 @@ class SpikeModel(nn.Module):
         params = self.finetune_parameters()
         if not params:
             raise NotImplementedError(f"{type(self).__name__} does not fine-tune")
-        if confidence is not None and not self.trains_on_confidence:
-            raise ValueError(f"{type(self).__name__} does not train on window confidences")
-        n = int(spikes.shape[0])
-        if n == 0 or y.shape[0] != n:
-            raise ValueError(
-                f"fine-tuning needs windows and one label each, got {n} / {y.shape[0]}"
-            )
-        if groups is not None and len(groups) != n:
-            raise ValueError(f"groups must name the recording of each of the {n} windows")
-        conf = None if confidence is None else torch.as_tensor(confidence)
-        if conf is not None and conf.shape != (n,):
-            raise ValueError(f"confidence must be [N={n}], got {tuple(conf.shape)}")
+        n, conf = self.check_finetune_inputs(spikes, y, groups, confidence)
 
         def rows(at: Tensor) -> tuple[Tensor, Tensor, Tensor | None]:
             return spikes[at], y[at], None if conf is None else conf[at]

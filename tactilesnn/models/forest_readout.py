@@ -34,8 +34,8 @@ from torch import Tensor, nn
 
 from ..core.checks import check_int, check_positive
 from ..core.settings import ComponentSettings, setting
-from .base import SpikeModel, register_model
-from .li_readout import INSTANT_SLACK, trace_features
+from .base import register_model
+from .li_readout import TraceFeatures
 from .softmax_fit import soft_targets
 
 log = logging.getLogger("tactilesnn")
@@ -78,7 +78,7 @@ class ForestConfig(ComponentSettings):
 
 
 @register_model("forest", ForestConfig)
-class ForestReadout(SpikeModel):
+class ForestReadout(TraceFeatures):
     """Leaky-integrator traces -> a random forest's class log-probabilities; see the module
     docstring."""
 
@@ -89,14 +89,7 @@ class ForestReadout(SpikeModel):
                  duration_ms: float, seed: int = 0) -> None:  # fmt: skip
         super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
         self.seed = int(seed)
-        n_in = n_afferents * config.n_times
-        times = (torch.arange(config.n_times, dtype=torch.float32, device="cpu") + 1) * (
-            duration_ms / config.n_times
-        )
-        self.register_buffer("times_ms", times)
-        self.tau_ms = float(config.tau_ms) or float(duration_ms)
-        self.register_buffer("feat_mean", torch.zeros(n_in))
-        self.register_buffer("feat_scale", torch.ones(n_in))
+        self._init_trace_features(config, n_afferents, duration_ms)
         t, m = config.trees, 2 * config.leaves - 1
         # an unfitted forest: every tree a single leaf of the uniform distribution
         self.register_buffer("node_feature", torch.zeros(t, m, dtype=torch.int64))
@@ -106,62 +99,20 @@ class ForestReadout(SpikeModel):
         # the leaves' class distributions: what fine-tuning re-estimates (no gradient)
         self.leaf_value = nn.Parameter(torch.full((t, m, n_classes), 1.0 / n_classes),
                                        requires_grad=False)  # fmt: skip
-        # the training windows (weighted) that reached each leaf: the fine-tune's prior scale
-        self.register_buffer("leaf_weight", torch.zeros(t, m))
 
     @classmethod
     def solves_in_one_go(cls, config: object) -> bool:
         return isinstance(config, ForestConfig)
 
-    # ------------------------------------------------------------------ features
-    def traces(self, spikes: Tensor) -> Tensor:
-        """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
-        slack = INSTANT_SLACK * float(self.duration_ms)
-        return torch.log1p(trace_features(spikes, self.times_ms, self.tau_ms, slack)).flatten(1)
-
-    def features(self, spikes: Tensor) -> Tensor:
-        return (self.traces(spikes) - self.feat_mean) / self.feat_scale
-
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         return 4 * 4 * afferents * k * self.config.n_times + 24 * self.config.trees
-
-    @torch.no_grad()
-    def _moments(self, spikes: Tensor) -> tuple[Tensor, Tensor]:
-        """float64 mean and (population) standard deviation of every trace feature."""
-        total = torch.zeros_like(self.feat_mean, dtype=torch.float64)
-        total_sq = torch.zeros_like(total)
-        batch, n = self.batch_size(spikes), spikes.shape[0]
-        for i in range(0, n, batch):
-            f = self.traces(spikes[i : i + batch]).double()
-            total += f.sum(0)
-            total_sq += (f * f).sum(0)
-        mean = total / n
-        return mean, (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
 
     @torch.no_grad()
     def prepare(self, spikes: Tensor) -> None:
         """The trace features' mean and standard deviation over the training spikes (constant
         features keep scale 1)."""
-        if spikes.shape[0] == 0:
-            return
-        mean, sd = self._moments(spikes)
-        self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
-
-    @torch.no_grad()
-    def adapt(self, spikes: Tensor) -> dict:
-        """The feature standardisation re-estimated on a new domain's unlabelled spikes
-        ``[N, A, k]`` (N >= 2), the trees kept (as :meth:`.LIReadout.adapt`)."""
-        n = int(spikes.shape[0])
-        if n < 2:
-            raise ValueError(f"adapting the standardisation needs two windows or more, got {n}")
-        mean, sd = self._moments(spikes)
-        live = sd > 1e-6
-        shift = ((mean - self.feat_mean.double()).abs() / self.feat_scale.double()).median()
-        self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(live, sd, self.feat_scale.double()).float())
-        return {"windows": n, "features_rescaled": int(live.sum()),
-                "features": int(live.numel()), "median_mean_shift_sd": float(shift)}  # fmt: skip
+        if spikes.shape[0]:
+            self.fit_standardisation(spikes)
 
     def _features_of(self, spikes: Tensor) -> Tensor:
         batch = self.batch_size(spikes)
@@ -252,7 +203,6 @@ class ForestReadout(SpikeModel):
         left = np.tile(np.arange(m), (t, 1))
         right = left.copy()
         value = np.full((t, m, self.n_classes), 1.0 / self.n_classes, np.float32)
-        weight = np.zeros((t, m), np.float32)
         for i, est in enumerate(forest.estimators_):
             tree = est.tree_
             c = tree.node_count
@@ -270,13 +220,11 @@ class ForestReadout(SpikeModel):
             total = v.sum(1, keepdims=True)
             value[i, :c] = np.where(total > 0, v / np.where(total > 0, total, 1.0),
                                     1.0 / self.n_classes)  # fmt: skip
-            weight[i, :c] = tree.weighted_n_node_samples[:c]
         self.node_feature.copy_(torch.from_numpy(feature))
         self.node_threshold.copy_(torch.from_numpy(threshold))
         self.node_left.copy_(torch.from_numpy(left))
         self.node_right.copy_(torch.from_numpy(right))
         self.leaf_value.copy_(torch.from_numpy(value))
-        self.leaf_weight.copy_(torch.from_numpy(weight))
 
     # ------------------------------------------------------------------ fine-tuning
     def finetune_parameters(self) -> list[nn.Parameter]:
@@ -293,18 +241,9 @@ class ForestReadout(SpikeModel):
         ``groups`` where there are two recordings or more, else :data:`DEFAULT_PRIOR_WINDOWS`.
         ``max_iter`` is unused (the update is closed-form). Returns the prior, the
         cross-validation's table and the data term (cross-entropy) before and after."""
-        n = int(spikes.shape[0])
-        if n == 0 or y.shape[0] != n:
-            raise ValueError(
-                f"fine-tuning needs windows and one label each, got {n} / {y.shape[0]}"
-            )
-        if groups is not None and len(groups) != n:
-            raise ValueError(f"groups must name the recording of each of the {n} windows")
-        conf = None if confidence is None else torch.as_tensor(confidence, dtype=torch.float64)
-        if conf is not None and conf.shape != (n,):
-            raise ValueError(f"confidence must be [N={n}], got {tuple(conf.shape)}")
-        q = soft_targets(y, self.n_classes, conf if conf is not None else torch.ones(n,
-                         dtype=torch.float64)).double()  # fmt: skip
+        n, conf = self.check_finetune_inputs(spikes, y, groups, confidence)
+        q = soft_targets(y, self.n_classes, torch.ones(n, dtype=torch.float64) if conf is None
+                         else conf.double()).double()  # fmt: skip
         leaf = self.leaves_of(self._features_of(spikes))  # [N, T]
         prior = self.leaf_value.double().clone()
         t, m, c = prior.shape

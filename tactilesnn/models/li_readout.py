@@ -149,43 +149,27 @@ def trace_features(spikes: Tensor, times_ms: Tensor, tau_ms: float,
 INSTANT_SLACK = 1e-6
 
 
-@register_model("readout", ReadoutConfig)
-class LIReadout(SpikeModel):
-    """Leaky-integrator traces at fixed times -> linear class scores; see the module docstring."""
+class TraceFeatures(SpikeModel):
+    """The trace read-outs' features (``readout``, ``forest``): each afferent's leaky-integrator
+    trace at ``config.n_times`` instants, ``log1p``, standardised by buffers ``feat_mean`` /
+    ``feat_scale`` that :meth:`fit_standardisation` fits on the training spikes and
+    :meth:`adapt` re-estimates on a new domain's. The base of the models that read them."""
 
-    score_units = "logits of a softmax over classes"
-    trains_on_confidence = True
-    #: the feature scaler's buffers: runs written before it load them as identity
-    optional_state: ClassVar[tuple[str, ...]] = ("feat_mean", "feat_scale")
-
-    def __init__(self, config: ReadoutConfig, n_afferents: int, max_spikes: int, n_classes: int,
-                 duration_ms: float, seed: int = 0) -> None:  # fmt: skip
-        super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
-        g = torch.Generator().manual_seed(int(seed))
-        n_in = n_afferents * config.n_times
-        with seeded(seed):  # (its own initial draws are replaced below)
-            self.linear = nn.Linear(n_in, n_classes)
-        with torch.no_grad():
-            self.linear.weight.copy_(seeded_normal(n_classes, n_in, g).div_(math.sqrt(n_in)))
-            self.linear.bias.zero_()
+    def _init_trace_features(self, config: object, n_afferents: int, duration_ms: float) -> int:
+        """Registers the read-out instants and the scaler's buffers; returns the feature count."""
+        n_times = int(config.n_times)
         # n_times values, made on the host even when the model is built on meta to be counted
         # (an arange there would import torch._dynamo: core.device.seeded_normal)
-        times = (torch.arange(config.n_times, dtype=torch.float32, device="cpu") + 1) * (
-            duration_ms / config.n_times
+        times = (torch.arange(n_times, dtype=torch.float32, device="cpu") + 1) * (
+            duration_ms / n_times
         )
         self.register_buffer("times_ms", times)
         self.tau_ms = float(config.tau_ms) or float(duration_ms)
-        # feature scaling, fitted on the training spikes by prepare()
+        n_in = n_afferents * n_times
+        # feature scaling, fitted on the training spikes by fit_standardisation()
         self.register_buffer("feat_mean", torch.zeros(n_in))
         self.register_buffer("feat_scale", torch.ones(n_in))
-        self.penalty = float(config.weight_decay)  # set from the training set's size by prepare()
-        # which features train (solve() may leave instants out); not saved: zero weights are
-        self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
-        self._prepared: tuple[Tensor, Tensor] | None = None  # prepare()'s traces, for solve()
-
-    @classmethod
-    def solves_in_one_go(cls, config: object) -> bool:
-        return isinstance(config, ReadoutConfig) and config.solver == "exact"
+        return n_in
 
     def traces(self, spikes: Tensor) -> Tensor:
         """``log1p`` of the LI traces, ``[B, afferents * n_times]`` (before scaling)."""
@@ -194,27 +178,6 @@ class LIReadout(SpikeModel):
 
     def features(self, spikes: Tensor) -> Tensor:
         return (self.traces(spikes) - self.feat_mean) / self.feat_scale
-
-    @torch.no_grad()
-    def prepare(self, spikes: Tensor) -> None:
-        """Mean and standard deviation of every trace feature over the training spikes
-        (float64 sums over batches bounded by the byte budget); constant features keep scale 1.
-        Where the float32 traces fit :data:`EXACT_BUDGET_BYTES` they are kept for
-        :meth:`solve` on the same spikes (computed once, not once per use)."""
-        n = spikes.shape[0]
-        self._prepared = None
-        if n == 0:
-            return
-        self.penalty = self.config.weight_decay * PRIOR_WINDOWS / n
-        keep = (
-            self.config.solver == "exact" and 4 * n * self.linear.in_features <= EXACT_BUDGET_BYTES
-        )
-        kept = torch.empty(n, self.linear.in_features) if keep else None  # filled, not joined
-        mean, sd = self._moments(spikes, kept)
-        self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
-        if kept is not None:
-            self._prepared = (spikes, kept)
 
     def _moments(self, spikes: Tensor, kept: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """float64 mean and (population) standard deviation of every trace feature over
@@ -232,6 +195,85 @@ class LIReadout(SpikeModel):
             total_sq += (f * f).sum(0)
         mean = total / n
         return mean, (total_sq / n - mean * mean).clamp_min(0.0).sqrt()
+
+    @torch.no_grad()
+    def fit_standardisation(self, spikes: Tensor, kept: Tensor | None = None) -> None:
+        """Mean and standard deviation of every trace feature over the training spikes (float64
+        sums over batches bounded by the byte budget); constant features keep scale 1."""
+        mean, sd = self._moments(spikes, kept)
+        self.feat_mean.copy_(mean.float())
+        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
+
+    @torch.no_grad()
+    def adapt(self, spikes: Tensor) -> dict:
+        """The feature standardisation (mean and standard deviation of every trace feature)
+        re-estimated on a new domain's unlabelled spikes ``[N, A, k]``, N >= 2, what was learnt
+        kept: the read-out then sees the new domain's features on the scale it was trained on
+        (as AdaBN re-estimates batch statistics). A feature constant over the new windows keeps
+        its trained scale. iCub Braille, the calibrated model's synthetic slides, re-estimated
+        on the k real training slides (``docs/sim2real.md``, nine draws x three seeds, the
+        linear read-out): synthetic only 59.1 -> 63.1 % per slide, 48.1 -> 50.2 % per window.
+        Returns the windows used, the features rescaled and the median shift of the means
+        (trained standard deviations)."""
+        n = int(spikes.shape[0])
+        if n < 2:
+            raise ValueError(f"adapting the standardisation needs two windows or more, got {n}")
+        mean, sd = self._moments(spikes)
+        live = sd > 1e-6
+        shift = ((mean - self.feat_mean.double()).abs() / self.feat_scale.double()).median()
+        self.feat_mean.copy_(mean.float())
+        self.feat_scale.copy_(torch.where(live, sd, self.feat_scale.double()).float())
+        return {"windows": n, "features_rescaled": int(live.sum()),
+                "features": int(live.numel()), "median_mean_shift_sd": float(shift)}  # fmt: skip
+
+
+@register_model("readout", ReadoutConfig)
+class LIReadout(TraceFeatures):
+    """Leaky-integrator traces at fixed times -> linear class scores; see the module docstring."""
+
+    score_units = "logits of a softmax over classes"
+    trains_on_confidence = True
+    #: the feature scaler's buffers: runs written before it load them as identity
+    optional_state: ClassVar[tuple[str, ...]] = ("feat_mean", "feat_scale")
+
+    def __init__(self, config: ReadoutConfig, n_afferents: int, max_spikes: int, n_classes: int,
+                 duration_ms: float, seed: int = 0) -> None:  # fmt: skip
+        super().__init__(config, n_afferents, max_spikes, n_classes, duration_ms, seed)
+        g = torch.Generator().manual_seed(int(seed))
+        n_in = n_afferents * config.n_times
+        with seeded(seed):  # (its own initial draws are replaced below)
+            self.linear = nn.Linear(n_in, n_classes)
+        with torch.no_grad():
+            self.linear.weight.copy_(seeded_normal(n_classes, n_in, g).div_(math.sqrt(n_in)))
+            self.linear.bias.zero_()
+        self._init_trace_features(config, n_afferents, duration_ms)
+        self.penalty = float(config.weight_decay)  # set from the training set's size by prepare()
+        # which features train (solve() may leave instants out); not saved: zero weights are
+        self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
+        self._prepared: tuple[Tensor, Tensor] | None = None  # prepare()'s traces, for solve()
+
+    @classmethod
+    def solves_in_one_go(cls, config: object) -> bool:
+        return isinstance(config, ReadoutConfig) and config.solver == "exact"
+
+    @torch.no_grad()
+    def prepare(self, spikes: Tensor) -> None:
+        """Mean and standard deviation of every trace feature over the training spikes
+        (float64 sums over batches bounded by the byte budget); constant features keep scale 1.
+        Where the float32 traces fit :data:`EXACT_BUDGET_BYTES` they are kept for
+        :meth:`solve` on the same spikes (computed once, not once per use)."""
+        n = spikes.shape[0]
+        self._prepared = None
+        if n == 0:
+            return
+        self.penalty = self.config.weight_decay * PRIOR_WINDOWS / n
+        keep = (
+            self.config.solver == "exact" and 4 * n * self.linear.in_features <= EXACT_BUDGET_BYTES
+        )
+        kept = torch.empty(n, self.linear.in_features) if keep else None  # filled, not joined
+        self.fit_standardisation(spikes, kept)
+        if kept is not None:
+            self._prepared = (spikes, kept)
 
     def scores(self, spikes: Tensor) -> Tensor:
         return self.linear(self.features(spikes))
@@ -391,28 +433,6 @@ class LIReadout(SpikeModel):
         ce = nn.functional.cross_entropy(nn.functional.linear(self.features(spikes), w,
                                                               self.linear.bias), target)  # fmt: skip
         return ce + self.penalty * w.pow(2).sum()
-
-    @torch.no_grad()
-    def adapt(self, spikes: Tensor) -> dict:
-        """The feature standardisation (mean and standard deviation of every trace feature)
-        re-estimated on a new domain's unlabelled spikes ``[N, A, k]``, N >= 2, the weights kept:
-        the read-out then sees the new domain's features on the scale it was trained on (as
-        AdaBN re-estimates batch statistics). A feature constant over the new windows keeps its
-        trained scale. iCub Braille, the calibrated model's synthetic slides, re-estimated on
-        the k real training slides (``docs/sim2real.md``, nine draws x three seeds): synthetic
-        only 59.1 -> 63.1 % per slide, 48.1 -> 50.2 % per window. Returns the
-        windows used, the features rescaled and the median shift of the means (trained
-        standard deviations)."""
-        n = int(spikes.shape[0])
-        if n < 2:
-            raise ValueError(f"adapting the standardisation needs two windows or more, got {n}")
-        mean, sd = self._moments(spikes)
-        live = sd > 1e-6
-        shift = ((mean - self.feat_mean.double()).abs() / self.feat_scale.double()).median()
-        self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(live, sd, self.feat_scale.double()).float())
-        return {"windows": n, "features_rescaled": int(live.sum()),
-                "features": int(live.numel()), "median_mean_shift_sd": float(shift)}  # fmt: skip
 
     def finetune_parameters(self) -> list[nn.Parameter]:
         return [self.linear.weight, self.linear.bias]
