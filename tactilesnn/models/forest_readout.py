@@ -134,13 +134,17 @@ class ForestReadout(TraceFeatures):
                                torch.gather(self.node_right, 1, node))  # fmt: skip
         return node.t()
 
+    def mean_leaf(self, leaf: Tensor, values: Tensor | None = None) -> Tensor:
+        """Leaves ``[B, trees]`` -> the mean of their class distributions ``[B, classes]``
+        (``values`` ``[trees, nodes, classes]``; default: the model's)."""
+        values = self.leaf_value if values is None else values
+        t, m, c = values.shape
+        flat = leaf + torch.arange(t, dtype=torch.int64).view(1, -1) * m
+        return values.reshape(t * m, c)[flat.reshape(-1)].reshape(leaf.shape[0], t, c).mean(1)
+
     def probabilities(self, spikes: Tensor) -> Tensor:
         """Class probabilities ``[B, classes]``: the mean of the trees' leaf distributions."""
-        leaf = self.leaves_of(self.features(spikes))  # [B, T]
-        t, m = self.node_feature.shape
-        flat = leaf + torch.arange(t, dtype=torch.int64).view(1, -1) * m
-        values = self.leaf_value.reshape(t * m, self.n_classes)[flat.reshape(-1)]
-        return values.reshape(leaf.shape[0], t, self.n_classes).mean(1)
+        return self.mean_leaf(self.leaves_of(self.features(spikes)))
 
     def scores(self, spikes: Tensor) -> Tensor:
         return torch.log(self.probabilities(spikes) + PROB_FLOOR)
@@ -169,7 +173,6 @@ class ForestReadout(TraceFeatures):
             r, c = np.nonzero(q.numpy() > 0)
             fx, fy, fw = feats[r], c, q.numpy()[r, c]
         forest = RandomForestClassifier(n_estimators=cfg.trees, max_leaf_nodes=cfg.leaves,
-                                        min_weight_fraction_leaf=0.0,
                                         min_samples_leaf=cfg.min_leaf, random_state=self.seed,
                                         n_jobs=-1)  # fmt: skip
         forest.fit(fx, fy, sample_weight=fw)
@@ -187,10 +190,7 @@ class ForestReadout(TraceFeatures):
         """Class probabilities of standardised features given as an array (numpy in and out)."""
         with torch.no_grad():
             leaf = self.leaves_of(torch.from_numpy(np.asarray(feats, np.float32)))
-            t, m = self.node_feature.shape
-            flat = leaf + torch.arange(t).view(1, -1) * m
-            v = self.leaf_value.reshape(t * m, -1)[flat.reshape(-1)]
-            return v.reshape(leaf.shape[0], t, -1).mean(1).numpy()
+            return self.mean_leaf(leaf).numpy()
 
     @torch.no_grad()
     def _load_forest(self, forest) -> None:
@@ -256,8 +256,7 @@ class ForestReadout(TraceFeatures):
             return (strength * prior + counts) / (strength + counts.sum(-1, keepdim=True))
 
         def cross_entropy(values: Tensor, rows: np.ndarray) -> float:
-            flat = leaf[rows] + torch.arange(t).view(1, -1) * m
-            p = values.reshape(t * m, c)[flat.reshape(-1)].reshape(len(rows), t, c).mean(1)
+            p = self.mean_leaf(leaf[rows], values)
             return float(-(q[rows] * torch.log(p + PROB_FLOOR)).sum(1).mean())
 
         every = np.arange(n)
