@@ -172,7 +172,7 @@ def cmd_finetune(args: argparse.Namespace) -> int:
     m = finetune_run(Path(args.run_dir), Path(args.data), Path(args.out) if args.out else None,
                      overwrite=args.overwrite, export=not args.no_export, fs_hz=args.fs,
                      choose_prior=args.choose_prior, class_share=args.class_share,
-                     progress=not args.quiet)  # fmt: skip
+                     progress=not args.quiet, adapt_only=args.adapt_only)  # fmt: skip
     if args.json:
         print(json.dumps({k: m[k] for k in ("path", "test_accuracy", "n_test_windows",
                                             "test_accuracy_per_recording", "pretrained")
@@ -336,6 +336,10 @@ def _parse_finetune(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p.add_argument("--class-share", action="store_true", help="also fine-tune each window on "
                    "its share of its class's signal as the run's generated recordings hold it "
                    "(the same length and protocol), and keep the mean of the two read-outs")  # fmt: skip
+    p.add_argument("--adapt-only", action="store_true", help="only re-estimate the read-out's "
+                   "input scaling on the training split (labels unused), the weights as "
+                   "pretrained: a run trained on synthetic recordings alone, read on your "
+                   "sensor")  # fmt: skip
     p.add_argument("--no-export", action="store_true", help="skip the verified ONNX export")
     p.add_argument("--json", action="store_true", help="print one JSON line instead of a summary")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

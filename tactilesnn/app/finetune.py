@@ -27,7 +27,7 @@ import torch
 from ..core.data import confidence_summary
 from ..core.files import file_sha256, write_json_atomic
 from ..core.version import __version__
-from ..models.base import seeded
+from ..models.base import SpikeModel, seeded
 from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
 from ..recordings import datasets_from_arrays, expected_class_signal, read_data_arrays
 from ..training import adapt_pipeline, blend_finetuned, finetune_pipeline
@@ -51,7 +51,8 @@ def _scores(pipe: SpikePipeline, X: np.ndarray, y: np.ndarray, scan: np.ndarray)
 
 def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: bool = False,
                  export: bool = True, fs_hz: float | None = None, choose_prior: bool = False,
-                 class_share: bool = False, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+                 class_share: bool = False, progress: bool = True,
+                 adapt_only: bool = False) -> dict[str, Any]:  # fmt: skip
     """Fine-tune the run at ``run_dir`` on ``data``'s training split (see the module doc) and
     write the result to ``out`` (default ``runs/<data>-finetuned-<encoder>-<model>-<time>``).
     ``fs_hz``: the file's rate where it states none. ``choose_prior``: the prior's strength by
@@ -59,10 +60,19 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
     fine-tune, each training window fitted to its share of its class's signal as the
     pretraining recordings hold it (:func:`_class_share`), and the result the mean of the two
     read-outs (:func:`~tactilesnn.training.blend_finetuned`, as ``bench sim2real``'s pretrained
-    arm). Returns the metrics with ``"path"``."""
+    arm). ``adapt_only``: only the input scaling re-estimated on the training split (its labels
+    unused), the weights as pretrained: a run trained on synthetic recordings alone, read on the
+    user's sensor (``bench sim2real``'s synthetic-only arm). Returns the metrics with
+    ``"path"``."""
     run_dir = Path(run_dir)
     pipe, record = load_run(run_dir)
-    if not pipe.model.finetune_parameters():
+    if adapt_only and (class_share or choose_prior):
+        raise ValueError("--adapt-only fits no weights: --class-share and --choose-prior do not "
+                         "apply")  # fmt: skip
+    if adapt_only and type(pipe.model).adapt is SpikeModel.adapt:
+        raise ValueError(f"the run's {pipe.config.model_type!r} model has no input scaling to "
+                         "re-estimate; pretrain with --model readout or forest")  # fmt: skip
+    if not adapt_only and not pipe.model.finetune_parameters():
         raise ValueError(f"the run's {pipe.config.model_type!r} model does not fine-tune; "
                          "pretrain with --model readout")  # fmt: skip
     window_s = pipe.window / pipe.fs_hz
@@ -99,9 +109,11 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
                      100 * before["test_accuracy"])  # fmt: skip
             adapt = adapt_pipeline(pipe, train, progress=progress)
             soft = copy.deepcopy(pipe) if class_share else None
-            with seeded(pipe.config.seed):
-                report = finetune_pipeline(pipe, replace(train, confidence=None),
-                                           progress=progress, choose_prior=choose_prior)  # fmt: skip
+            report = None
+            if not adapt_only:
+                with seeded(pipe.config.seed):
+                    report = finetune_pipeline(pipe, replace(train, confidence=None),
+                                               progress=progress, choose_prior=choose_prior)  # fmt: skip
             extra = {}
             if soft is not None:  # the mean of the labels' and the class share's read-outs
                 with seeded(pipe.config.seed):
@@ -113,7 +125,8 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
             metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before, **extra,
                        **({"train_window_confidence": confidence_summary(train.confidence)}
                           if train.confidence is not None else {}),
-                       "adapt": adapt, "finetune": report, "n_train_windows": int(train.y.size),
+                       "adapt": adapt, **({"finetune": report} if report is not None else {}),
+                       "adapt_only": adapt_only, "n_train_windows": int(train.y.size),
                        "n_test_windows": int(test.y.size),
                        "n_train_recordings": int(np.unique(train.scan).size),
                        "test_recordings": np.unique(test.scan).tolist()}  # fmt: skip
@@ -178,9 +191,12 @@ def finetune_lines(m: dict[str, Any]) -> list[str]:
         rec = "" if per is None else f", {100 * per:.2f} % per recording"
         return f"{tag}: {100 * r['test_accuracy']:.2f} % per window{rec}"
 
+    only = bool(m.get("adapt_only"))
+    how = "input scaling re-estimated on" if only else "fine-tuned on"
+    unused = ", labels unused" if only else ""
     lines = [line("pretrained, on the file's test split", m["pretrained"]),
-             line(f"fine-tuned on {m['n_train_recordings']} recordings "
-                  f"({m['n_train_windows']} windows)", m)]  # fmt: skip
+             line(f"{how} {m['n_train_recordings']} recordings "
+                  f"({m['n_train_windows']} windows{unused})", m)]  # fmt: skip
     ids = m.get("test_recordings", [])
     more = f" and {len(ids) - 12} more" if len(ids) > 12 else ""
     lines.append(f"test split: recordings {', '.join(map(str, ids[:12]))}{more} (fit nothing "

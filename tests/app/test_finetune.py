@@ -125,3 +125,26 @@ def test_class_share_weights_the_real_windows_by_the_generated_class_signal(pret
     with pytest.raises(ValueError, match="the same length"):
         finetune_run(run, tmp_path / "short.npz", tmp_path / "y", export=False,
                      class_share=True, progress=False)  # fmt: skip
+
+
+def test_adapt_only_rescales_the_inputs_and_keeps_the_weights(pretrained, tmp_path, capsys):
+    """``--adapt-only``: the read-out's input scaling re-estimated on the training split (labels
+    unused), the weights written as pretrained, the test split scored before and after; what
+    fits weights (--class-share, --choose-prior) is refused with it."""
+    from tactilesnn.app.finetune import finetune_run
+
+    moved = _file(tmp_path / "moved.npz", LEVELS + 3.0, 4)
+    out = tmp_path / "adapted"
+    capsys.readouterr()
+    assert main(["finetune", str(pretrained), "--data", str(moved), "--out", str(out),
+                 "--adapt-only", "--quiet", "--no-export"]) == 0  # fmt: skip
+    assert "labels unused" in capsys.readouterr().out
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["adapt_only"] and "finetune" not in m and m["adapt"]["windows"] == m["n_train_windows"]
+    assert 0.0 <= m["test_accuracy"] <= 1.0 and 0.0 <= m["pretrained"]["test_accuracy"] <= 1.0
+    with np.load(pretrained / "weights.npz") as a, np.load(out / "weights.npz") as b:
+        assert np.array_equal(a["model.linear.weight"], b["model.linear.weight"])
+        assert not np.array_equal(a["model.feat_mean"], b["model.feat_mean"])
+    with pytest.raises(ValueError, match="--adapt-only fits no weights"):
+        finetune_run(pretrained, moved, tmp_path / "z", export=False, progress=False,
+                     adapt_only=True, class_share=True)  # fmt: skip
