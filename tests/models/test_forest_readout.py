@@ -115,3 +115,20 @@ def test_forest_trains_saves_and_exports(tmp_path):
     pipe, _ = load_run(run)
     assert pipe.config.model_type == "forest"
     assert torch.equal(pipe.model.leaf_value, pipe.model.leaf_value.clamp(0, 1))
+
+
+def test_over_the_byte_budget_the_forest_fits_on_a_share_of_the_windows(monkeypatch):
+    """Features over :data:`FIT_BUDGET_BYTES`: the fit takes the windows the budget holds (a
+    seeded random share, reported), and the forest still reads every window."""
+    from tactilesnn.models import forest_readout
+
+    rng = np.random.default_rng(5)
+    proto = rng.uniform(50, 450, (3, 12, 1))
+    s, y = _domain(rng, proto, 40)
+    model = build_model(ForestConfig(trees=20, leaves=8), 12, 1, 3, 500.0, seed=1)
+    d = model.feat_mean.numel()
+    monkeypatch.setattr(forest_readout, "FIT_BUDGET_BYTES", 4 * d * 50)
+    model.prepare(s)
+    report = model.solve(s, torch.from_numpy(y))
+    assert report["fit_windows"] == 50
+    assert (model.scores(s).argmax(1).numpy() == y).mean() > 0.8
