@@ -6,9 +6,9 @@ deviation over the training windows (buffers: saved, exported, re-estimated by :
 The class probabilities are a random forest's on them (scikit-learn's
 ``RandomForestClassifier``, fitted in one go by :meth:`ForestReadout.solve`; soft targets as
 weighted rows), its trees kept as tensors (each node's feature, threshold and children, each
-leaf's class distribution) and walked in torch: ``leaves - 1`` steps of gathers from the root,
-leaves pointing at themselves, so the exported graph is the same arithmetic with no tree
-operator. Scores: ``ln(p + PROB_FLOOR)`` of the mean leaf distribution over trees.
+leaf's class distribution) and walked in torch: as many steps of gathers from the root as the
+deepest leaf is deep, leaves pointing at themselves, so the exported graph is the same
+arithmetic with no tree operator. Scores: ``ln(p + PROB_FLOOR)`` of the mean leaf distribution over trees.
 
 Why a forest: it does not extrapolate. A linear read-out trained on one domain (synthetic
 slides of a calibrated sensor model) and read on another (the real sensor) carries every
@@ -99,6 +99,30 @@ class ForestReadout(TraceFeatures):
         # the leaves' class distributions: what fine-tuning re-estimates (no gradient)
         self.leaf_value = nn.Parameter(torch.full((t, m, n_classes), 1.0 / n_classes),
                                        requires_grad=False)  # fmt: skip
+        # the walk's steps: the deepest leaf's depth (set from the node tensors whenever they
+        # change; a Python int, so the exported graph unrolls exactly that many)
+        self.walk_steps = 0
+
+    def _set_walk_steps(self) -> None:
+        """:attr:`walk_steps` from the node tensors: the depth of the deepest leaf."""
+        left, right = self.node_left.numpy(), self.node_right.numpy()
+        t, m = left.shape
+        inner = left != np.arange(m)  # [T, M]: split nodes (a leaf points at itself)
+        level = np.zeros((t, m), bool)
+        level[:, 0] = True  # the roots
+        steps, rows = 0, np.arange(t)[:, None].repeat(m, 1)
+        while (level & inner).any():  # one level down: the split nodes' children
+            split = level & inner
+            level = np.zeros((t, m), bool)
+            level[rows[split], left[split]] = True
+            level[rows[split], right[split]] = True
+            steps += 1
+        self.walk_steps = steps
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        out = super().load_state_dict(state_dict, strict=strict, assign=assign)
+        self._set_walk_steps()
+        return out
 
     @classmethod
     def solves_in_one_go(cls, config: object) -> bool:
@@ -123,10 +147,11 @@ class ForestReadout(TraceFeatures):
     # ------------------------------------------------------------------ the trees
     def leaves_of(self, feats: Tensor) -> Tensor:
         """Standardised features ``[B, d]`` -> the leaf each tree sends each window to
-        ``[B, trees]`` (int64): ``leaves - 1`` steps from the root (a leaf points at itself)."""
+        ``[B, trees]`` (int64): :attr:`walk_steps` steps from the root, the deepest leaf's depth
+        (a leaf points at itself, so a shallower one is kept)."""
         b, t = feats.shape[0], self.node_feature.shape[0]
         node = torch.zeros(t, b, dtype=torch.int64)
-        for _ in range(self.config.leaves - 1):
+        for _ in range(self.walk_steps):
             f = torch.gather(self.node_feature, 1, node)  # [T, B]
             x = torch.gather(feats, 1, f.t()).t()
             thr = torch.gather(self.node_threshold, 1, node)
@@ -225,6 +250,7 @@ class ForestReadout(TraceFeatures):
         self.node_left.copy_(torch.from_numpy(left))
         self.node_right.copy_(torch.from_numpy(right))
         self.leaf_value.copy_(torch.from_numpy(value))
+        self._set_walk_steps()
 
     # ------------------------------------------------------------------ fine-tuning
     def finetune_parameters(self) -> list[nn.Parameter]:

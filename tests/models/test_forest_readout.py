@@ -35,6 +35,8 @@ def test_the_tree_walk_gives_scikit_learns_probabilities():
     rng = np.random.default_rng(0)
     model, proto, s, y, report = _fitted(rng)
     assert report["fit_windows"] == len(y) and report["train_error"] < 0.2
+    # the walk takes the deepest leaf's depth in steps (fewer than the leaves' bound)
+    assert model.walk_steps == report["max_depth"] < 15
     ref = RandomForestClassifier(n_estimators=40, max_leaf_nodes=16, min_samples_leaf=2,
                                  random_state=3).fit(model.features(s).numpy(), y,
                                                      sample_weight=np.ones(len(y)))  # fmt: skip
@@ -114,6 +116,7 @@ def test_forest_trains_saves_and_exports(tmp_path):
     assert m["onnx"]["max_score_diff"] <= 1e-4 and m["test_accuracy"] > 0.6
     pipe, _ = load_run(run)
     assert pipe.config.model_type == "forest"
+    assert 0 < pipe.model.walk_steps == m["model_fit"]["max_depth"], m.get("model_fit")
     assert torch.equal(pipe.model.leaf_value, pipe.model.leaf_value.clamp(0, 1))
 
 
