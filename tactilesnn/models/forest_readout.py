@@ -65,7 +65,6 @@ class ForestConfig(ComponentSettings):
     min_leaf: int = setting(
         2, flag="forest_min_leaf", help="fewest training windows (weighted) in a leaf"
     )
-    lr: float = setting(0.003, flag="forest_lr", help="unused: the forest fits in one go")
 
     def __post_init__(self) -> None:
         if self.tau_ms != 0:
@@ -74,7 +73,6 @@ class ForestConfig(ComponentSettings):
         check_int(self.trees, "trees", 1)
         check_int(self.leaves, "leaves", 2)
         check_int(self.min_leaf, "min_leaf", 1)
-        check_positive(self.lr, "lr")
 
 
 @register_model("forest", ForestConfig)
@@ -306,7 +304,8 @@ class ForestReadout(TraceFeatures):
                 "loss_before": before, "loss_after": cross_entropy(values, every)}  # fmt: skip
 
     def learning_rate(self) -> float:
-        return self.config.lr
+        # the trainer builds its optimiser before solve(); the forest takes no gradient step
+        return 1e-3
 
     def loss(self, spikes: Tensor, y: Tensor, confidence: Tensor | None = None) -> Tensor:
         raise NotImplementedError("the forest fits in one go (solve), not by gradient")
