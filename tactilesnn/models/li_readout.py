@@ -357,7 +357,7 @@ class LIReadout(TraceFeatures):
         feats = self._training_features(spikes, None) if whole else None
         best: tuple = ()
         table = []
-        cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)))
+        cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)), y.numpy())
         if feats is None:  # over the budget: only the cross-validation's windows featurised
             cv_feats = self._training_features(spikes, cv)
         else:
@@ -387,7 +387,7 @@ class LIReadout(TraceFeatures):
         if fit_n >= EXACT_MIN_SHARE * n:
             every = len(subset) == cfg.n_times
             # over the budget by a little: the exact fit on the most whole recordings it allows
-            rows = None if fit_n == n else whole_groups(groups, fit_n)
+            rows = None if fit_n == n else whole_groups(groups, fit_n, y.numpy())
             if feats is not None:
                 part = feats if every else feats[:, used]
             else:

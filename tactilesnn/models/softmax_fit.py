@@ -187,20 +187,30 @@ def soft_targets(y: Tensor, n_classes: int, confidence: Tensor | None = None) ->
     return c * q + (1.0 - c) / n_classes
 
 
-def group_folds(groups: np.ndarray, folds: int = FOLDS) -> list[np.ndarray]:
+def group_folds(
+    groups: np.ndarray, folds: int = FOLDS, y: np.ndarray | None = None
+) -> list[np.ndarray]:
     """Boolean held-out masks of ``folds`` folds, whole groups each, balanced by window count
-    (largest groups first onto the lightest fold; deterministic). Fewer folds when there are
-    fewer groups; none below two."""
-    ids, counts = np.unique(np.asarray(groups), return_counts=True)
+    (largest groups first onto the lightest fold; deterministic). With the windows' labels
+    ``y``, stratified too: each group goes to the fold holding the fewest windows of its class
+    (then the fewest windows), so recordings stored in a cycle of the classes (a synthetic
+    dataset: class ``i % classes``) do not put each class in a fold of its own, where every
+    held-out window is one the fold never trained on. Fewer folds when there are fewer groups;
+    none below two."""
+    groups = np.asarray(groups)
+    ids, first, counts = np.unique(groups, return_index=True, return_counts=True)
     k = min(folds, ids.size)
     if k < 2:
         return []
-    load = np.zeros(k)
+    cls = np.zeros(ids.size, np.int64) if y is None else np.unique(
+        np.asarray(y)[first], return_inverse=True)[1]  # fmt: skip
+    load = np.zeros((cls.max() + 1, k))
     fold_of = np.empty(ids.size, dtype=np.int64)
     for i in np.argsort(-counts, kind="stable"):
-        fold_of[i] = int(np.argmin(load))
-        load[fold_of[i]] += counts[i]
-    where = fold_of[np.searchsorted(ids, np.asarray(groups))]
+        total = load.sum(0)
+        fold_of[i] = int(np.lexsort((total, load[cls[i]]))[0])
+        load[cls[i], fold_of[i]] += counts[i]
+    where = fold_of[np.searchsorted(ids, groups)]
     return [where == f for f in range(k)]
 
 
@@ -225,13 +235,13 @@ def choose_penalty(
     none of its class's signal counts 1 / classes whatever the prediction)."""
     if len(penalties) == 1:
         return float(penalties[0]), []
-    keep = whole_groups(np.asarray(groups), max_windows)
+    keep = whole_groups(np.asarray(groups), max_windows, y.numpy())
     if keep.size < len(y):
         at = torch.from_numpy(keep)
         features, y, groups = features[at], y[at], np.asarray(groups)[keep]
         confidence = None if confidence is None else torch.as_tensor(confidence)[at]
     q = None if confidence is None else soft_targets(y, n_classes, confidence)
-    masks = group_folds(groups)
+    masks = group_folds(groups, y=y.numpy())
     if not masks:
         return penalties[len(penalties) // 2], []
     order = sorted(range(len(penalties)), key=lambda i: -penalties[i])
@@ -281,16 +291,23 @@ def fit_features(
     return from_row_space(features, lk, z), b, evals
 
 
-def whole_groups(groups: np.ndarray, max_windows: int) -> np.ndarray:
-    """Indices of whole groups, evenly spaced over the groups, totalling at most
-    ``max_windows`` windows (all when they fit; at least one group)."""
+def whole_groups(groups: np.ndarray, max_windows: int, y: np.ndarray | None = None) -> np.ndarray:
+    """Indices of whole groups, evenly spaced over the groups (with the windows' labels ``y``:
+    over each class's groups, so a file stored in a cycle of the classes does not give one
+    class), totalling at most ``max_windows`` windows (all when they fit; at least one group)."""
     if groups.size <= max_windows:
         return np.arange(groups.size)
-    ids, inv, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    ids, first, inv, counts = np.unique(groups, return_index=True, return_inverse=True,
+                                        return_counts=True)  # fmt: skip
     share = max_windows / groups.size
+    cls = np.zeros(ids.size, np.int64) if y is None else np.asarray(y)[first]
+    key = np.empty(ids.size)
+    for c in np.unique(cls):
+        members = np.flatnonzero(cls == c)
+        key[members] = (np.arange(members.size) * share) % 1.0
     picked = np.zeros(ids.size, dtype=bool)
     total = 0
-    for j in np.argsort((np.arange(ids.size) * share) % 1.0, kind="stable"):
+    for j in np.argsort(key, kind="stable"):
         if total + counts[j] <= max_windows:
             picked[j] = True
             total += counts[j]

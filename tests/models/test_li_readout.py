@@ -245,7 +245,7 @@ def test_a_little_over_the_budget_the_exact_fit_takes_the_recordings_that_fit(mo
     trainer = Trainer(model, TrainConfig(epochs=5, batch_size=16))
     history = trainer.fit(spikes, y, groups=groups)
     info = trainer.history["solved"]
-    rows = whole_groups(groups, 82)
+    rows = whole_groups(groups, 82, y)
     assert len(rows) == 81 and info["fit_windows"] == 81 and len(history) == 1
     assert not info.get("train_epochs") and "81 of 90 windows" in info["solver"]
     # the weights are the exact fit on those windows' features

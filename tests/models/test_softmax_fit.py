@@ -13,6 +13,7 @@ from tactilesnn.models.softmax_fit import (
     group_folds,
     row_space,
     soft_targets,
+    whole_groups,
 )
 
 
@@ -79,6 +80,28 @@ def test_folds_hold_whole_recordings_and_balance_windows():
             assert m[groups == gr].all() or not m[groups == gr].any()  # whole recordings
     assert sorted(int(m.sum()) for m in masks) == [12, 12, 12]
     assert group_folds(np.zeros(10)) == []  # one recording: nothing to cross-validate on
+
+
+def test_folds_and_subsets_of_recordings_stored_in_a_cycle_of_the_classes_hold_every_class():
+    """A synthetic dataset stores recording i as class i % classes: with as many folds as
+    classes, unstratified folds put each class in a fold of its own (every held-out window of
+    a class the fold never trained on), and evenly spaced recordings are all one class."""
+    groups = np.repeat(np.arange(30), 7)  # 30 recordings of 7 windows
+    y = groups % 3
+    plain = group_folds(groups)
+    assert all(np.unique(y[m]).size == 1 for m in plain)  # the failure the labels prevent
+    masks = group_folds(groups, y=y)
+    assert np.array_equal(np.sum(masks, axis=0), np.ones(groups.size))
+    for m in masks:
+        # each class's 10 recordings spread 4 / 3 / 3 over the folds
+        assert set(np.bincount(y[m], minlength=3).tolist()) <= {21, 28}
+        for gr in np.unique(groups):
+            assert m[groups == gr].all() or not m[groups == gr].any()
+    assert np.unique(y[whole_groups(groups, 70)]).size == 1  # unstratified: one class
+    keep = whole_groups(groups, 70, y)
+    assert keep.size <= 70 and np.bincount(y[keep], minlength=3).min() >= 21
+    kept = np.unique(groups[keep])
+    assert np.isin(np.flatnonzero(np.isin(groups, kept)), keep).all()
 
 
 def test_the_chosen_penalty_is_the_best_cross_validated_one():
