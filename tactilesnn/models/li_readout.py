@@ -21,7 +21,8 @@ The loss is convex, so by default (``solver = "exact"``) it is minimised to its 
 Adam, and (``choose``) its capacity follows the data: the penalty (1/3 to 30 times the prior
 above) and the read-out instants used (all ``n_times``, or only the window's end, where the
 traces' time course adds more variance than information) are chosen by 3-fold cross-validation
-over recordings on the training windows; ``metrics.json`` ``model_fit`` reports every candidate.
+over recordings on the training windows (the folds stratified by class); ``metrics.json``
+``model_fit`` reports every candidate.
 40 epochs of Adam stopped short of the optimum and a fixed capacity overfit synthetic texture
 (1,488 features for 1,920 windows): seed 0, 65.2 % (Adam) -> 67.9 % (exact, same penalty) ->
 72.1 % (chosen: the last instant, penalty x 1/3).
