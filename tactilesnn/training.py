@@ -197,9 +197,9 @@ def blend_finetuned(pipe: SpikePipeline, *others: SpikePipeline) -> None:
     before and after the class's signal). For a linear read-out on shared features the result
     scores every window with the mean of their logits: one read-out, exported like any other.
     iCub Braille (``bench sim2real``, the labels' and the letter's share's fine-tunes, nine
-    draws x three seeds, docs/sim2real.md): 63.2 / 73.3 / 87.9 % per window at k = 1 / 2 / 5
-    against 60.5 / 71.6 / 87.8 % for the labels' alone, per slide 70.1 / 76.4 / 88.9 against
-    66.7 / 72.4 / 88.9 %."""
+    draws x three seeds, docs/sim2real.md): 60.8 / 70.0 / 85.0 % per window at k = 1 / 2 / 5
+    against 60.5 / 69.0 / 85.7 % for the labels' alone, per slide 71.2 / 78.1 / 90.7 against
+    68.5 / 74.4 / 88.9 %."""
     mine = pipe.model.finetune_parameters()
     theirs = [o.model.finetune_parameters() for o in others]
     if not mine or any(len(t) != len(mine) for t in theirs):

@@ -52,8 +52,11 @@ def test_bench_sim2real_on_a_synthetic_stand_in(tmp_path):
     matched = next(r for r in res["synthetic_only"] if r["taxels"] == "matched")
     # the stand-in is the task itself: transfer works (chance 1/3; 30 slides: 0.60 with the
     # level code's rank pair alone, 0.53 with the linear pair and the share, which carry the
-    # synthetic gains: docs/sim2real.md)
-    assert matched["per_slide"] >= 0.5
+    # synthetic gains: docs/sim2real.md; 0.43 since the readout's folds are stratified by class:
+    # its cross-validation now ranks capacities on the synthetic slides, and here picks one
+    # instant and a weaker penalty, which transfer less than what the old folds' tie-breaks
+    # fell to; docs/sim2real.md "The read-out's folds stratified by class")
+    assert matched["per_slide"] >= 0.4
     assert res["force_rise_N"]["A"]["real"] == 1.0
     assert {r["arm"] for r in res["few_shot"]} == {"real only", "synthetic + real"}
     assert [r["knob"] for r in res["knobs"]] == ["defaults", "gain_spread", "gain_spread"]
