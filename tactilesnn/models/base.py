@@ -136,6 +136,14 @@ class SpikeModel(nn.Module):
         over the training spikes, which a run's plan can estimate) rather than by epochs."""
         return False
 
+    @classmethod
+    def pretraining_capacities(cls, config: object) -> dict[str, object]:
+        """The configurations a pretraining on another domain (synthetic recordings) tries,
+        by a short name: the transfer keeps the one whose pretrained model explains the target
+        domain's few labelled windows best, since the capacity the source's own
+        cross-validation picks fits the source, not the transfer. Default: ``config`` alone."""
+        return {"configured": config}
+
     def solve(self, spikes: Tensor, y: Tensor, groups=None, confidence=None) -> dict | None:
         """Fit in one go instead of the trainer's epochs (a convex model solved to its optimum),
         after :meth:`prepare`: labels ``y [N]`` int64, ``groups`` recording ids ``[N]`` (for

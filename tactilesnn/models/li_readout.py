@@ -40,7 +40,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -68,6 +68,8 @@ log = logging.getLogger("tactilesnn")
 #: training windows at which the penalty is ``weight_decay`` (see the module docstring)
 PRIOR_WINDOWS = 256
 SOLVERS = ("exact", "adam")
+#: the strongest penalty factor the cross-validation may choose (a pretraining's candidate)
+STRONGEST_FACTOR = max(PENALTY_FACTORS)
 #: the exact solver's float32 feature matrix may take this much (its working set adds the
 #: float64 ``N x N`` Gram matrix where features outnumber windows, the features then let go);
 #: above it, the exact fit on the windows it holds (:data:`EXACT_MIN_SHARE`) or Adam's epochs
@@ -256,6 +258,19 @@ class LIReadout(TraceFeatures):
     @classmethod
     def solves_in_one_go(cls, config: object) -> bool:
         return isinstance(config, ReadoutConfig) and config.solver == "exact"
+
+    @classmethod
+    def pretraining_capacities(cls, config: object) -> dict[str, object]:
+        """With ``choose``: the capacity the cross-validation chooses on the pretraining
+        windows, and the strongest penalty it may choose (x :data:`STRONGEST_FACTOR`) on every
+        instant. The synthetic windows' own folds pick the capacity that separates synthetic
+        letters best; a real sensor reads the broader, smoother map of the strongest prior
+        better: ``bench sim2real`` (docs/sim2real.md) takes it on most draws."""
+        if not (isinstance(config, ReadoutConfig) and config.choose and config.solver == "exact"):
+            return {"configured": config}
+        strongest = min(1.0, config.weight_decay * STRONGEST_FACTOR)
+        return {"chosen": config,
+                "strongest": replace(config, choose=False, weight_decay=strongest)}  # fmt: skip
 
     @torch.no_grad()
     def prepare(self, spikes: Tensor) -> None:

@@ -89,6 +89,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
 
     def spy_fit(cfg, data, *a, **kw):
         seen["fit"].append(data.scan.copy())
+        seen.setdefault("fit_model", []).append(cfg.model)
         seen.setdefault("fit_confidence", []).append(data.confidence)
         return fit_pipeline(cfg, data, *a, **kw)
 
@@ -140,6 +141,19 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     for scans in seen["fit"] + seen["finetune"]:  # synthetic ids (>= 1e6) or training slides
         assert not set(scans.tolist()) & test_ids
     assert any(set(s.tolist()) <= train_ids for s in seen["fit"])  # the real-only arm
+    # pretrained: each encoder at both capacities the readout offers a pretraining, the one
+    # that explains the training slides best kept; the real-only arm at the model's own
+    scores = row["encoder_scores_on_training_slides"]
+    assert len(scores) == 6 and {k.split("/")[1] for k in scores} == {"chosen", "strongest"}
+    best = max(scores, key=lambda k: scores[k][2])
+    assert best == f"{row['encoder']}/{row['pretraining_capacity']}"
+    synthetic_models = [m for m, sc in zip(seen["fit_model"], seen["fit"], strict=True)
+                        if sc.min() >= 10**6]  # fmt: skip
+    assert sorted((m.choose, m.weight_decay) for m in synthetic_models) == [
+        (False, pytest.approx(0.9))] * 3 + [(True, pytest.approx(0.03))] * 3  # fmt: skip
+    (real_model,) = [m for m, sc in zip(seen["fit_model"], seen["fit"], strict=True)
+                     if set(sc.tolist()) <= train_ids]  # fmt: skip
+    assert real_model.choose and real_model.weight_decay == pytest.approx(0.03)
     # the synthetic windows train on their share of the letter (the real ones on their labels)
     for scans, conf in zip(seen["fit"], seen["fit_confidence"], strict=True):
         synthetic = scans.min() >= 10**6

@@ -138,6 +138,33 @@ def test_the_exact_solver_finds_scikit_learns_optimum_on_the_readouts_features()
     np.testing.assert_allclose(w, ref.coef_, atol=1e-3 * np.abs(ref.coef_).max())
 
 
+def test_a_pretraining_tries_the_chosen_capacity_and_the_strongest_on_every_instant():
+    """The readout's capacities for a pretraining: its cross-validation's choice, and the
+    strongest penalty that choice may take on all instants, solved as that very candidate;
+    a fixed capacity (or Adam) is kept as configured, as by every other model."""
+    from tactilesnn.models.base import MODELS
+    from tactilesnn.models.forest_readout import ForestConfig
+
+    cls = MODELS.component_for(ReadoutConfig())
+    caps = cls.pretraining_capacities(ReadoutConfig(n_times=4))
+    assert list(caps) == ["chosen", "strongest"] and caps["chosen"] == ReadoutConfig(n_times=4)
+    strong = caps["strongest"]
+    assert not strong.choose and strong.n_times == 4
+    assert strong.weight_decay == pytest.approx(0.03 * 30)
+    assert (
+        cls.pretraining_capacities(ReadoutConfig(weight_decay=0.5))["strongest"].weight_decay == 1.0
+    )
+    for fixed in (ReadoutConfig(choose=False), ReadoutConfig(solver="adam")):
+        assert cls.pretraining_capacities(fixed) == {"configured": fixed}
+    forest = ForestConfig()
+    assert MODELS.component_for(forest).pretraining_capacities(forest) == {"configured": forest}
+    spikes, y = _timing_problem(4)
+    model = build_model(strong, 8, 1, 3, 400.0)
+    model.prepare(spikes)
+    info = model.solve(spikes, torch.from_numpy(y), np.arange(90) // 3)
+    assert info["instants"] == 4 and info["penalty"] == pytest.approx(0.03 * 30 * 256 / 90)
+
+
 @pytest.mark.slow
 def test_cross_validation_reports_every_candidate_and_zeroes_unused_instants():
     spikes, y = _timing_problem(4)

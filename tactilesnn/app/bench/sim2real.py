@@ -368,24 +368,26 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     # only, never the test ones). Not their accuracy: on 21-105 windows, of which the windows
     # without the letter are now near-uniform coin flips, it picked the Gabor or STFT code on
     # 7 of 27 draws x seeds, which lost 6-15 points there (docs/sim2real.md)
-    from ...data_policy import DATA_ENCODER_CANDIDATES
-    from ...selection import candidate_configs
     from .real import default_config
 
     base = default_config(False, None, model, seed)
     if epochs is not None:
         base = base.replace(train=replace(base.train, epochs=epochs))
+    # the pretraining's capacity likewise (:func:`pretraining_candidates`), chosen with the
+    # encoder by the same criterion
     scores, fitted = {}, {}
-    for name, c in candidate_configs(base, synth_w, DATA_ENCODER_CANDIDATES).items():
+    candidates = pretraining_candidates(base, synth_w, seed)
+    for key, (_, _, pre_cfg, _) in candidates.items():
         with seeded(seed):
-            fitted[name] = fit_pipeline(with_seed(c, seed), synth_w, with_past=False).pipeline
-        scores[name] = list(_accuracy(fitted[name], train_w, log_likelihood=True))
-    chosen = max(scores, key=lambda n: scores[n][2])  # ties: the earlier candidate
-    pre, cfg = fitted[chosen], with_seed(candidate_configs(base, synth_w, (chosen,))[chosen], seed)
+            fitted[key] = fit_pipeline(pre_cfg, synth_w, with_past=False).pipeline
+        scores[key] = list(_accuracy(fitted[key], train_w, log_likelihood=True))
+    best = max(scores, key=lambda n: scores[n][2])  # ties: the earlier candidate
+    pre, (chosen, capacity, _, cfg) = fitted[best], candidates[best]
     row: dict = {"train_slides": train_idx.tolist(), "test_slides": int(test_idx.size),
                  "seed": seed,
                  "calibration_s": t_cal, "objective": fit.objective["value"],
                  "distances": fit.objective["distances"], "encoder": chosen,
+                 "pretraining_capacity": capacity,
                  "encoder_scores_on_training_slides": scores,
                  "synthetic_confidence": confidence_summary(synth_w.confidence)}  # fmt: skip
     row["synthetic_only_unadapted"], row["synthetic_only_unadapted_per_slide"] = _accuracy(
@@ -443,6 +445,34 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
                 synth_feats, synth_w, test_feats, test_w, seed
             )
     return row
+
+
+def pretraining_candidates(base, synth_w: WindowDataset, seed: int) -> dict[str, tuple]:
+    """The pipelines a calibrated draw pretrains on the synthetic windows, by key: every
+    encoder candidate of a data file (:data:`~tactilesnn.data_policy.DATA_ENCODER_CANDIDATES`)
+    times every capacity its model offers a pretraining
+    (:meth:`~tactilesnn.models.base.SpikeModel.pretraining_capacities`; the readout: its
+    cross-validation's choice and the strongest penalty). Each value: ``(encoder, capacity
+    or None where the model offers one, the pretraining's config, the encoder's config as the
+    model configures itself)`` (the last trains the real-only arm: on the real windows the
+    model's own choice of capacity stands). Keys: ``encoder`` or ``encoder/capacity``."""
+    from ...data_policy import DATA_ENCODER_CANDIDATES
+    from ...models.base import MODELS
+    from ...selection import candidate_configs
+
+    out: dict[str, tuple] = {}
+    for name, c in candidate_configs(base, synth_w, DATA_ENCODER_CANDIDATES).items():
+        own = with_seed(c, seed)
+        variants = MODELS.component_for(c.model).pretraining_capacities(c.model)
+        for tag, m in variants.items():
+            several = len(variants) > 1
+            out[f"{name}/{tag}" if several else name] = (
+                name,
+                tag if several else None,
+                own.replace(model=m),
+                own,
+            )
+    return out
 
 
 def reference_scores(synth_w: WindowDataset, train_w: WindowDataset, test_w: WindowDataset,
@@ -521,14 +551,16 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
         refs = reference_scores(synth_w, train_w, test_w, d)
         if "encoder" in x:  # the forest on the run's chosen encoder's pipeline, fitted again
             from ...models.base import seeded
-            from ...selection import candidate_configs
             from ...training import adapt_pipeline, fit_pipeline
             from .real import default_config
 
-            cfg = candidate_configs(default_config(False, None, "readout", d), synth_w,
-                                    (x["encoder"],))[x["encoder"]]  # fmt: skip
+            cands = pretraining_candidates(default_config(False, None, "readout", d), synth_w, d)
+            key = x["encoder"] + (f"/{x['pretraining_capacity']}"
+                                  if x.get("pretraining_capacity") else "")  # fmt: skip
+            if key not in cands:  # a run before the capacities: the model's own choice
+                key = next(k for k, v in cands.items() if v[0] == x["encoder"])
             with seeded(d):
-                pipe = fit_pipeline(with_seed(cfg, d), synth_w, with_past=False).pipeline
+                pipe = fit_pipeline(cands[key][2], synth_w, with_past=False).pipeline
             feats = read_out_features(pipe, synth_w)
             adapt_pipeline(pipe, train_w)
             if feats is not None:
