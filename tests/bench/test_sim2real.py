@@ -396,3 +396,9 @@ def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeyp
         {**row, "k": 1, "draw": 0}]}}}  # fmt: skip
     text = "\n".join(sim2real._models_section(r, [{**row, "k": 1, "draw": 0}]))
     assert "| 1 | readout |" in text and "| 1 | forest |" in text
+
+
+def test_the_page_counts_the_encoders_and_capacities_chosen():
+    rows = [{"encoder": "lif", "pretraining_capacity": "strongest"}] * 2 + [
+        {"encoder": "cgwt", "pretraining_capacity": "chosen"}, {"encoder": "stft"}]  # fmt: skip
+    assert sim2real.chosen_counts(rows) == "lif / strongest x 2, cgwt / chosen x 1, stft x 1"

@@ -23,7 +23,9 @@ model).
    sensor model is fitted (:meth:`~tactilesnn.datasets_synth.tasks.braille.BrailleTask.calibrate`,
    ``--calibration-budget-s``) to the ``k`` training slides per class *only*, the arm's speed
    held at its measured value (:func:`real_arm_speed_mm_s` over those slides); ``--calibrated-
-   synthetic`` slides of the fitted model then train the pipeline (the encoder chosen on them);
+   synthetic`` slides of the fitted model then train the pipeline (the encoder and the model's
+   pretraining capacity, :func:`pretraining_candidates`, chosen by the ``k`` training slides'
+   mean log-probability);
    its read-out's standardisation is re-estimated on the ``k`` training slides' windows (labels
    unused: :func:`~tactilesnn.training.adapt_pipeline`; the score before it is kept as
    ``synthetic_only_unadapted``), then it is scored on the other real slides (synthetic only)
@@ -998,16 +1000,19 @@ that cannot leak: for each few-shot draw (k real slides per letter), the model i
 those k slides per letter only, its synthetic slides train the `train --data` pipeline (each
 window's target weighted by its share of the letter's own signal, which the renderer knows:
 the windows before and after the letter are trained to the uniform target, not to a rest level
-the letters do not own; the encoder: the candidate whose synthetic-trained pipeline gives the
-k real training slides' letters the highest mean log-probability), whose read-out's
+the letters do not own; the encoder and the read-out's capacity (the penalty its
+cross-validation chooses on the synthetic windows, or the strongest it may choose on every
+instant): the candidate whose synthetic-trained pipeline gives the k real training slides'
+letters the highest mean log-probability), whose read-out's
 standardisation is re-estimated on the k real training slides' windows (labels unused), which
 is scored on the other real slides (synthetic only) and then fine-tuned on the k real slides
 (pretrained + fine-tuned: the read-out re-fitted with a prior centred on the pretrained
 weights, once on the labels and once on each window's share of the letter as the fitted model
 places it, the two read-outs averaged into one), next to the same pipeline trained on the k
-real slides alone (real only). No test slide is seen by the fit, the choice of encoder, the
-re-estimate, the training or the fine-tune (no early stopping); `tests/bench/test_sim2real.py`
-checks the split through every call.
+real slides alone (real only: the chosen encoder, the capacity the read-out's
+cross-validation chooses on those real windows). No test slide is seen by the fit, the choice
+of encoder and capacity, the re-estimate, the training or the fine-tune (no early
+stopping); `tests/bench/test_sim2real.py` checks the split through every call.
 """
 
 
@@ -1087,6 +1092,18 @@ def _fabric_section(fab: dict) -> list[str]:
             "calibration of this sensor needs a finger model with 16 taxels and a fabric scene "
             "(the fingertip model reads dots, not weaves).", "",
             "![FabricSlide against the texture task's stack](sim2real_fabric.png)"]  # fmt: skip
+
+
+def chosen_counts(rows: list[dict]) -> str:
+    """The pretraining candidates the rows chose, with how often: ``lif / strongest x 7, ...``
+    (rows before the capacities: the encoder alone)."""
+    from collections import Counter
+
+    keys = Counter(x["encoder"] + (f" / {x['pretraining_capacity']}"
+                                   if x.get("pretraining_capacity") else "") for x in rows)  # fmt: skip
+    return ", ".join(
+        f"{key} x {n}" for key, n in sorted(keys.items(), key=lambda kv: (-kv[1], kv[0]))
+    )
 
 
 def _by_run_table(cal: list[dict], ks: list[int]) -> list[str]:
@@ -1221,12 +1238,13 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
         lines += ["", "| k | pretrained + fine-tuned minus real only, per window (points) | "
                   + ("the same, fine-tuned on the letter's share: per window / per slide "
                      "(points) | " if letter else "")
-                  + "encoders chosen | calibration s (median) | objective (median) |",
+                  + "encoders (and capacities) chosen, of draws x seeds | "
+                  "calibration s (median) | objective (median) |",
                   "|---|---|---|---|---|" + ("---|" if letter else "")]  # fmt: skip
         for k in ks:
             sel = [x for x in cal if x["k"] == k]
             gain = draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"])
-            enc = ", ".join(sorted({x["encoder"] for x in sel}))
+            enc = chosen_counts(sel)
             soft = ""
             if letter:
                 gw = draw_means(sel, fn=lambda x: x["pretrained_letter"] - x["real_only"])
