@@ -123,6 +123,21 @@ class ReadoutConfig(ComponentSettings):
             raise ValueError(f"choose must be true or false, got {self.choose!r}")
 
 
+#: a feature varies when its standard deviation exceeds this share of its magnitude (and
+#: :data:`MIN_FEATURE_SD`): below, it is a constant that float32 rounding perturbs (~100 ulps)
+FEATURE_REL_SD = 1e-5
+MIN_FEATURE_SD = 1e-6
+
+
+def varies(mean: Tensor, sd: Tensor) -> Tensor:
+    """Which features vary beyond arithmetic rounding (bool, the shape of ``sd``); the others
+    are standardised by 1, not by their spread. A channel at +30,000 through the LIF code
+    gave a trace feature of standard deviation 1.007e-6 at a magnitude of ~5 (2 float32 ulps):
+    divided by it, the summation order's rounding moved the exported graph's scores 0.07 from
+    torch's, and the export was refused (``tests/encoders/test_degenerate_windows.py``)."""
+    return sd > torch.clamp(FEATURE_REL_SD * mean.abs(), min=MIN_FEATURE_SD)
+
+
 def instant_subsets(n_times: int) -> list[list[int]]:
     """The read-out instants the exact solver may use: every one, or the last only (where the
     trace's time course adds more variance than information: synthetic texture 65.2 -> 72.1 %,
@@ -202,10 +217,11 @@ class TraceFeatures(SpikeModel):
     @torch.no_grad()
     def fit_standardisation(self, spikes: Tensor, kept: Tensor | None = None) -> None:
         """Mean and standard deviation of every trace feature over the training spikes (float64
-        sums over batches bounded by the byte budget); constant features keep scale 1."""
+        sums over batches bounded by the byte budget); constant features (:func:`varies`) keep
+        scale 1."""
         mean, sd = self._moments(spikes, kept)
         self.feat_mean.copy_(mean.float())
-        self.feat_scale.copy_(torch.where(sd > 1e-6, sd, torch.ones_like(sd)).float())
+        self.feat_scale.copy_(torch.where(varies(mean, sd), sd, torch.ones_like(sd)).float())
 
     @torch.no_grad()
     def adapt(self, spikes: Tensor) -> dict:
@@ -222,7 +238,7 @@ class TraceFeatures(SpikeModel):
         if n < 2:
             raise ValueError(f"adapting the standardisation needs two windows or more, got {n}")
         mean, sd = self._moments(spikes)
-        live = sd > 1e-6
+        live = varies(mean, sd)
         shift = ((mean - self.feat_mean.double()).abs() / self.feat_scale.double()).median()
         self.feat_mean.copy_(mean.float())
         self.feat_scale.copy_(torch.where(live, sd, self.feat_scale.double()).float())

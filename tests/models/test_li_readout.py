@@ -441,3 +441,13 @@ def test_adapt_restandardises_on_the_new_domain_against_a_float64_reference():
     tempotron = build(PipelineConfig.from_flat(model="tempotron").model, 12, 1, 3, 500.0)
     with pytest.raises(NotImplementedError, match="no input statistics"):
         tempotron.adapt(new)
+
+
+def test_a_feature_varying_by_rounding_alone_is_standardised_by_one():
+    """Spread at float32 rounding of the feature's magnitude: a constant, scale 1 (dividing by
+    it amplifies the summation order's rounding); a spread of 1e-3 of it is kept."""
+    from tactilesnn.models.li_readout import varies
+
+    mean = torch.tensor([5.0, 5.0, 5.0, 0.0, 0.0], dtype=torch.float64)
+    sd = torch.tensor([1.007e-6, 5e-3, 0.0, 2e-6, 5e-7], dtype=torch.float64)
+    assert varies(mean, sd).tolist() == [False, True, False, True, False]
