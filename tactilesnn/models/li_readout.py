@@ -281,7 +281,8 @@ class LIReadout(TraceFeatures):
         windows, and the strongest penalty it may choose (x :data:`STRONGEST_FACTOR`) on every
         instant. The synthetic windows' own folds pick the capacity that separates synthetic
         letters best; a real sensor reads the broader, smoother map of the strongest prior
-        better: ``bench sim2real`` (docs/sim2real.md) takes it on most draws."""
+        better: ``bench sim2real`` (docs/sim2real.md) took it in 24 of 27 draws x seeds, synthetic
+        only 65.9 -> 70.6 % per slide on the iCub file's other slides."""
         if not (isinstance(config, ReadoutConfig) and config.choose and config.solver == "exact"):
             return {"configured": config}
         strongest = min(1.0, config.weight_decay * STRONGEST_FACTOR)
