@@ -197,9 +197,9 @@ def blend_finetuned(pipe: SpikePipeline, *others: SpikePipeline) -> None:
     before and after the class's signal). For a linear read-out on shared features the result
     scores every window with the mean of their logits: one read-out, exported like any other.
     iCub Braille (``bench sim2real``, the labels' and the letter's share's fine-tunes, nine
-    draws x three seeds, docs/sim2real.md): 60.8 / 70.0 / 85.0 % per window at k = 1 / 2 / 5
-    against 60.5 / 69.0 / 85.7 % for the labels' alone, per slide 71.2 / 78.1 / 90.7 against
-    68.5 / 74.4 / 88.9 %."""
+    draws x three seeds, pretrained at the read-out's strongest penalty, docs/sim2real.md):
+    per slide 70.1 / 82.1 / 91.5 % at k = 1 / 2 / 5 against 67.2 / 77.5 / 88.9 % for the
+    labels' alone; per window 60.2 / 75.2 / 86.8 against 60.5 / 75.8 / 88.2 %."""
     mine = pipe.model.finetune_parameters()
     theirs = [o.model.finetune_parameters() for o in others]
     if not mine or any(len(t) != len(mine) for t in theirs):
