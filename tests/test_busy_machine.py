@@ -94,3 +94,29 @@ def test_threads_are_refitted_while_governed_and_rate_limited(monkeypatch):
     finally:
         perf._governed = False
         torch.set_num_threads(before)
+
+
+def test_a_run_records_the_thread_counts_it_used(monkeypatch):
+    """Every count fit_threads set and the current one, and whether they followed the load:
+    a seeded result reruns bit-identically only at those counts."""
+    import torch
+
+    from tactilesnn.core import perf
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.delenv("TACTILESNN_THREADS", raising=False)
+    monkeypatch.setattr(perf, "_counts_set", set())
+    monkeypatch.setattr(perf, "_governed", perf._governed)  # (restored afterwards)
+    monkeypatch.setattr(perf, "limit_blas", lambda n: None)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        perf.fit_threads(cpus=2, others=1)
+        perf.fit_threads(cpus=2, others=0)
+        assert perf.compute_threads() == {"counts": [1, 2], "fitted_to_load": True}
+        monkeypatch.setenv("TACTILESNN_THREADS", "1")
+        monkeypatch.setattr(perf, "_counts_set", set())
+        perf.fit_threads()
+        assert perf.compute_threads() == {"counts": [1], "fitted_to_load": False}
+    finally:
+        torch.set_num_threads(before)

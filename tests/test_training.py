@@ -129,6 +129,8 @@ def test_real_icub_recordings_through_the_data_path(tmp_path, capsys):
            if not v.get("stopped_after")}  # fmt: skip
     assert sel["chosen"] == max(key, key=key.get) and sel["seconds"] > 0
     assert m["test_accuracy_per_recording"] == 1.0 and m["test_accuracy"] > 0.85
+    # the compute threads it ran on (a bit-identical rerun needs the same counts)
+    assert m["compute_threads"]["counts"] and all(n >= 1 for n in m["compute_threads"]["counts"])
     # whole rows and an explicit encoder: no cut, no selection
     out = tmp_path / "braille_run"
     channels = [f"taxel{i}" for i in range(12)]

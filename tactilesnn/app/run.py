@@ -28,6 +28,7 @@ from ..baselines import linear_amplitude_baseline
 from ..config import PipelineConfig, is_nested
 from ..core.data import WindowDataset
 from ..core.files import file_sha256, load_arrays, read_json, write_json_atomic
+from ..core.perf import compute_threads
 from ..core.settings import saved_before
 from ..core.stages import StagePlan
 from ..core.version import __version__
@@ -239,6 +240,7 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
             )
         res.metrics["train_error_history"] = res.history
         res.metrics["stage_seconds"] = plan.taken
+        res.metrics["compute_threads"] = compute_threads()
         if selection is not None:
             res.metrics["encoder_selection"] = selection
         _write_run(writer, spec, {**record, "pipeline": config.to_dict()}, res, train, test)
