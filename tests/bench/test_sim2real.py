@@ -402,3 +402,11 @@ def test_the_page_counts_the_encoders_and_capacities_chosen():
     rows = [{"encoder": "lif", "pretraining_capacity": "strongest"}] * 2 + [
         {"encoder": "cgwt", "pretraining_capacity": "chosen"}, {"encoder": "stft"}]  # fmt: skip
     assert sim2real.chosen_counts(rows) == "lif / strongest x 2, cgwt / chosen x 1, stft x 1"
+
+
+def test_reused_fits_are_read_where_the_earlier_run_has_them(tmp_path):
+    (tmp_path / "fits").mkdir()
+    (tmp_path / "fits" / "k1_d0.json").write_text("{}")
+    assert sim2real.reused_fit(tmp_path, 1, 0) == tmp_path / "fits" / "k1_d0.json"
+    assert sim2real.reused_fit(tmp_path, 1, 3) is None  # a draw it did not fit: fitted anew
+    assert sim2real.reused_fit(None, 1, 0) is None

@@ -304,6 +304,18 @@ def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False,
     return (*out, float(logp[torch.arange(len(test.y)), torch.as_tensor(test.y)].mean()))
 
 
+def reused_fit(run_dir: Path | None, k: int, d: int) -> Path | None:
+    """The fit file an earlier run (``--reuse-fits``) wrote for draw ``d`` of ``k``, or None
+    where it has none (that draw is then fitted: more draws than the earlier run had)."""
+    if run_dir is None:
+        return None
+    path = Path(run_dir) / "fits" / f"k{k}_d{d}.json"
+    if not path.is_file():
+        log.info("%s not found: draw %d of k = %d is fitted", path, d, k)
+        return None
+    return path
+
+
 def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.ndarray,
                     synthetic: int, budget_s: float, seed: int, epochs: int | None,
                     fit_path: Path | None = None, plot_path: Path | None = None,
@@ -767,7 +779,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
             # trades against the contact's width in time, which k slides cannot tell apart
             speed = real_arm_speed_mm_s(data_root, tr, real.fs_hz)
             known = None if speed is None else {"speed_mm_s": speed}
-            old = None if reuse_fits is None else Path(reuse_fits) / "fits" / f"k{k}_d{d}.json"
+            old = reused_fit(reuse_fits, k, d)
             # one fit per draw; its synthetic slides and pipelines drawn again per training
             # seed (seed to seed, one fit spans up to 45 points per slide: one run is not a figure)
             for s in range(max(1, int(calibrated_seeds))):
@@ -963,7 +975,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "draw; optuna-tpe needs .[bench])")  # fmt: skip
     p.add_argument("--reuse-fits", default=None,
                    help="an earlier run's --out: its fit files of the same draws are read instead "
-                   "of fitting again (the downstream arms only)")  # fmt: skip
+                   "of fitting again (the downstream arms only); draws it has no file for are "
+                   "fitted")  # fmt: skip
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
     p.add_argument("--references-from", default=None,
