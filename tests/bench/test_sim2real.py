@@ -189,6 +189,12 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     ):
         assert 0.0 <= row[key] <= 1.0
     assert "by_run" not in row  # the stand-in's letters alternate: no runs of one letter
+    # each arm on the test windows the fitted model places the letter in and on the others
+    b = row["by_letter"]
+    assert 0.0 < b["letter_fraction"] < 1.0
+    for arm in sim2real.RUN_ARMS:
+        assert set(b[arm]) == {"letter", "none"}
+        assert all(0.0 <= v <= 1.0 for v in b[arm].values())
     # the non-spiking references: trained on synthetic windows, then on the training slides,
     # each scored on the test slides; the waveform ones only (no spike MLP)
     # (on the synthetic windows twice: on their labels alone, and on the pipeline's soft targets)
@@ -367,6 +373,59 @@ def test_by_run_summary_and_table():
     s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
     assert s["pretrained_unseen"] == pytest.approx(0.5)
     assert "nan" not in sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+
+
+def test_letter_parts_split_the_windows_by_the_letters_share_and_run():
+    share = np.array([0.0, 0.5, 0.49, 1.0])
+    parts = sim2real.letter_parts(share)
+    assert parts["letter"].tolist() == [False, True, False, True]
+    assert parts["none"].tolist() == [True, False, True, False]
+    parts = sim2real.letter_parts(share, np.array([True, True, False, False]))
+    assert parts["letter_seen"].tolist() == [False, True, False, False]
+    assert parts["letter_unseen"].tolist() == [False, False, False, True]
+    assert parts["none_unseen"].tolist() == [False, False, True, False]
+
+
+def test_accuracy_on_parts_is_the_hits_in_each(monkeypatch):
+    class Pipe:
+        def encode(self, X):
+            return X
+
+        def scores(self, x):
+            import torch
+
+            return torch.tensor([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+
+    test = WindowDataset(np.zeros((4, 1, 8), np.float32), np.array([0, 1, 1, 1]),
+                         np.array([1, 1, 7, 7]), 10.0, ("A", "B"), ("t",))  # fmt: skip
+    parts = sim2real.letter_parts(np.array([1.0, 1.0, 0.0, 0.0]))
+    acc = sim2real._accuracy(Pipe(), test, parts=parts)
+    assert acc[0] == 0.5 and acc[-1] == {"letter": 0.5, "none": 0.5}
+    parts["none"][:] = False
+    assert np.isnan(sim2real._accuracy(Pipe(), test, parts=parts)[-1]["none"])
+
+
+def test_by_letter_summary_and_table():
+    def row(d, pre_unseen_letter):
+        arms = {a: {"letter": 0.8, "none": 0.4, "letter_seen": 0.9, "none_seen": 0.9,
+                    "letter_unseen": 0.5, "none_unseen": 0.3} for a in sim2real.RUN_ARMS}  # fmt: skip
+        arms["pretrained"] = {**arms["pretrained"], "letter_unseen": pre_unseen_letter}
+        return {"k": 1, "draw": d, "seed": d, "synthetic_only_per_slide": 0.6,
+                "synthetic_only": 0.5, "real_only": 0.5, "pretrained": 0.6,
+                "real_only_per_slide": 0.6, "pretrained_per_slide": 0.7, "calibration_s": 1.0,
+                "objective": 0.5, "encoder": "lif",
+                "by_letter": {"letter_fraction": 0.6 + 0.1 * d, **arms}}  # fmt: skip
+
+    rows = [row(0, 0.6), row(1, float("nan"))]
+    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_letter"]
+    assert s["letter_fraction"] == pytest.approx(0.65)
+    assert s["pretrained"]["letter_unseen"] == pytest.approx(0.6)  # the empty part skipped
+    assert s["real_only"]["none"] == pytest.approx(0.4)
+    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    assert (
+        "| 1 | 65 % | 80.0 / 40.0 | 80.0 / 40.0 | 80.0 / 40.0 | 50.0 / 30.0 | 60.0 / 30.0 |" in text
+    )
+    assert "nan" not in text
 
 
 def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeypatch):

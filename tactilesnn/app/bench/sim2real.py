@@ -279,13 +279,32 @@ def _seen_run_accuracy(hits: np.ndarray, test: WindowDataset, train_idx: np.ndar
     return [float(hits[part].mean()) if part.any() else float("nan") for part in (seen, ~seen)]
 
 
+#: a test window holds the letter where the fitted model places at least this share of the
+#: letter's signal in it (the rest: the slide before and after the letter)
+LETTER_SHARE = 0.5
+
+
+def letter_parts(share: np.ndarray, seen: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Masks over the test windows: ``letter`` (the letter's share ``share [N]`` at least
+    :data:`LETTER_SHARE`) and ``none`` (the others); with ``seen [N]`` (the window's recording
+    run has a training slide) each also split into ``_seen`` and ``_unseen``."""
+    letter = np.asarray(share) >= LETTER_SHARE
+    parts = {"letter": letter, "none": ~letter}
+    if seen is not None:
+        for name, m in list(parts.items()):
+            parts[f"{name}_seen"], parts[f"{name}_unseen"] = m & seen, m & ~seen
+    return parts
+
+
 def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False,
-              runs_of: np.ndarray | None = None) -> tuple:  # fmt: skip
+              runs_of: np.ndarray | None = None,
+              parts: dict[str, np.ndarray] | None = None) -> tuple:  # fmt: skip
     """Per window and per slide (window scores summed) accuracy of a fitted pipeline; with
     ``runs_of`` (the training slides' indices), then per window by recording run
-    (:func:`_seen_run_accuracy`); with ``log_likelihood``, last the mean log-probability (nats)
-    it gives each window's own class (its scores through a softmax): a proper score, which a few
-    windows rank less noisily than accuracy."""
+    (:func:`_seen_run_accuracy`); with ``parts`` (masks over the windows, by name), then per
+    window on each (NaN where empty); with ``log_likelihood``, last the mean log-probability
+    (nats) it gives each window's own class (its scores through a softmax): a proper score,
+    which a few windows rank less noisily than accuracy."""
     import torch
 
     from ...pipeline import recording_accuracy
@@ -298,6 +317,9 @@ def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False,
     out = (per_window, float(rec["test_accuracy_per_recording"]) if rec else per_window)
     if runs_of is not None:
         out = (*out, _seen_run_accuracy(hits, test, runs_of))
+    if parts is not None:
+        out = (*out, {name: float(hits[m].mean()) if m.any() else float("nan")
+                      for name, m in parts.items()})  # fmt: skip
     if not log_likelihood:
         return out
     logp = torch.log_softmax(scores.double(), 1)
@@ -334,6 +356,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     from ...core.data import confidence_summary
     from ...datasets_synth.tasks.braille import BrailleTask
     from ...models.base import seeded
+    from ...recordings import expected_class_signal
     from ...training import adapt_pipeline, blend_finetuned, finetune_pipeline, fit_pipeline
 
     if np.intersect1d(train_idx, test_idx).size:
@@ -421,19 +444,25 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
         "seen_fraction": float(np.isin(recording_run(test_idx), recording_run(train_idx)).mean())
     }
 
+    # and on the test windows the fitted model places the letter in and on the others (the
+    # slide before and after it: there only a rest level can tell the letters apart)
+    test_share = cut(test_real, expected_class_signal(letter, synth.y, test_real.y)).confidence
+    seen = None if runs_of is None else np.isin(recording_run(test_w.scan), recording_run(runs_of))
+    parts = letter_parts(test_share, seen)
+    by_letter: dict = {"letter_fraction": float(parts["letter"].mean())}
+
     def score(arm: str, pipe) -> None:
-        got = _accuracy(pipe, test_w, runs_of=runs_of)
+        got = _accuracy(pipe, test_w, runs_of=runs_of, parts=parts)
         row[arm], row[f"{arm}_per_slide"] = got[:2]
         if runs_of is not None:
             by_run[arm] = got[2]
+        by_letter[arm] = got[-1]
 
     score("synthetic_only", pre)
     test_feats = None if synth_feats is None else read_out_features(pre, test_w)
     # a second fine-tune: each real training window weighted by its share of the letter as the
     # fitted model renders it at that place in the slide (the class's mean synthetic signal;
     # the fit matched the letter's timing to these slides), as the synthetic windows were
-    from ...recordings import expected_class_signal
-
     lettered = cut(train_real, expected_class_signal(letter, synth.y, train_real.y))
     soft = copy.deepcopy(pre)
     with seeded(seed):
@@ -452,6 +481,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     score("real_only", alone)
     if runs_of is not None:
         row["by_run"] = by_run
+    row["by_letter"] = by_letter
     if references:
         row["references"] = reference_scores(synth_w, train_w, test_w, seed)
         if test_feats is not None and "synthetic_confidence" in row["references"]:
@@ -648,6 +678,21 @@ def by_run_summary(rows: list[dict]) -> dict:
     return out
 
 
+def by_letter_summary(rows: list[dict]) -> dict:
+    """Each arm's per-window accuracy on each part of :func:`letter_parts` (``{arm: {part:
+    mean over draws}}``, NaN parts skipped, None where every draw's is empty), with the test
+    windows' letter fraction."""
+    out: dict = {"letter_fraction": float(np.mean(draw_means(
+        rows, fn=lambda r: r["by_letter"]["letter_fraction"])))}  # fmt: skip
+    for arm in RUN_ARMS:
+        names = rows[0]["by_letter"][arm]
+        out[arm] = {}
+        for name in names:
+            v = np.asarray(draw_means(rows, fn=lambda r, a=arm, n=name: r["by_letter"][a][n]))
+            out[arm][name] = float(np.nanmean(v)) if np.isfinite(v).any() else None
+    return out
+
+
 def summarise_calibrated(rows: list[dict]) -> dict:
     """The calibrated section's summary: means (fractions) over draws (each draw the mean over
     its training seeds), per ``k``; over every ``k`` for the synthetic-only figures."""
@@ -679,6 +724,8 @@ def summarise_calibrated(rows: list[dict]) -> dict:
         }  # fmt: skip
         if all("by_run" in r for r in sel):
             out["shots"][str(k)]["by_run"] = by_run_summary(sel)
+        if all("by_letter" in r for r in sel):
+            out["shots"][str(k)]["by_letter"] = by_letter_summary(sel)
         out["shots"][str(k)]["draws"] = count_draws(sel)
         out["shots"][str(k)]["runs"] = len(sel)
     return out
@@ -1147,6 +1194,36 @@ def _by_run_table(cal: list[dict], ks: list[int]) -> list[str]:
     return lines
 
 
+def _by_letter_table(cal: list[dict], ks: list[int]) -> list[str]:
+    """The page's table of each arm per window on the test windows that hold the letter and on
+    the others (rows with ``by_letter``), and on those of unseen recording runs."""
+    if not all("by_letter" in x for x in cal):
+        return []
+    runs = all("letter_unseen" in x["by_letter"]["pretrained"] for x in cal)
+    lines = ["", "By where the letter is (per window, %): on the test windows in which the fitted "
+             f"model places at least {LETTER_SHARE:.0%} of the letter's signal (`letter`) and on "
+             "the others (`none`: the slide before and after the letter, where only a rest level "
+             "tells the letters apart)" + (", over all test windows and on the unseen runs" if runs
+                                           else "") + ".", "",
+             "| k | test windows with the letter | real only: letter / none | synthetic only | "
+             "pretrained | " + ("unseen runs: real only | unseen runs: pretrained |" if runs
+                                else ""),
+             "|---|---|---|---|---|" + ("---|---|" if runs else "")]  # fmt: skip
+
+    def pair(b: dict, arm: str, suffix: str = "") -> str:
+        return " / ".join("-" if b[arm][f"{p}{suffix}"] is None
+                          else f"{100 * b[arm][f'{p}{suffix}']:.1f}" for p in ("letter", "none"))  # fmt: skip
+
+    for k in ks:
+        b = by_letter_summary([x for x in cal if x["k"] == k])
+        cells = [str(k), f"{100 * b['letter_fraction']:.0f} %", pair(b, "real_only"),
+                 pair(b, "synthetic_only"), pair(b, "pretrained")]  # fmt: skip
+        if runs:
+            cells += [pair(b, "real_only", "_unseen"), pair(b, "pretrained", "_unseen")]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
 def _models_section(r: dict, cal: list[dict]) -> list[str]:
     """The page's comparison of the pipelines' model: this page's rows (``r["model"]``, default
     ``readout``) next to each run in ``r["other_models"]`` (``{model: {"command", "calibrated"}}``:
@@ -1268,6 +1345,7 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                          f"{np.median([x['calibration_s'] for x in sel]):.0f} | "
                          f"{np.median([x['objective'] for x in sel]):.3f} |")  # fmt: skip
         lines += _by_run_table(cal, ks)
+        lines += _by_letter_table(cal, ks)
         summary = summarise_calibrated(cal)
         lines += ["", "In `sim2real.json`: `synthetic_only_per_slide` "
                   f"{summary['synthetic_only_per_slide']:.3f}; `shots`: "
