@@ -1201,7 +1201,7 @@ def _by_letter_table(cal: list[dict], ks: list[int]) -> list[str]:
         return []
     runs = all("letter_unseen" in x["by_letter"]["pretrained"] for x in cal)
     lines = ["", "By where the letter is (per window, %): on the test windows in which the fitted "
-             f"model places at least {LETTER_SHARE:.0%} of the letter's signal (`letter`) and on "
+             f"model places at least {100 * LETTER_SHARE:.0f} % of the letter's signal (`letter`) and on "
              "the others (`none`: the slide before and after the letter, where only a rest level "
              "tells the letters apart)" + (", over all test windows and on the unseen runs" if runs
                                            else "") + ".", "",
