@@ -469,3 +469,81 @@ def test_reused_fits_are_read_where_the_earlier_run_has_them(tmp_path):
     assert sim2real.reused_fit(tmp_path, 1, 0) == tmp_path / "fits" / "k1_d0.json"
     assert sim2real.reused_fit(tmp_path, 1, 3) is None  # a draw it did not fit: fitted anew
     assert sim2real.reused_fit(None, 1, 0) is None
+
+
+def test_rest_referenced_takes_each_slides_own_rest_level():
+    X = np.ones((2, 3, 100), np.float32) * np.array([[1.0], [5.0], [-2.0]], np.float32)
+    X[1] += 7.0
+    X[:, :, 60:] += 3.0  # the letter, after the rest
+    ds = WindowDataset(X, np.array([0, 1]), np.array([0, 1]), 100.0, ("A", "B"),
+                       ("a", "b", "c"))  # fmt: skip
+    out = sim2real.rest_referenced(ds, 0.3)
+    assert out.X.dtype == np.float32
+    assert np.array_equal(out.X[..., :60], np.zeros((2, 3, 60)))
+    assert np.array_equal(out.X[..., 60:], np.full((2, 3, 40), 3.0))
+
+
+@pytest.mark.slow
+def test_cross_runs_holds_whole_runs_out(tmp_path, monkeypatch):
+    """Real only on every slide of the other runs: no held-out run's slide is trained on, the
+    held-out runs' windows are what is scored, as recorded and rest-referenced."""
+    from tactilesnn import training
+
+    _stand_in(tmp_path / "data", n=30)
+    real = sim2real.load_real(tmp_path / "data")
+    real = WindowDataset(
+        real.X,
+        (np.arange(30) // 5) % 3,
+        real.scan,
+        real.fs_hz,
+        real.class_names,
+        real.channel_names,
+    )  # six runs, two per letter
+    assert sim2real.has_letter_runs(real.y)
+    render = sim2real.render_synthetic
+    monkeypatch.setattr(sim2real, "render_synthetic",  # the stand-in's own model, no fit file
+                        lambda *a, calibration=None, **kw: render(*a, **kw))  # fmt: skip
+    fitted, scored = [], []
+    fit_pipeline = training.fit_pipeline
+
+    def spy_fit(cfg, data, *a, **kw):
+        fitted.append(set(data.scan.tolist()))
+        return fit_pipeline(cfg, data, *a, **kw)
+
+    accuracy = sim2real._accuracy
+
+    def spy_accuracy(pipe, test, *a, **kw):
+        scored.append(set(test.scan.tolist()))
+        return accuracy(pipe, test, *a, **kw)
+
+    monkeypatch.setattr(training, "fit_pipeline", spy_fit)
+    monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "sim2real.json").write_text(json.dumps({"shots": {"1": {}}}))
+    out = sim2real.cross_runs(run_dir, real, triples=2)
+    rows = out["rows"]
+    assert len(rows) == 2 * 2 * 3  # triples x (recorded, rest-referenced) x encoders
+    assert {r["slides"] for r in rows} == {"recorded", "rest_referenced"}
+    for r in rows:
+        held = set(np.flatnonzero(np.isin(np.arange(30) // 5, r["held_runs"])).tolist())
+        assert len(held) == 15 and len({real.y[i] for i in held}) == 3
+        for key in ("per_window", "per_slide", "letter", "none"):
+            assert np.isnan(r[key]) or 0.0 <= r[key] <= 1.0
+    held_sets = [set(np.flatnonzero(np.isin(np.arange(30) // 5, r["held_runs"])).tolist())
+                 for r in rows]  # fmt: skip
+    assert len(fitted) == len(scored) == len(rows)
+    for trained, tested, held in zip(fitted, scored, held_sets, strict=True):
+        assert tested == held and not trained & held and len(trained) == 15
+    saved = json.loads((run_dir / "sim2real.json").read_text())
+    assert saved["cross_run"]["rows"] == json.loads(json.dumps(rows))
+    text = sim2real.page({"seconds": 1.0, "calibrated": [], **saved}, {}, "cmd")
+    assert "## What many real slides reach on runs they never saw" in text
+    assert "| rest referenced | lif |" in text
+
+
+def test_cross_runs_needs_runs_of_one_letter(tmp_path):
+    real = WindowDataset(np.zeros((6, 1, 8), np.float32), np.arange(6) % 3, np.arange(6), 10.0,
+                         ("A", "B", "C"), ("t",))  # fmt: skip
+    with pytest.raises(ValueError, match="runs of one letter"):
+        sim2real.cross_runs(tmp_path, real)

@@ -618,6 +618,101 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
     return rows
 
 
+#: held-out triples of runs (one per letter) :func:`cross_runs` trains real only without
+CROSS_RUN_TRIPLES = 9
+#: the rest level :func:`rest_referenced` subtracts: each slide's median over its first seconds
+REST_S = 0.3
+
+
+def rest_referenced(ds: WindowDataset, seconds: float = REST_S) -> WindowDataset:
+    """``ds`` with each slide's channels minus their median over the slide's first ``seconds``
+    (its rest level before the contact reaches the letter)."""
+    n = max(1, round(seconds * ds.fs_hz))
+    X = ds.X - np.median(ds.X[..., :n], -1, keepdims=True)
+    return replace(ds, X=X.astype(np.float32))
+
+
+def cross_runs(run_dir: Path, real: WindowDataset, triples: int = CROSS_RUN_TRIPLES,
+               seed: int = 0) -> dict:  # fmt: skip
+    """What many real slides reach on recording runs they never saw: real only (each encoder
+    candidate, the read-out as ``train --data`` fits it) trained on every slide of all runs but
+    one per letter, tested on the held-out runs' windows, for ``triples`` held-out triples
+    (drawn with ``seed``), the slides as recorded and :func:`rest_referenced`; per window, per
+    slide, and on the windows that hold the letter and the others (:func:`letter_parts`; the
+    letter placed by the run's largest-k draw-0 fit). Written into ``run_dir/sim2real.json``
+    as ``cross_run``."""
+    import itertools
+
+    from ...core.files import write_json_atomic
+    from ...data_policy import DATA_ENCODER_CANDIDATES
+    from ...models.base import seeded
+    from ...recordings import expected_class_signal
+    from ...selection import candidate_configs
+    from ...training import fit_pipeline
+    from .real import default_config
+
+    if not has_letter_runs(real.y):
+        raise ValueError("the file is not laid out in runs of one letter: no runs to hold out")
+    run_dir = Path(run_dir)
+    result = json.loads((run_dir / "sim2real.json").read_text())
+    k = max(int(x) for x in result["shots"])
+    fit = run_dir / "fits" / f"k{k}_d0.json"
+    synth, _, letter = render_synthetic(real, 60, seed, False, class_signal=True,
+                                        calibration=str(fit))  # fmt: skip
+    runs = recording_run(np.arange(real.y.size))
+    per_letter = [sorted({int(r) for r in runs[real.y == c]}) for c in range(len(real.class_names))]
+    combos = list(itertools.product(*per_letter))
+    rng = np.random.default_rng(seed)
+    picked = [combos[i] for i in rng.choice(len(combos), min(triples, len(combos)), replace=False)]
+    rows = []
+    for held in picked:
+        te = np.flatnonzero(np.isin(runs, held))
+        tr = np.setdiff1d(np.arange(real.y.size), te)
+        share = cut(slides(real, te), expected_class_signal(letter, synth.y, real.y[te])).confidence
+        parts = letter_parts(share)
+        for mode, data in (("recorded", real), ("rest_referenced", rest_referenced(real))):
+            train_w, test_w = cut(slides(data, tr)), cut(slides(data, te))
+            base = default_config(False, None, "readout", seed)
+            for name, cfg in candidate_configs(base, train_w, DATA_ENCODER_CANDIDATES).items():
+                with seeded(seed):
+                    pipe = fit_pipeline(with_seed(cfg, seed), train_w, with_past=False).pipeline
+                got = _accuracy(pipe, test_w, parts=parts)
+                rows.append({"held_runs": list(held), "slides": mode, "encoder": name,
+                             "per_window": got[0], "per_slide": got[1], **got[-1]})  # fmt: skip
+        log.info("cross-run: runs %s held out", held)
+    out = {"fit": fit.name, "rest_s": REST_S, "rows": rows}
+    result["cross_run"] = out
+    write_json_atomic(run_dir / "sim2real.json", result)
+    return out
+
+
+def _cross_run_section(cross: dict, r: dict) -> list[str]:
+    """The page's table of :func:`cross_runs`: means over the held-out triples, 95 % intervals."""
+    rows = cross["rows"]
+    n = len({tuple(x["held_runs"]) for x in rows})
+    k1 = (r.get("shots") or {}).get("1", {}).get("by_letter", {}).get("pretrained", {})
+    lines = ["", "## What many real slides reach on runs they never saw", "",
+             f"Real only trained on every slide of six runs (two per letter; 30 slides), tested "
+             f"on the other three runs' windows, {n} held-out triples (`bench sim2real "
+             "--cross-runs-from DIR`); the slides as recorded and each slide minus its rest "
+             f"level (its median over the first {cross['rest_s']} s, per taxel); `letter` / "
+             f"`none`: the windows the fitted model (`{cross['fit']}`) places the letter in and "
+             "the others. Per window / per slide / letter / none (%), means over the triples "
+             "with 95 % intervals.", "",
+             "| slides | encoder | per window | per slide | letter | none |",
+             "|---|---|---|---|---|---|"]  # fmt: skip
+    for mode in dict.fromkeys(x["slides"] for x in rows):
+        for enc in dict.fromkeys(x["encoder"] for x in rows):
+            sel = [x for x in rows if x["slides"] == mode and x["encoder"] == enc]
+            cells = [_cell([x[key] for x in sel if np.isfinite(x[key])])
+                     for key in ("per_window", "per_slide", "letter", "none")]  # fmt: skip
+            lines.append(f"| {mode.replace('_', ' ')} | {enc} | " + " | ".join(cells) + " |")
+    if k1.get("letter_unseen") is not None:
+        lines += ["", f"For comparison, the pretrained arm at k = 1 (three real slides) on the "
+                  f"unseen runs' letter windows: {100 * k1['letter_unseen']:.1f} %."]  # fmt: skip
+    return lines
+
+
 def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: tuple[str, ...],
                        seeds: int = 2, budget_s: float = 900.0) -> list[dict]:  # fmt: skip
     """The calibration's optimisers side by side: the objective each reaches in the same number
@@ -1026,6 +1121,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "fitted")  # fmt: skip
     p.add_argument("--docs", default=None,
                    help="also write the page docs/sim2real.md (and its JSON beside it) here")  # fmt: skip
+    p.add_argument("--cross-runs-from", default=None,
+                   help="an earlier run's --out: add what real only trained on every slide of "
+                   "the other recording runs reaches on held-out runs (the file's runs of one "
+                   "letter) to its sim2real.json (no run)")  # fmt: skip
     p.add_argument("--references-from", default=None,
                    help="an earlier run's --out: add the non-spiking references (and a forest "
                    "on the spike read-out's features) on its calibrated draws to its "
@@ -1398,6 +1497,8 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                     for key in ("mean_response", "class_difference", "correlation", "rest",
                                 "range")) + " |")  # fmt: skip
     lines += _models_section(r, cal)
+    if r.get("cross_run"):
+        lines += _cross_run_section(r["cross_run"], r)
     if r.get("references"):
         lines += _references_section(r["references"], cal)
     if fabric:
@@ -1431,6 +1532,9 @@ def _fabric(docs: Path) -> dict | None:
 def main(out: Path | None, options: argparse.Namespace) -> int:
     from . import require_out
 
+    if options.cross_runs_from:
+        cross_runs(Path(options.cross_runs_from), load_real(Path(options.data_root)))
+        return 0
     if options.references_from:
         add_references(Path(options.references_from), load_real(Path(options.data_root)),
                        options.calibrated_synthetic)  # fmt: skip
