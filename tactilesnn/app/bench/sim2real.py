@@ -271,11 +271,16 @@ def run_rest_spread(real: WindowDataset) -> dict[str, float]:
             "between_runs_counts": float(np.median(means.std(0)))}  # fmt: skip
 
 
+def in_seen_runs(test: WindowDataset, train_idx: np.ndarray) -> np.ndarray:
+    """Whether each test window's recording run (:func:`recording_run`) holds a training slide."""
+    return np.isin(recording_run(test.scan), recording_run(train_idx))
+
+
 def _seen_run_accuracy(hits: np.ndarray, test: WindowDataset, train_idx: np.ndarray) -> list[float]:
     """Per window accuracy ``[on the test windows of runs a training slide comes from, on the
-    others]`` from each test window's ``hits`` (right or not; :func:`recording_run`; NaN where
+    others]`` from each test window's ``hits`` (right or not; :func:`in_seen_runs`; NaN where
     a part is empty)."""
-    seen = np.isin(recording_run(test.scan), recording_run(train_idx))
+    seen = in_seen_runs(test, train_idx)
     return [float(hits[part].mean()) if part.any() else float("nan") for part in (seen, ~seen)]
 
 
@@ -447,8 +452,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     # and on the test windows the fitted model places the letter in and on the others (the
     # slide before and after it: there only a rest level can tell the letters apart)
     test_share = cut(test_real, expected_class_signal(letter, synth.y, test_real.y)).confidence
-    seen = None if runs_of is None else np.isin(recording_run(test_w.scan), recording_run(runs_of))
-    parts = letter_parts(test_share, seen)
+    parts = letter_parts(test_share, None if runs_of is None else in_seen_runs(test_w, runs_of))
     by_letter: dict = {"letter_fraction": float(parts["letter"].mean())}
 
     def score(arm: str, pipe) -> None:
@@ -664,15 +668,16 @@ def cross_runs(run_dir: Path, real: WindowDataset, triples: int = CROSS_RUN_TRIP
     combos = list(itertools.product(*per_letter))
     rng = np.random.default_rng(seed)
     picked = [combos[i] for i in rng.choice(len(combos), min(triples, len(combos)), replace=False)]
+    base = default_config(False, None, "readout", seed)
+    referenced = rest_referenced(real)
     rows = []
     for held in picked:
         te = np.flatnonzero(np.isin(runs, held))
         tr = np.setdiff1d(np.arange(real.y.size), te)
         share = cut(slides(real, te), expected_class_signal(letter, synth.y, real.y[te])).confidence
         parts = letter_parts(share)
-        for mode, data in (("recorded", real), ("rest_referenced", rest_referenced(real))):
+        for mode, data in (("recorded", real), ("rest_referenced", referenced)):
             train_w, test_w = cut(slides(data, tr)), cut(slides(data, te))
-            base = default_config(False, None, "readout", seed)
             for name, cfg in candidate_configs(base, train_w, DATA_ENCODER_CANDIDATES).items():
                 with seeded(seed):
                     pipe = fit_pipeline(with_seed(cfg, seed), train_w, with_past=False).pipeline
