@@ -275,7 +275,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from .app.bench import benchmark
+    from .bench import benchmark
 
     return benchmark(args.name).main(Path(args.out) if args.out else None, args)
 
@@ -523,7 +523,7 @@ def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentPars
 def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
     p = _command(sub, "bench", "benchmarks (each has its own flags: tactilesnn bench NAME --help)")
     names = p.add_subparsers(dest="name", required=True, metavar="NAME", help="which benchmark")
-    from .app.bench import BENCHMARKS, benchmark
+    from .bench import BENCHMARKS, benchmark
 
     for name in BENCHMARKS:
         module = benchmark(name)

@@ -73,7 +73,7 @@ def test_generated_tables_are_the_ones_their_json_gives():
     benchmarks' ``--docs`` from the JSON kept beside them; none is edited by hand."""
     import json
 
-    from tactilesnn.app.bench import fit, real
+    from tactilesnn.bench import fit, real
 
     docs = ROOT / "docs"
     f = json.loads((docs / "fit.json").read_text())

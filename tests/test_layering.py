@@ -24,6 +24,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
         ("training", "selection", "estimator", "streaming", "export", "service"),
     ),
     ("application", ("app",)),
+    ("benchmarks", ("bench",)),
     ("cli", ("cli", "__main__")),
 ]
 #: layer 3's parts sit side by side: none imports another (the estimator and the encoder
@@ -167,9 +168,11 @@ def test_the_service_never_imports_torch():
 
 @pytest.mark.slow
 def test_the_command_line_imports_only_the_application_layer():
-    """cli.py parses, calls ``app`` and prints: every package import it makes is of ``app``."""
+    """cli.py parses, calls ``app`` (or, for ``tactilesnn bench``, the benchmark package) and
+    prints: every package import it makes is of those two."""
     graph = _graph()
-    outside = sorted(m for m in graph["cli"] if m in graph and not m.startswith("app"))
+    outside = sorted(m for m in graph["cli"]
+                     if m in graph and m.split(".")[0] not in ("app", "bench"))  # fmt: skip
     assert not outside, f"cli.py imports {outside}: go through tactilesnn.app"
 
 
@@ -183,3 +186,15 @@ def test_architecture_page_names_only_modules_that_exist():
     files = {p.stem for p in ROOT.rglob("*.py")}
     missing = sorted(named - files)
     assert not missing, f"docs/architecture.md names {missing}, not in the package"
+
+
+@pytest.mark.slow
+def test_product_code_never_imports_a_benchmark():
+    """The benchmarks sit beside the product: only the command line's ``bench`` command (and
+    the benchmarks themselves) import them."""
+    bad = []
+    for mod, deps in _graph().items():
+        if mod.split(".")[0] in ("bench", "cli"):
+            continue
+        bad += [f"{mod} -> {d}" for d in deps if d.split(".")[0] == "bench"]
+    assert not bad, bad

@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from tactilesnn.app.bench import busy
+from tactilesnn.bench import busy
 
 
 def _running(pids):

@@ -3,7 +3,7 @@ against its own float64 transform."""
 
 from __future__ import annotations
 
-from tactilesnn.app.bench.encoders import Workload, bench_gwt
+from tactilesnn.bench.encoders import Workload, bench_gwt
 
 
 def test_gwt_rows_cover_each_edge_treatment_with_float32_errors():
@@ -15,7 +15,7 @@ def test_gwt_rows_cover_each_edge_treatment_with_float32_errors():
 
 
 def test_fft_rows_time_every_installed_backend_at_float32_error():
-    from tactilesnn.app.bench.encoders import bench_fft, fft_summary
+    from tactilesnn.bench.encoders import bench_fft, fft_summary
     from tactilesnn.core.fft_backend import available
 
     w = Workload("tiny", 2, 1, 200.0, 2.0, 2.0, 90.0, 8)

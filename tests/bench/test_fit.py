@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from tactilesnn.app.bench import fit, standins
+from tactilesnn.bench import fit, standins
 
 
 def test_stand_ins_have_the_stated_shapes(tmp_path) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tactilesnn.app.bench import BENCHMARKS, benchmark
+from tactilesnn.bench import BENCHMARKS, benchmark
 
 
 @pytest.mark.slow

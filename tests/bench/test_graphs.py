@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from tactilesnn.app.bench import graphs
+from tactilesnn.bench import graphs
 from tactilesnn.export import onnx as export_onnx
 
 

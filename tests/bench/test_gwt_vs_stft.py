@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from tactilesnn.app.bench import gwt_vs_stft
 from tactilesnn.baselines import linear_amplitude_baseline
+from tactilesnn.bench import gwt_vs_stft
 from tactilesnn.config import PipelineConfig
 from tactilesnn.datasets_synth import HookLoopTask
 from tactilesnn.training import fit_and_evaluate

@@ -7,7 +7,7 @@ import onnx
 import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
-from tactilesnn.app.bench.pareto import heavy_operators
+from tactilesnn.bench.pareto import heavy_operators
 
 
 def _graph(big: np.ndarray, small: np.ndarray) -> onnx.ModelProto:

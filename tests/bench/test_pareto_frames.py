@@ -4,7 +4,7 @@ latency and real-time factor."""
 
 import pytest
 
-from tactilesnn.app.bench.pareto import (
+from tactilesnn.bench.pareto import (
     _F,
     _FB,
     _FBOUND,

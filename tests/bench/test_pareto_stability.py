@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from tactilesnn.app.bench import pareto, stability
+from tactilesnn.bench import pareto, stability
 from tactilesnn.cli import main
 
 
@@ -72,7 +72,7 @@ def test_quick_stability_passes_and_a_failing_stage_fails_the_command(tmp_path, 
 
 @pytest.mark.slow
 def test_quick_skip_bench_reports_savings_and_changes(tmp_path):
-    from tactilesnn.app.bench import skip
+    from tactilesnn.bench import skip
 
     res = skip.run(tmp_path / "k", quick=True)
     g = res["encoder_gate"]
@@ -103,7 +103,7 @@ def test_bench_snn_runs_and_ours_equals_the_functional_reference(monkeypatch):
     are measured only where the bench extra is installed."""
     import importlib.util
 
-    from tactilesnn.app.bench import snn
+    from tactilesnn.bench import snn
 
     real_find = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec",

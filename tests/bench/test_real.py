@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from tactilesnn.app.bench import real
+from tactilesnn.bench import real
 from tactilesnn.data_policy import DATA_ENCODER_CANDIDATES
 from tactilesnn.recordings import load_data_file
 
@@ -105,7 +105,7 @@ def test_synthetic_tasks_run_through_the_same_check(tmp_path, monkeypatch):
 
 
 def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monkeypatch):
-    from tactilesnn.app.bench import tasks
+    from tactilesnn.bench import tasks
     from tactilesnn.cli import main
     from tactilesnn.datasets_synth import TASKS
 
@@ -118,7 +118,7 @@ def test_bench_tasks_references_runs_every_task_through_the_check(tmp_path, monk
 
 
 def test_soft_targets_become_weighted_rows_that_sum_to_each_window():
-    from tactilesnn.app.bench.real import soft_target_rows
+    from tactilesnn.bench.real import soft_target_rows
 
     y = np.array([0, 2, 1])
     rows, labels, w = soft_target_rows(y, np.array([1.0, 0.0, 0.4]), 3)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from tactilesnn.app.bench import sim2real
+from tactilesnn.bench import sim2real
 from tactilesnn.core.data import WindowDataset
 from tactilesnn.datasets_synth import get_task
 
@@ -115,7 +115,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
     monkeypatch.setattr(training, "adapt_pipeline", spy_adapt)
     monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
-    from tactilesnn.app.bench import real as bench_real
+    from tactilesnn.bench import real as bench_real
 
     references = bench_real.references
 

@@ -4,7 +4,7 @@ least-squares inverse finds the contact, errors and knobs."""
 import numpy as np
 import pytest
 
-from tactilesnn.app.bench import localise
+from tactilesnn.bench import localise
 from tactilesnn.datasets_synth import get_task
 
 

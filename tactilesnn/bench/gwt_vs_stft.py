@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ...baselines import linear_amplitude_baseline
-from ...config import PipelineConfig, TrainConfig
-from ...datasets_synth import HookLoopTask
-from ...training import fit_and_evaluate
-from ..runs import RunWriter
+from ..app.runs import RunWriter
+from ..baselines import linear_amplitude_baseline
+from ..config import PipelineConfig, TrainConfig
+from ..datasets_synth import HookLoopTask
+from ..training import fit_and_evaluate
 
 log = logging.getLogger("tactilesnn")
 

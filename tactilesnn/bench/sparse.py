@@ -15,10 +15,10 @@ import time
 import numpy as np
 import torch
 
-from ...datasets_synth import HookLoopTask
-from ...encoders.gwt import GaborScalogram, log_bands
-from ...encoders.latency import LatencyCode
-from ...encoders.sliding import SlidingEncoder
+from ..datasets_synth import HookLoopTask
+from ..encoders.gwt import GaborScalogram, log_bands
+from ..encoders.latency import LatencyCode
+from ..encoders.sliding import SlidingEncoder
 
 
 def taxel_streams(n_taxels: int, touched: int, seed: int = 0) -> tuple[np.ndarray, float]:

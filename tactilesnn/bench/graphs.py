@@ -44,8 +44,8 @@ EXPORTERS = ("torch.export", "torchscript")
 
 
 def _pipeline(flat: dict, fs: float, window: int, channels: int, seed: int = 0):
-    from ...config import PipelineConfig
-    from ...pipeline import SpikePipeline
+    from ..config import PipelineConfig
+    from ..pipeline import SpikePipeline
 
     cfg = PipelineConfig.from_flat(channels=("all",), **flat)
     names = tuple(f"c{i}" for i in range(channels))
@@ -73,8 +73,8 @@ def case(name: str, flat: dict, fs: float, window: int, channels: int, windows: 
          repeats: int) -> dict:  # fmt: skip
     """One case's row: per exporter, nodes, export seconds, ms per window (service batches and
     single windows), prediction agreement with torch; torch's ms per window."""
-    from ...export.onnx import build_graph
-    from ...service.runtime import PipelineSession
+    from ..export.onnx import build_graph
+    from ..service.runtime import PipelineSession
 
     pipe = _pipeline(flat, fs, window, channels)
     X = _windows(windows, channels, window, seed=1)
@@ -159,7 +159,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
-    from ...core.checks import check_int
+    from ..core.checks import check_int
     from . import write_result
 
     if options.from_json is not None:

@@ -31,7 +31,7 @@ def _angle_error(a_deg: np.ndarray, b_deg: np.ndarray) -> np.ndarray:
 def least_squares(X: np.ndarray, depth_mm: float) -> tuple[np.ndarray, np.ndarray]:
     """Seed 002's inverse per sample: ``X [N, 100, frames]`` -> (centres ``[N, 2]`` mm,
     tangential force angles ``[N]`` degrees), from the mean of the last frames (the hold)."""
-    from ...datasets_synth.sensors.piezoresistive import chip_positions, solve_contact, solve_stress
+    from ..datasets_synth.sensors.piezoresistive import chip_positions, solve_contact, solve_stress
 
     chips = chip_positions()
     hold = X[..., -HOLD_FRAMES:].mean(-1).reshape(len(X), 25, 4).astype(np.float64)
@@ -63,11 +63,11 @@ def run_target(target: str, seed: int, n_samples: int, cells: int, epochs: int |
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ...baselines import amplitude_stats, fit_amplitude_baseline
-    from ...data_policy import DATA_ENCODER_CANDIDATES
-    from ...datasets_synth import get_task
-    from ...selection import select_encoder
-    from ...training import fit_and_evaluate
+    from ..baselines import amplitude_stats, fit_amplitude_baseline
+    from ..data_policy import DATA_ENCODER_CANDIDATES
+    from ..datasets_synth import get_task
+    from ..selection import select_encoder
+    from ..training import fit_and_evaluate
     from .real import default_config
 
     task = get_task("localise", seed=seed, n_samples=n_samples, target=target, cells=cells)

@@ -11,7 +11,7 @@ Six mechanisms, each as compute saved against output change:
   the same for the exported encoder graphs in onnxruntime (the gated graph encodes only the
   active rows), with its spikes checked against the torch path's;
 * **PVDF sensor skipping** (readout simulates only what a contact can reach): from
-  :func:`tactilesnn.app.bench.tasks.skip_pvdf`;
+  :func:`tactilesnn.bench.tasks.skip_pvdf`;
 * **capacitive time skipping**: the foam's play-operator hysteresis stepped only where a pad's
   strain changes (no contact, steady holds), against stepping every sample (exact: tolerance 0);
 * **capacitive pad skipping**: pads of channels a contact cannot move off their rest code are not
@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...core.files import write_json_atomic
+from ..core.files import write_json_atomic
 from .sparse import taxel_streams
 
 GATE = 0.1
@@ -56,7 +56,7 @@ def _encoder_session(encoder, n_channels: int):
     """The encoder's exported graph (``[B, C, window]`` -> spike times) in onnxruntime, 1 thread."""
     import onnxruntime as ort
 
-    from ...core.onnx_graph import component_to_onnx
+    from ..core.onnx_graph import component_to_onnx
 
     dummy = torch.randn(2, n_channels, WINDOW, generator=torch.Generator().manual_seed(0))
     graph = component_to_onnx(encoder.onnx_module(), (dummy,), ["window"], ["spikes"],
@@ -69,8 +69,8 @@ def _encoder_session(encoder, n_channels: int):
 
 def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
 
-    from ...encoders import build_encoder
-    from ...encoders.base import ENCODERS
+    from ..encoders import build_encoder
+    from ..encoders.base import ENCODERS
 
     torch.set_num_threads(1)
     cfg = ENCODERS.config_class("gwt")
@@ -117,7 +117,7 @@ def encoder_gate(repeats: int = 5, quick: bool = False) -> list[dict]:
 def capacitive_time_skip(repeats: int = 5, quick: bool = False) -> dict:
     """Capacitive triangle, 10 s at 10 kS/s with a 1 s press and a 0.2 s hold: the foam's
     hysteresis stepped only where a pad's strain changes vs at every sample."""
-    from ...datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
+    from ..datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
 
     sensor = CapacitiveTriangle()
     fs = 10_000.0
@@ -138,7 +138,7 @@ def capacitive_taxel_skip(repeats: int = 5, quick: bool = False) -> list[dict]:
     """Capacitive triangle (12 pads, 5 kS/s contact, 16-bit CDC): a 3 mm probe presses 1, 3, 6
     or 12 pads in turn (a light 0.1 N touch, 0.4 s each); channels left out exactly (their code cannot leave
     rest) and with a 1 LSB tolerance, against simulating every pad."""
-    from ...datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
+    from ..datasets_synth.sensors.capacitive_triangle import CapacitiveTriangle
 
     sensor = CapacitiveTriangle()
     fs, press = 5000.0, 2000
@@ -168,7 +168,7 @@ def capacitive_taxel_skip(repeats: int = 5, quick: bool = False) -> list[dict]:
 def teng_time_skip(repeats: int = 5, quick: bool = False) -> dict:
     """TENG finger (8 electrodes x 9 pad points, 500 S/s), 60 s with one 2 s press: the
     induced potential evaluated only within twice the proximity range vs everywhere."""
-    from ...datasets_synth.sensors.teng import TENGArray, layout
+    from ..datasets_synth.sensors.teng import TENGArray, layout
 
     sensor = TENGArray(layout("finger8"))
     n = int((10 if quick else 60) * sensor.fs_hz)
@@ -184,10 +184,10 @@ def teng_time_skip(repeats: int = 5, quick: bool = False) -> dict:
 
 def band_restriction(repeats: int = 5, quick: bool = False) -> dict:
     """Touch task, default GWT + tempotron, with and without the PVDF readout's passband."""
-    from ...config import PipelineConfig
-    from ...datasets_synth import get_task
-    from ...datasets_synth.sensors.pvdf import PVDFParams
-    from ...training import fit_and_evaluate
+    from ..config import PipelineConfig
+    from ..datasets_synth import get_task
+    from ..datasets_synth.sensors.pvdf import PVDFParams
+    from ..training import fit_and_evaluate
 
     lo, hi = PVDFParams().passband_hz
     train, test = get_task("touch", n_samples=160 if quick else 800).build()
@@ -212,9 +212,9 @@ EARLY_MODELS = ("tempotron", "snn")
 def early_decision(quick: bool = False) -> dict:
     """Per model of :data:`EARLY_MODELS`: ``metrics.json``'s early decision and the full-window
     accuracy on the same test split."""
-    from ...config import PipelineConfig
-    from ...datasets_synth import get_task
-    from ...training import fit_and_evaluate
+    from ..config import PipelineConfig
+    from ..datasets_synth import get_task
+    from ..training import fit_and_evaluate
 
     kw = {"n_planar": 12, "n_concave": 6, "n_convex": 6, "n_test": 6} if quick else {}
     train, test = get_task("hook_loop", **kw).build()

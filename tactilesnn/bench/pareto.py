@@ -36,16 +36,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...config import PipelineConfig
-from ...core.settings import flag_fields
-from ...core.spikes import clock_times
-from ...datasets_synth import TASKS, get_task
-from ...encoders import ENCODERS
-from ...pipeline import SpikePipeline, accuracy_ci95
-from ...training import fit_and_evaluate
-from ..plots import pareto_front
-from ..plots import plot_cost_error as plot
-from ..runs import RunWriter
+from ..app.plots import pareto_front
+from ..app.plots import plot_cost_error as plot
+from ..app.runs import RunWriter
+from ..config import PipelineConfig
+from ..core.settings import flag_fields
+from ..core.spikes import clock_times
+from ..datasets_synth import TASKS, get_task
+from ..encoders import ENCODERS
+from ..pipeline import SpikePipeline, accuracy_ci95
+from ..training import fit_and_evaluate
 
 log = logging.getLogger("tactilesnn")
 
@@ -155,8 +155,8 @@ Prepared = tuple[dict, dict | None]
 def prepare_point(pipe: SpikePipeline, test, tmp: Path) -> list[Prepared]:
     """The precision rows of one trained pipeline (see the module docstring), untimed, each with
     the calls :func:`time_rows` times; its graphs are written into the empty folder ``tmp``."""
-    from ...export import export_pipeline, quantize_int8
-    from ...service.runtime import PipelineSession
+    from ..export import export_pipeline, quantize_int8
+    from ..service.runtime import PipelineSession
 
     X, y = test.X, test.y
     x1, x64 = X[:1], X[: min(64, len(X))]
@@ -256,8 +256,8 @@ def realtime_session(
     touched ones. ``int8``: the
     graph's window-side MatMuls dynamically quantised (:func:`quantize_int8`; the Convs and the
     LSTM stay float32). ``snn``: its hidden units and time step (ms)."""
-    from ...export import export_pipeline, quantize_int8
-    from ...service.runtime import PipelineSession
+    from ..export import export_pipeline, quantize_int8
+    from ..service.runtime import PipelineSession
 
     fs, channels = 2000.0, tuple(f"taxel{i}" for i in range(12))
     if form in _FRAME_FORMS:  # the continuous code + stream model, hop ~5 ms
@@ -311,9 +311,9 @@ def _stream_call(
     import onnx
     import onnxruntime as ort
 
-    from ...core.onnx_prune import prune_to_outputs
-    from ...export.onnx import build_model_part
-    from ...export.stream import build_stream_graph, initial_state, stream_session
+    from ..core.onnx_prune import prune_to_outputs
+    from ..export.onnx import build_model_part
+    from ..export.stream import build_stream_graph, initial_state, stream_session
 
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1
@@ -363,8 +363,8 @@ def _frame_call(pipe: SpikePipeline, X: np.ndarray, form: str, info: dict
     import onnx
     import onnxruntime as ort
 
-    from ...core.graph_contract import WINDOW_INPUT
-    from ...export.frames import (
+    from ..core.graph_contract import WINDOW_INPUT
+    from ..export.frames import (
         STATE,
         BoundFrames,
         build_frame_graph,

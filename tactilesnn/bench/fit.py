@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.stages import peak_rss_bytes
-from . import require_out, write_result
+from ..core.stages import peak_rss_bytes
+from . import add_data_root, data_root, require_out, write_result
 from .busy import NEIGHBOUR
 from .standins import STANDINS, make
 
@@ -41,7 +41,7 @@ REAL = {
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data-root", default="../shared/data", help="where the real sets are")
+    add_data_root(p, "the real sets")
     p.add_argument("--sets", nargs="*", default=None,
                    help=f"sets to run (default: every real set found and every stand-in: "
                         f"{', '.join([*REAL, *STANDINS])})")  # fmt: skip
@@ -94,7 +94,7 @@ def references(path: Path, seed: int = 0) -> dict[str, dict]:
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ...recordings import auto_window, load_data_file
+    from ..recordings import auto_window, load_data_file
     from .real import log_spectrum, summary_stats
 
     cut = auto_window(path) or (None, None)
@@ -182,7 +182,7 @@ its own peak resident memory and its stages' seconds (`metrics.json` `stage_seco
 three scikit-learn references fitted on the identical split (logistic regression on log band
 powers, random forests on summary statistics and on counts in ten time slices) and the ratio of
 the run's time to that reference's. Stand-ins are generated with numpy
-(`tactilesnn/app/bench/standins.py`: their shapes are those of real files the project does not
+(`tactilesnn/bench/standins.py`: their shapes are those of real files the project does not
 have; their accuracy says how hard they are, not how good a sensor is). Command:
 
 ```sh
@@ -201,7 +201,7 @@ def page(rows: list[dict], command: str, machine: str) -> str:
 
 def main(out: Path | None, options: argparse.Namespace) -> int:
     out = Path(require_out(out, "fit"))
-    root = Path(options.data_root)
+    root = data_root(options, "fit")
     sets = options.sets or [*REAL, *STANDINS]
     unknown = [s for s in sets if s not in REAL and s not in STANDINS]
     if unknown:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...core.files import write_json_atomic
+from ..core.files import write_json_atomic
 
 FS = 200.0
 
@@ -52,8 +52,8 @@ def _stage(name: str, tol: float, fn: Callable[[], tuple[float, str]]) -> dict:
 
 
 def _encoder(name: str, window: int = 200, channels: int = 1, fs: float = FS, **kw):
-    from ...encoders import build_encoder
-    from ...encoders.base import ENCODERS
+    from ..encoders import build_encoder
+    from ..encoders.base import ENCODERS
 
     return build_encoder(ENCODERS.config_class(name)(**kw), fs, window, channels)
 
@@ -76,8 +76,8 @@ def amplitude_span(quick: bool) -> tuple[float, str]:
         ref = enc.encode(x).numpy()
         for a in scales:
             worst = max(worst, _time_diff(enc.encode((x * a).astype(np.float32)).numpy(), ref))
-    from ...config import PipelineConfig
-    from ...pipeline import SpikePipeline  # inputs beyond float32 are refused, not wrapped
+    from ..config import PipelineConfig
+    from ..pipeline import SpikePipeline  # inputs beyond float32 are refused, not wrapped
 
     pipe = SpikePipeline(PipelineConfig.from_flat(channels=("all",)), FS, 200, ("c",), ("a", "b"))
     try:
@@ -89,7 +89,7 @@ def amplitude_span(quick: bool) -> tuple[float, str]:
 
 
 def pvdf_full_range(quick: bool) -> tuple[float, str]:
-    from ...datasets_synth.sensors.pvdf import PVDFTriangle
+    from ..datasets_synth.sensors.pvdf import PVDFTriangle
 
     sensor = PVDFTriangle()
     fs = sensor.fs_hz
@@ -132,7 +132,7 @@ def near_nyquist(quick: bool) -> tuple[float, str]:
     enc = _encoder("gwt", f_hi_hz=0.45 * FS)
     t = np.arange(200) / FS
     x = np.sin(2 * np.pi * 0.44 * FS * t).astype(np.float32)[None, None]
-    from ...encoders.scalogram_latency import unit_peak
+    from ..encoders.scalogram_latency import unit_peak
 
     mag = enc.scalogram(unit_peak(torch.from_numpy(x))).numpy()[0, 0].mean(-1)
     top = int(np.argmax(mag))
@@ -141,7 +141,7 @@ def near_nyquist(quick: bool) -> tuple[float, str]:
 
 
 def _long_stream(quick: bool):
-    from ...encoders.gwt import GaborScalogram, log_bands
+    from ..encoders.gwt import GaborScalogram, log_bands
 
     n = 1_000_000 if quick else 10_000_000
     x = np.random.default_rng(5).standard_normal((1, 1, n)).astype(np.float32)
@@ -171,7 +171,7 @@ def float32_drift(quick: bool) -> tuple[float, str]:
 
 
 def tempotron_long_window(quick: bool) -> tuple[float, str]:
-    from ...models.tempotron import Tempotron
+    from ..models.tempotron import Tempotron
 
     rng = np.random.default_rng(0)
     dur = 60_000.0
@@ -185,7 +185,7 @@ def tempotron_long_window(quick: bool) -> tuple[float, str]:
 
 
 def snn_long(quick: bool) -> tuple[float, str]:
-    from ...models.functional import lif_scan
+    from ..models.functional import lif_scan
 
     steps = 20_000 if quick else 100_000
     g = torch.Generator().manual_seed(0)
@@ -203,9 +203,9 @@ def snn_long(quick: bool) -> tuple[float, str]:
 
 
 def _small_run(tmp: Path):
-    from ...config import PipelineConfig
-    from ...datasets_synth import HookLoopTask
-    from ...training import fit_and_evaluate
+    from ..config import PipelineConfig
+    from ..datasets_synth import HookLoopTask
+    from ..training import fit_and_evaluate
 
     task = HookLoopTask(seed=0, n_planar=10, n_concave=5, n_convex=5, n_test=4)
     train, test = task.build()
@@ -214,7 +214,7 @@ def _small_run(tmp: Path):
 
 
 def onnx_and_int8(quick: bool) -> list[dict]:
-    from ...export import export_pipeline, quantize_int8
+    from ..export import export_pipeline, quantize_int8
 
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

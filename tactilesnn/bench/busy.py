@@ -24,7 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ...core.perf import usable_cpus
+from ..core.perf import usable_cpus
 
 HELP = "the default training alone and beside CPU-bound neighbours: wall times and their ratio"
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ...core.device import resolve_device, synchronize
-from ...models.functional import lif_scan
-from ...models.snn import LIFLayer
+from ..core.device import resolve_device, synchronize
+from ..models.functional import lif_scan
+from ..models.snn import LIFLayer
 
 T, B, N_IN, N_H, N_OUT = 500, 64, 96, 128, 10
 CPU = torch.device("cpu")
@@ -149,7 +149,7 @@ def matmul_gflops(threads: int, device: torch.device = CPU) -> float:
 def run(repeats: int = 7, device: str = "cpu") -> dict:
     """The rows on ``device`` (``cpu``: 1 and 2 threads; a CUDA device: one row per
     implementation, every model, input and optimizer on it)."""
-    from ...core.perf import tune_allocator
+    from ..core.perf import tune_allocator
 
     dev = resolve_device(device)
     results_alloc = tune_allocator()

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...config import PipelineConfig
-from ...pipeline import SpikePipeline
+from ..config import PipelineConfig
+from ..pipeline import SpikePipeline
 from . import write_result
 
 HELP = "encoding on a GPU against the CPU: time and spike-time agreement per encoder"

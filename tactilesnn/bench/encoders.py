@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ...core.files import write_text_atomic
-from ...encoders.gwt import GaborScalogram, log_bands
-from ...encoders.stft import STFTScalogram
+from ..core.files import write_text_atomic
+from ..encoders.gwt import GaborScalogram, log_bands
+from ..encoders.stft import STFTScalogram
 
 CMOR = "cmor1.5-1.0"
 
@@ -246,7 +246,7 @@ def bench_stft(
     """
     from scipy import signal
 
-    from ...encoders.latency import LatencyCode
+    from ..encoders.latency import LatencyCode
 
     x = w.signal()
     hop = nperseg // 2
@@ -289,7 +289,7 @@ def bench_stft(
 
 def bench_fft(w: Workload, repeats: int, threads_list: list[int]) -> list[dict]:
     """Our full-rate GWT with each installed FFT backend (both edge modes) and fCWT."""
-    from ...core.fft_backend import available
+    from ..core.fft_backend import available
 
     x = w.signal()
     freqs = w.freqs()

@@ -212,8 +212,8 @@ def run(model: str, clients: int = 8, seconds: float = 10.0) -> dict:
     client posting 8 MB JSON bodies back to back (parsed off the event loop)."""
     import uvicorn
 
-    from ...service.app import create_app
-    from ...service.connections import server_config
+    from ..service.app import create_app
+    from ..service.connections import server_config
 
     app = create_app(model)
     session = app.state.session

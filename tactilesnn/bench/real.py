@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...config import PipelineConfig
-from ...data_policy import DATA_ENCODER_CANDIDATES, data_file_defaults
-from ...datasets_synth import WindowDataset
-from ...recordings import DataFacts, auto_window, load_data_file
+from ..config import PipelineConfig
+from ..data_policy import DATA_ENCODER_CANDIDATES, data_file_defaults
+from ..datasets_synth import WindowDataset
+from ..recordings import DataFacts, auto_window, load_data_file
 
 log = logging.getLogger("tactilesnn")
 
@@ -76,7 +76,7 @@ REAL_DATASETS: dict[str, tuple[str, Loader, bool]] = {
 
 def _synthetic(task: str) -> Loader:
     def load(root: Path, seed: int) -> tuple[WindowDataset, WindowDataset]:
-        from ...datasets_synth import get_task
+        from ..datasets_synth import get_task
 
         return get_task(task, seed=seed).build()
 
@@ -86,7 +86,7 @@ def _synthetic(task: str) -> Loader:
 def synthetic_datasets() -> dict[str, tuple[str | None, Loader, bool]]:
     """Every registered synthetic task as ``synth:<task>`` (its default size and split), for the
     same spike-vs-reference check as the real files (``--datasets synth:material ...``)."""
-    from ...datasets_synth import TASKS
+    from ..datasets_synth import TASKS
 
     return {f"synth:{t}": (None, _synthetic(t), False) for t in sorted(TASKS)}
 
@@ -194,7 +194,7 @@ def references(
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from ...baselines import amplitude_stats
+    from ..baselines import amplitude_stats
 
     def scored(clf, f_train: np.ndarray, f_test: np.ndarray) -> tuple[float, float | None]:
         return fit_and_score(clf, f_train, train, f_test, test)
@@ -226,7 +226,7 @@ def fit_and_score(clf, f_train: np.ndarray, train: WindowDataset, f_test: np.nda
     confidences, where set, as soft targets: :func:`soft_target_rows`) and scored on ``test``'s
     ``f_test`` -> (accuracy per window, per recording from the class probabilities summed over
     the recording's windows, or None)."""
-    from ...training import recording_accuracy
+    from ..training import recording_accuracy
 
     if train.confidence is None:
         clf.fit(f_train, train.y)
@@ -250,7 +250,7 @@ def soft_target_rows(y: np.ndarray, confidence: np.ndarray,
     rows is the soft-target one."""
     import torch
 
-    from ...models.softmax_fit import soft_targets
+    from ..models.softmax_fit import soft_targets
 
     q = soft_targets(torch.as_tensor(np.asarray(y)), n_classes,
                      torch.as_tensor(np.asarray(confidence, np.float64))).numpy()  # fmt: skip
@@ -261,7 +261,7 @@ def soft_target_rows(y: np.ndarray, confidence: np.ndarray,
 # ---------------------------------------------------------------- the benchmark
 def run(
     out: Path,
-    data_root: Path = Path("../shared/data"),
+    data_root: Path,
     seeds: int = 3,
     datasets: list[str] | None = None,
     pipelines: list[str] | None = None,
@@ -299,8 +299,8 @@ def run(
 def _one_split(name: str, seed: int, train, test, events: bool, chosen: list, epochs: int | None,
                progress: bool) -> list[dict]:  # fmt: skip
     """Rows of one dataset split: each spike pipeline, then the references on the same split."""
-    from ...selection import fit_encoder_to_data, select_encoder
-    from ...training import fit_and_evaluate
+    from ..selection import fit_encoder_to_data, select_encoder
+    from ..training import fit_and_evaluate
 
     log.info("%s seed %d: %d train / %d test windows, %d channels @ %g Hz", name, seed,
              train.y.size, test.y.size, train.X.shape[1], train.fs_hz)  # fmt: skip
@@ -453,8 +453,9 @@ HELP = "real recordings: the defaults against non-spiking references on the same
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data-root", default="../shared/data",
-                   help="folder holding the real datasets (never copied into the repo)")  # fmt: skip
+    from . import add_data_root
+
+    add_data_root(p, "the real datasets")
     p.add_argument("--datasets", nargs="+", help="subset of datasets (default: the real ones "
                    "found); synth:<task> runs the same check on a synthetic task")  # fmt: skip
     p.add_argument("--pipelines", nargs="+", help="subset of spike pipelines")
@@ -522,9 +523,12 @@ def page(summary: list[dict], command: str, machine: str) -> str:
 def main(out: Path | None, options: argparse.Namespace) -> int:
     import os
 
-    from . import require_out, write_result
+    from . import data_root, require_out, write_result
 
-    result = run(Path(require_out(out, "real")), data_root=Path(options.data_root),
+    synthetic_only = bool(options.datasets) and all(
+        d.startswith("synth:") for d in options.datasets)  # fmt: skip
+    root = Path(options.data_root or ".") if synthetic_only else data_root(options, "real")
+    result = run(Path(require_out(out, "real")), data_root=root,
                  seeds=options.seeds, datasets=options.datasets, pipelines=options.pipelines,
                  epochs=options.epochs, progress=not options.quiet)  # fmt: skip
     if options.docs:

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...baselines import linear_amplitude_baseline
-from ...datasets_synth import TASKS, get_task
-from ...datasets_synth.generate import generate
-from ...datasets_synth.sensors.pvdf import PVDFTriangle
+from ..baselines import linear_amplitude_baseline
+from ..datasets_synth import TASKS, get_task
+from ..datasets_synth.generate import generate
+from ..datasets_synth.sensors.pvdf import PVDFTriangle
 
 
 def generation_rate(name: str, n: int, workers: int, repeats: int) -> dict:

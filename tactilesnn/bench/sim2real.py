@@ -58,7 +58,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core.data import WindowDataset
+from ..core.data import WindowDataset
+from . import add_data_root, data_root
 
 log = logging.getLogger("tactilesnn")
 
@@ -71,7 +72,7 @@ SPECTRUM_BANDS_HZ = (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)
 
 def load_real(root: Path) -> WindowDataset:
     """The real file's whole slides ``[45, 12, samples]`` as the reader converts them."""
-    from ...recordings import read_data_arrays
+    from ..recordings import read_data_arrays
 
     a = read_data_arrays(Path(root) / REAL_FILE)
     X = np.asarray(a["X"], np.float32)
@@ -88,7 +89,7 @@ def render_synthetic(real: WindowDataset, n: int, seed: int, progress: bool = Fa
     task's ``info["class_signal"]``: what :func:`cut` turns into window confidences)."""
     from tqdm.auto import tqdm
 
-    from ...datasets_synth import get_task
+    from ..datasets_synth import get_task
 
     letters = "".join(c.lower() for c in real.class_names)
     samples = real.X.shape[-1]
@@ -186,7 +187,7 @@ def slides(real: WindowDataset, idx: np.ndarray) -> WindowDataset:
 def cut(ds: WindowDataset, class_signal: np.ndarray | None = None) -> WindowDataset:
     """Windows as ``train --data`` cuts the real file (:func:`~tactilesnn.recordings.auto_cut`);
     with the slides' ``class_signal`` ``[N, samples]``, each window's confidence from it."""
-    from ...recordings import auto_cut, cut_windows
+    from ..recordings import auto_cut, cut_windows
 
     c = auto_cut(ds.X.shape[-1], ds.fs_hz, False)
     return ds if c is None else cut_windows(ds, *c, class_signal=class_signal)
@@ -202,7 +203,7 @@ def fit_score(
     cfg, train: WindowDataset, test: WindowDataset, progress: bool
 ) -> tuple[float, float]:
     """Accuracy per window and per slide of ``cfg`` fitted on ``train``, tested on ``test``."""
-    from ...training import fit_and_evaluate
+    from ..training import fit_and_evaluate
 
     m = fit_and_evaluate(cfg, train, test, progress=progress).metrics
     return float(m["test_accuracy"]), float(
@@ -214,8 +215,8 @@ def base_config(synth_windows: WindowDataset, seed: int, epochs: int | None,
                 model: str = "readout"):  # fmt: skip
     """The ``train --data`` defaults (with ``model``), the encoder chosen on the synthetic
     training windows."""
-    from ...data_policy import DATA_ENCODER_CANDIDATES
-    from ...selection import select_encoder
+    from ..data_policy import DATA_ENCODER_CANDIDATES
+    from ..selection import select_encoder
     from .real import default_config
 
     cfg = default_config(False, None, model, seed)
@@ -312,7 +313,7 @@ def _accuracy(pipe, test: WindowDataset, log_likelihood: bool = False,
     which a few windows rank less noisily than accuracy."""
     import torch
 
-    from ...pipeline import recording_accuracy
+    from ..pipeline import recording_accuracy
 
     scores = pipe.scores(pipe.encode(test.X))
     s = scores.numpy()
@@ -358,11 +359,11 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     ``references``: also the non-spiking references on the identical split
     (:func:`reference_scores`), as ``row["references"]``. ``model``: the pipelines' model (one
     that adapts and fine-tunes: ``readout``, ``forest``)."""
-    from ...core.data import confidence_summary
-    from ...datasets_synth.tasks.braille import BrailleTask
-    from ...models.base import seeded
-    from ...recordings import expected_class_signal
-    from ...training import adapt_pipeline, blend_finetuned, finetune_pipeline, fit_pipeline
+    from ..core.data import confidence_summary
+    from ..datasets_synth.tasks.braille import BrailleTask
+    from ..models.base import seeded
+    from ..recordings import expected_class_signal
+    from ..training import adapt_pipeline, blend_finetuned, finetune_pipeline, fit_pipeline
 
     if np.intersect1d(train_idx, test_idx).size:
         raise ValueError("a slide is in both the training and the test draw")
@@ -370,7 +371,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
     test_real = slides(real, test_idx)
     t0 = time.perf_counter()
     if reuse is not None:
-        from ...datasets_synth.calibration import SensorFit
+        from ..datasets_synth.calibration import SensorFit
 
         fit = SensorFit.load(reuse)
         if fit.fitted_on.get("train_slides") not in (None, train_idx.tolist()) or (
@@ -394,7 +395,7 @@ def calibrated_draw(real: WindowDataset, train_idx: np.ndarray, test_idx: np.nda
         synth, _, letter = render_synthetic(real, synthetic, seed, False, class_signal=True,
                                             calibration=str(path))  # fmt: skip
         if plot_path is not None:
-            from ...datasets_synth.calibration import plot_statistics, slide_statistics
+            from ..datasets_synth.calibration import plot_statistics, slide_statistics
 
             n_cls = len(real.class_names)
             st_real = slide_statistics(train_real.X, train_real.y, real.fs_hz, n_cls)
@@ -504,9 +505,9 @@ def pretraining_candidates(base, synth_w: WindowDataset, seed: int) -> dict[str,
     or None where the model offers one, the pretraining's config, the encoder's config as the
     model configures itself)`` (the last trains the real-only arm: on the real windows the
     model's own choice of capacity stands). Keys: ``encoder`` or ``encoder/capacity``."""
-    from ...data_policy import DATA_ENCODER_CANDIDATES
-    from ...models.base import MODELS
-    from ...selection import candidate_configs
+    from ..data_policy import DATA_ENCODER_CANDIDATES
+    from ..models.base import MODELS
+    from ..selection import candidate_configs
 
     out: dict[str, tuple] = {}
     for name, c in candidate_configs(base, synth_w, DATA_ENCODER_CANDIDATES).items():
@@ -577,8 +578,8 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
     k{k}_d{d}.json``; each fit's own training slides, the draw's split recomputed and checked),
     on its first training seed's synthetic slides (render seed = the draw): one row per draw,
     also written into ``run_dir/sim2real.json`` as ``references``."""
-    from ...core.files import write_json_atomic
-    from ...datasets_synth.calibration import SensorFit
+    from ..core.files import write_json_atomic
+    from ..datasets_synth.calibration import SensorFit
 
     run_dir = Path(run_dir)
     result = json.loads((run_dir / "sim2real.json").read_text())
@@ -598,8 +599,8 @@ def add_references(run_dir: Path, real: WindowDataset, synthetic: int = 200) -> 
         synth_w = cut(synth, letter)
         refs = reference_scores(synth_w, train_w, test_w, d)
         if "encoder" in x:  # the forest on the run's chosen encoder's pipeline, fitted again
-            from ...models.base import seeded
-            from ...training import adapt_pipeline, fit_pipeline
+            from ..models.base import seeded
+            from ..training import adapt_pipeline, fit_pipeline
             from .real import default_config
 
             cands = pretraining_candidates(default_config(False, None, "readout", d), synth_w, d)
@@ -647,12 +648,12 @@ def cross_runs(run_dir: Path, real: WindowDataset, triples: int = CROSS_RUN_TRIP
     as ``cross_run``."""
     import itertools
 
-    from ...core.files import write_json_atomic
-    from ...data_policy import DATA_ENCODER_CANDIDATES
-    from ...models.base import seeded
-    from ...recordings import expected_class_signal
-    from ...selection import candidate_configs
-    from ...training import fit_pipeline
+    from ..core.files import write_json_atomic
+    from ..data_policy import DATA_ENCODER_CANDIDATES
+    from ..models.base import seeded
+    from ..recordings import expected_class_signal
+    from ..selection import candidate_configs
+    from ..training import fit_pipeline
     from .real import default_config
 
     if not has_letter_runs(real.y):
@@ -722,7 +723,7 @@ def compare_optimisers(real: WindowDataset, shots: tuple[int, ...], optimisers: 
                        seeds: int = 2, budget_s: float = 900.0) -> list[dict]:  # fmt: skip
     """The calibration's optimisers side by side: the objective each reaches in the same number
     of evaluations on the training slides of each ``k``'s first draw, per seed."""
-    from ...datasets_synth.tasks.braille import BrailleTask
+    from ..datasets_synth.tasks.braille import BrailleTask
 
     rows = []
     for k in shots:
@@ -831,7 +832,7 @@ def summarise_calibrated(rows: list[dict]) -> dict:
     return out
 
 
-def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 300, seeds: int = 3,
+def run(out: Path, data_root: Path, synthetic: int = 300, seeds: int = 3,
         shots: tuple[int, ...] = (1, 2, 5), draws: int = 5, knobs: tuple[str, ...] = KNOBS,
         knob_synthetic: int = 150, epochs: int | None = None, level_neurons: int | None = None,
         progress: bool = True, calibrated_draws: int = 3, calibration_budget_s: float = 600.0,
@@ -893,7 +894,7 @@ def run(out: Path, data_root: Path = Path("../shared/data"), synthetic: int = 30
     result["few_shot"] = shots_rows
 
     # 4. randomisation knobs (synthetic only, seed 0, knob_synthetic slides)
-    from ...datasets_synth import TASKS
+    from ..datasets_synth import TASKS
 
     defaults = {f: getattr(TASKS["braille"](), f) for f in KNOBS}
     knob_rows = []
@@ -1097,8 +1098,7 @@ HELP = "sim-to-real: the braille task against the real iCub Braille file (statis
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--data-root", default="../shared/data",
-                   help="folder holding braille_icub_abc/ (never copied into the repo)")  # fmt: skip
+    add_data_root(p, "braille_icub_abc/")
     p.add_argument("--synthetic", type=int, default=300, help="synthetic slides per seed")
     p.add_argument("--seeds", type=int, default=3, help="synthetic-only render + training seeds")
     p.add_argument("--shots", type=int, nargs="+", default=[1, 2, 5], help="real slides per class")
@@ -1538,10 +1538,10 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
     from . import require_out
 
     if options.cross_runs_from:
-        cross_runs(Path(options.cross_runs_from), load_real(Path(options.data_root)))
+        cross_runs(Path(options.cross_runs_from), load_real(data_root(options, "sim2real")))
         return 0
     if options.references_from:
-        add_references(Path(options.references_from), load_real(Path(options.data_root)),
+        add_references(Path(options.references_from), load_real(data_root(options, "sim2real")),
                        options.calibrated_synthetic)  # fmt: skip
         return 0
     if options.from_json:
@@ -1563,7 +1563,7 @@ def main(out: Path | None, options: argparse.Namespace) -> int:
         + (f" --optimisers {' '.join(options.optimisers)}" if options.optimisers else "")
         + (f" --model {options.model}" if options.model != "readout" else "")
     ).replace("--knobs  ", "--knobs ")
-    result = run(Path(require_out(out, "sim2real")), data_root=Path(options.data_root),
+    result = run(Path(require_out(out, "sim2real")), data_root=data_root(options, "sim2real"),
         synthetic=options.synthetic, seeds=options.seeds, shots=tuple(options.shots),
         draws=options.draws, knobs=tuple(options.knobs), knob_synthetic=options.knob_synthetic,
         epochs=options.epochs, level_neurons=options.level_neurons,

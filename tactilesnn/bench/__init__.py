@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from ...core.registry import Registry
+from ..core.registry import Registry
 
 #: name on the command line -> its module (imported when first asked for)
 BENCHMARKS: Registry = Registry("benchmark")
@@ -32,7 +32,7 @@ def write_result(out, name: str, obj: dict) -> None:
     """``obj`` as ``out/name`` (JSON, atomic) when ``out`` is given; says where."""
     from pathlib import Path
 
-    from ...core.files import write_json_atomic
+    from ..core.files import write_json_atomic
 
     if out is None:
         return
@@ -40,6 +40,33 @@ def write_result(out, name: str, obj: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, obj)
     print(f"results: {path}")
+
+
+#: the environment variable naming the folder of real recordings the benchmarks read
+#: (``--data-root`` wins); the benchmarks never guess a path relative to the repository
+DATA_ROOT_ENV = "TACTILESNN_DATA_ROOT"
+
+
+def add_data_root(p, what: str) -> None:
+    """The ``--data-root DIR`` flag (default: ``$TACTILESNN_DATA_ROOT``)."""
+    import os
+
+    p.add_argument("--data-root", default=os.environ.get(DATA_ROOT_ENV),
+                   help=f"folder holding {what} (read in place, never copied; default: "
+                        f"${DATA_ROOT_ENV})")  # fmt: skip
+
+
+def data_root(options, name: str):
+    """``options.data_root`` as a folder that exists (ValueError saying how to give one)."""
+    from pathlib import Path
+
+    if not options.data_root:
+        raise ValueError(f"bench {name} reads real recordings: give their folder with "
+                         f"--data-root DIR or the environment variable {DATA_ROOT_ENV}")  # fmt: skip
+    root = Path(options.data_root)
+    if not root.is_dir():
+        raise ValueError(f"--data-root {root}: no such folder")
+    return root
 
 
 def require_out(out, name: str):
