@@ -6,7 +6,15 @@ import json
 import numpy as np
 import pytest
 
-from tactilesnn.bench import sim2real
+from tactilesnn.bench.sim2real import (
+    benchmark,
+    calibrated,
+    data,
+    docs_page,
+    protocol,
+    references,
+    stats,
+)
 from tactilesnn.core.data import WindowDataset
 from tactilesnn.datasets_synth import get_task
 
@@ -31,9 +39,9 @@ def _stand_in(root, n=30):
 def test_matching_recovers_a_shuffle():
     task = get_task("braille", seed=5, n_samples=30)
     X = np.stack([task.sample(i)[0] for i in range(30)])
-    a = sim2real.taxel_stats(X, task.fs_hz)
-    b = sim2real.taxel_stats(X[:, PERM], task.fs_hz)
-    order = sim2real.match_taxels(b, a)
+    a = data.taxel_stats(X, task.fs_hz)
+    b = data.taxel_stats(X[:, PERM], task.fs_hz)
+    order = data.match_taxels(b, a)
     # taxels that carry signal are found; silent ones (all zero) are interchangeable
     live = a["range"][PERM] > 3
     assert live.sum() >= 4 and np.array_equal(order[live], PERM[live])
@@ -42,7 +50,7 @@ def test_matching_recovers_a_shuffle():
 @pytest.mark.slow
 def test_bench_sim2real_on_a_synthetic_stand_in(tmp_path):
     _stand_in(tmp_path / "data")
-    res = sim2real.run(tmp_path / "out", data_root=tmp_path / "data", synthetic=60, seeds=1,
+    res = benchmark.run(tmp_path / "out", data_root=tmp_path / "data", synthetic=60, seeds=1,
                        shots=(2,), draws=1, knobs=("gain_spread",), knob_synthetic=12,
                        epochs=5, progress=False, calibrated_draws=0)  # fmt: skip
     for name in ("sim2real.json", "sim2real.md", "sim2real.png"):
@@ -73,8 +81,8 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     from tactilesnn.datasets_synth.tasks.braille import BrailleTask
 
     _stand_in(tmp_path / "data", n=18)
-    real = sim2real.load_real(tmp_path / "data")
-    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng([31, 1, 0]))  # the bench's
+    real = data.load_real(tmp_path / "data")
+    tr, te = protocol.few_shot_split(real, 1, np.random.default_rng([31, 1, 0]))  # the bench's
     seen: dict[str, list] = {"calibrate": [], "fit": [], "finetune": [], "adapt": [],
                              "scored": []}  # fmt: skip
     calibrate = BrailleTask.calibrate.__func__
@@ -104,7 +112,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
         seen["adapt"].append(data.scan.copy())
         return adapt_pipeline(pipe, data, *a, **kw)
 
-    accuracy = sim2real._accuracy
+    accuracy = protocol._accuracy
 
     def spy_accuracy(pipe, test, *a, **kw):
         seen["scored"].append(test.scan.copy())
@@ -114,22 +122,22 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
     monkeypatch.setattr(training, "finetune_pipeline", spy_finetune)
     monkeypatch.setattr(training, "adapt_pipeline", spy_adapt)
-    monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
+    monkeypatch.setattr(calibrated, "_accuracy", spy_accuracy)
     from tactilesnn.bench import real as bench_real
 
-    references = bench_real.references
+    real_references = bench_real.references
 
     def spy_references(train, test, pipe, seed):
         seen.setdefault("references", []).append((train.scan.copy(), test.scan.copy()))
         seen.setdefault("reference_confidence", []).append(train.confidence)
-        return references(train, test, pipe, seed)
+        return real_references(train, test, pipe, seed)
 
     monkeypatch.setattr(bench_real, "references", spy_references)
     monkeypatch.setattr(bench_real, "FOREST_TREES", 20)  # the plumbing is checked, not the forests
-    speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
+    speed = data.real_arm_speed_mm_s(tmp_path / "data", tr, real.fs_hz)
     run_dir = tmp_path / "run"
     (run_dir / "fits").mkdir(parents=True)
-    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
+    row = calibrated.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
                                    fit_path=run_dir / "fits" / "k1_d0.json",
                                    known={"speed_mm_s": speed}, references=True)  # fmt: skip
     assert seen["known"] == {"speed_mm_s": speed}  # the arm's measured speed, held
@@ -192,7 +200,7 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     # each arm on the test windows the fitted model places the letter in and on the others
     b = row["by_letter"]
     assert 0.0 < b["letter_fraction"] < 1.0
-    for arm in sim2real.RUN_ARMS:
+    for arm in stats.RUN_ARMS:
         assert set(b[arm]) == {"letter", "none"}
         assert all(0.0 <= v <= 1.0 for v in b[arm].values())
     # the non-spiking references: trained on synthetic windows, then on the training slides,
@@ -214,30 +222,30 @@ def test_calibrated_protocol_never_sees_the_test_slides(tmp_path, monkeypatch):
     (run_dir / "sim2real.json").write_text(json.dumps({"calibrated": [{
         "k": 1, "draw": 0, "seed": 0, "encoder": row["encoder"]}]}))  # fmt: skip
     seen["references"], seen["fit"] = [], []
-    rows = sim2real.add_references(run_dir, real, synthetic=12)
+    rows = references.add_references(run_dir, real, synthetic=12)
     assert rows[0]["real"] == row["references"]["real"]  # the same split, the same references
     assert len(rows[0]["synthetic_confidence"]["rf_spike_traces"]) == 2
     assert [s.min() >= 10**6 for s in seen["fit"]] == [True]  # on the synthetic windows only
     assert json.loads((run_dir / "sim2real.json").read_text())["references"] == rows
     assert all(set(te_.tolist()) == test_ids for _, te_ in seen["references"])
     with pytest.raises(ValueError, match="both the training and the test"):
-        sim2real.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
+        calibrated.calibrated_draw(real, tr, np.append(te, tr[0]), 12, 1.0, 0, 3)
 
 
 def test_arm_speed_is_the_median_slope_of_the_training_slides(tmp_path):
     """The stand-in's slide i moves at 10 + 0.1 i mm/s (robot state column 1, in m, falling):
     the speed over slides is the median of theirs; a file without robot state gives None."""
     _stand_in(tmp_path / "data", n=9)
-    speed = sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([0, 4, 8]), 94.0)
+    speed = data.real_arm_speed_mm_s(tmp_path / "data", np.array([0, 4, 8]), 94.0)
     assert speed == pytest.approx(10.4, rel=1e-9)
-    assert sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([2]), 94.0) == pytest.approx(
+    assert data.real_arm_speed_mm_s(tmp_path / "data", np.array([2]), 94.0) == pytest.approx(
         10.2, rel=1e-9
     )
     f = tmp_path / "data" / "braille_icub_abc" / "braille_abc_icub.npz"
     with np.load(f) as z:
         arrays = {k: z[k] for k in z.files if k != "robot_state"}
     np.savez(f, **arrays)
-    assert sim2real.real_arm_speed_mm_s(tmp_path / "data", np.array([0]), 94.0) is None
+    assert data.real_arm_speed_mm_s(tmp_path / "data", np.array([0]), 94.0) is None
 
 
 def test_page_reports_the_references_next_to_the_spike_pipeline():
@@ -248,14 +256,14 @@ def test_page_reports_the_references_next_to_the_spike_pipeline():
             for k in (1, 2) for d in range(2)]  # fmt: skip
     cal = [{"k": k, "draw": d, "seed": d + 100 * s, "synthetic_only_per_slide": 0.2 + 0.5 * s,
             "real_only_per_slide": 0.3} for k in (1, 2) for d in range(2) for s in range(2)]  # fmt: skip
-    lines = sim2real._references_section(refs, cal)
+    lines = docs_page._references_section(refs, cal)
     assert "| synthetic slides, labels alone | rf | 55.0 | 55.0 | 55.0 |" in lines
     assert "| synthetic slides, labels alone | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
     assert "| k real slides | **spike pipeline** | 30.0 | 30.0 | 30.0 |" in lines
     # with the soft-target references, the spike pipeline (trained on them) is shown with those
     for x in refs:
         x["synthetic_confidence"] = {"rf": [0.5, 0.8]}
-    lines = sim2real._references_section(refs, cal)
+    lines = docs_page._references_section(refs, cal)
     soft = "synthetic slides, the pipeline's soft targets"
     assert f"| {soft} | rf | 80.0 | 80.0 | 80.0 |" in lines
     assert f"| {soft} | **spike pipeline** | 20.0 | 20.0 | 20.0 |" in lines
@@ -266,7 +274,7 @@ def test_calibrated_summary_has_the_documented_keys():
     rows = [{"k": k, "synthetic_only_per_slide": 0.5 + 0.1 * d, "synthetic_only": 0.4,
              "real_only": 0.5, "pretrained": 0.6 + 0.1 * d, "real_only_per_slide": 0.6,
              "pretrained_per_slide": 0.7} for k in (1, 2) for d in range(2)]  # fmt: skip
-    s = sim2real.summarise_calibrated(rows)
+    s = stats.summarise_calibrated(rows)
     assert np.isclose(s["synthetic_only_per_slide"], 0.55)
     assert set(s["shots"]) == {"1", "2"}
     assert np.isclose(s["shots"]["1"]["pretrained_per_window"], 0.65)
@@ -280,13 +288,13 @@ def test_calibrated_seeds_are_averaged_within_a_draw_first():
              "pretrained_per_slide": v} for s, v in enumerate((0.2, 0.4, 0.6))]  # fmt: skip
     rows.append({**rows[0], "draw": 1, "seed": 1, "synthetic_only_per_slide": 1.0,
                  "synthetic_only": 1.0, "pretrained": 1.0, "pretrained_per_slide": 1.0})  # fmt: skip
-    assert sim2real.draw_means(rows, "synthetic_only") == pytest.approx([0.4, 1.0])
-    s = sim2real.summarise_calibrated(rows)
+    assert stats.draw_means(rows, "synthetic_only") == pytest.approx([0.4, 1.0])
+    s = stats.summarise_calibrated(rows)
     assert s["synthetic_only_per_slide"] == pytest.approx(0.7)  # not 0.55, the mean of rows
     assert s["shots"]["1"]["draws"] == 2 and s["shots"]["1"]["runs"] == 4
     r = {"seconds": 60.0, "calibrated": [{**x, "calibration_s": 1.0, "objective": 0.5,
                                           "encoder": "lif"} for x in rows[:3]]}  # fmt: skip
-    text = sim2real.page(r, {}, "cmd")
+    text = docs_page.page(r, {}, "cmd")
     assert "| 1 | 1 x 3 seeds | synthetic only | - | 40.0 / 40.0 |" in text
 
 
@@ -301,7 +309,7 @@ def test_page_states_before_and_after(tmp_path):
          "synthetic_only": [{"taxels": "file order", "accuracy": 0.36, "per_slide": 0.34}]}  # fmt: skip
     fits = {"k = 1, draw 0": {"params": {"cover_spread_mm": 3.2}, "scene": {"force_N": 1.6},
                               "randomisation": {"position_mm": 0.1}}}  # fmt: skip
-    text = sim2real.page(r, fits, "tactilesnn bench sim2real --out DIR")
+    text = docs_page.page(r, fits, "tactilesnn bench sim2real --out DIR")
     assert "| 1 | 3 | synthetic only | 36.0 / 34.0 (all 45) | 50.0" in text
     assert "pretrained + fine-tuned (after)" in text and "+13.0" in text
     assert "`cover_spread_mm` | mm | 3.2 |" in text and "`force_N` | N | 1.6 |" in text
@@ -315,27 +323,27 @@ def test_the_score_before_the_restandardisation_is_summarised_and_shown():
              "real_only": 0.5, "pretrained": 0.6, "real_only_per_slide": 0.6,
              "pretrained_per_slide": 0.7, "calibration_s": 1.0, "objective": 0.5,
              "encoder": "lif"} for d in range(2)]  # fmt: skip
-    s = sim2real.summarise_calibrated(rows)
+    s = stats.summarise_calibrated(rows)
     assert s["synthetic_only_unadapted_per_slide"] == pytest.approx(0.4)
     assert s["shots"]["1"]["synthetic_only_unadapted_per_slide"] == pytest.approx(0.4)
-    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    text = docs_page.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
     assert "not re-estimated on the k slides | - | 40.0" in text
     old = [{k: v for k, v in x.items() if "unadapted" not in k} for x in rows]
-    assert "unadapted" not in json.dumps(sim2real.summarise_calibrated(old))
-    assert "not re-estimated" not in sim2real.page({"seconds": 60.0, "calibrated": old}, {}, "cmd")
+    assert "unadapted" not in json.dumps(stats.summarise_calibrated(old))
+    assert "not re-estimated" not in docs_page.page({"seconds": 60.0, "calibrated": old}, {}, "cmd")
 
 
 def test_recording_runs_are_five_consecutive_slides_of_one_letter():
-    assert sim2real.recording_run(np.array([0, 4, 5, 9, 44])).tolist() == [0, 0, 1, 1, 8]
+    assert protocol.recording_run(np.array([0, 4, 5, 9, 44])).tolist() == [0, 0, 1, 1, 8]
     # a file whose runs of five have their own rest level: far apart between, equal within
     X = np.zeros((15, 2, 100), np.float32)
     for run in range(3):
         X[5 * run : 5 * run + 5] += 10.0 * run
     ds = WindowDataset(X, np.repeat([0, 1, 2], 5), np.arange(15), 100.0, ("A", "B", "C"),
                        ("t0", "t1"))  # fmt: skip
-    assert sim2real.has_letter_runs(ds.y)
-    assert not sim2real.has_letter_runs(np.arange(15) % 3)  # a file laid out otherwise
-    spread = sim2real.run_rest_spread(ds)
+    assert protocol.has_letter_runs(ds.y)
+    assert not protocol.has_letter_runs(np.arange(15) % 3)  # a file laid out otherwise
+    spread = protocol.run_rest_spread(ds)
     assert spread["within_run_counts"] == 0.0
     assert spread["between_runs_counts"] == pytest.approx(np.std([0.0, 10.0, 20.0]))
 
@@ -345,14 +353,14 @@ def test_seen_run_accuracy_splits_the_test_windows_by_the_training_slides_runs()
     test = WindowDataset(np.zeros((4, 1, 8), np.float32), np.array([0, 0, 1, 1]),
                          np.array([1, 1, 7, 7]), 10.0, ("A", "B"), ("t",))  # fmt: skip
     hits = np.array([True, False, True, True])  # 1 of 2 on slide 1, 2 of 2 on slide 7
-    assert sim2real._seen_run_accuracy(hits, test, np.array([0])) == [0.5, 1.0]
-    seen, unseen = sim2real._seen_run_accuracy(hits, test, np.array([20]))
+    assert protocol._seen_run_accuracy(hits, test, np.array([0])) == [0.5, 1.0]
+    seen, unseen = protocol._seen_run_accuracy(hits, test, np.array([20]))
     assert np.isnan(seen) and unseen == 0.75
 
 
 def test_by_run_summary_and_table():
     def row(d, unseen_pre):
-        parts = {a: [0.9, 0.4] for a in sim2real.RUN_ARMS}
+        parts = {a: [0.9, 0.4] for a in stats.RUN_ARMS}
         parts["pretrained"] = [0.9, unseen_pre]
         return {"k": 1, "draw": d, "seed": d, "synthetic_only_per_slide": 0.6,
                 "synthetic_only": 0.5, "real_only": 0.5, "pretrained": 0.6,
@@ -361,26 +369,26 @@ def test_by_run_summary_and_table():
                 "by_run": {"seen_fraction": 0.25 + 0.1 * d, **parts}}  # fmt: skip
 
     rows = [row(0, 0.5), row(1, 0.6)]
-    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
+    s = stats.summarise_calibrated(rows)["shots"]["1"]["by_run"]
     assert s["seen_fraction"] == pytest.approx(0.3)
     assert s["pretrained_unseen"] == pytest.approx(0.55) and s["real_only_unseen"] == 0.4
-    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    text = docs_page.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
     assert "| 1 | 30 % | 90.0 / 40.0 | 90.0 / 40.0 | 90.0 / 55.0 |" in text
     assert "+15.0 (" in text  # pretrained minus real only on the unseen runs, with its interval
     # a draw whose training slides cover every run has no unseen part: skipped, not NaN
     rows[1]["by_run"] = {"seen_fraction": 1.0, **{a: [0.9, float("nan")]
-                                                   for a in sim2real.RUN_ARMS}}  # fmt: skip
-    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_run"]
+                                                   for a in stats.RUN_ARMS}}  # fmt: skip
+    s = stats.summarise_calibrated(rows)["shots"]["1"]["by_run"]
     assert s["pretrained_unseen"] == pytest.approx(0.5)
-    assert "nan" not in sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    assert "nan" not in docs_page.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
 
 
 def test_letter_parts_split_the_windows_by_the_letters_share_and_run():
     share = np.array([0.0, 0.5, 0.49, 1.0])
-    parts = sim2real.letter_parts(share)
+    parts = protocol.letter_parts(share)
     assert parts["letter"].tolist() == [False, True, False, True]
     assert parts["none"].tolist() == [True, False, True, False]
-    parts = sim2real.letter_parts(share, np.array([True, True, False, False]))
+    parts = protocol.letter_parts(share, np.array([True, True, False, False]))
     assert parts["letter_seen"].tolist() == [False, True, False, False]
     assert parts["letter_unseen"].tolist() == [False, False, False, True]
     assert parts["none_unseen"].tolist() == [False, False, True, False]
@@ -398,17 +406,17 @@ def test_accuracy_on_parts_is_the_hits_in_each(monkeypatch):
 
     test = WindowDataset(np.zeros((4, 1, 8), np.float32), np.array([0, 1, 1, 1]),
                          np.array([1, 1, 7, 7]), 10.0, ("A", "B"), ("t",))  # fmt: skip
-    parts = sim2real.letter_parts(np.array([1.0, 1.0, 0.0, 0.0]))
-    acc = sim2real._accuracy(Pipe(), test, parts=parts)
+    parts = protocol.letter_parts(np.array([1.0, 1.0, 0.0, 0.0]))
+    acc = protocol._accuracy(Pipe(), test, parts=parts)
     assert acc[0] == 0.5 and acc[-1] == {"letter": 0.5, "none": 0.5}
     parts["none"][:] = False
-    assert np.isnan(sim2real._accuracy(Pipe(), test, parts=parts)[-1]["none"])
+    assert np.isnan(protocol._accuracy(Pipe(), test, parts=parts)[-1]["none"])
 
 
 def test_by_letter_summary_and_table():
     def row(d, pre_unseen_letter):
         arms = {a: {"letter": 0.8, "none": 0.4, "letter_seen": 0.9, "none_seen": 0.9,
-                    "letter_unseen": 0.5, "none_unseen": 0.3} for a in sim2real.RUN_ARMS}  # fmt: skip
+                    "letter_unseen": 0.5, "none_unseen": 0.3} for a in stats.RUN_ARMS}  # fmt: skip
         arms["pretrained"] = {**arms["pretrained"], "letter_unseen": pre_unseen_letter}
         return {"k": 1, "draw": d, "seed": d, "synthetic_only_per_slide": 0.6,
                 "synthetic_only": 0.5, "real_only": 0.5, "pretrained": 0.6,
@@ -417,26 +425,26 @@ def test_by_letter_summary_and_table():
                 "by_letter": {"letter_fraction": 0.6 + 0.1 * d, **arms}}  # fmt: skip
 
     rows = [row(0, 0.6), row(1, float("nan"))]
-    s = sim2real.summarise_calibrated(rows)["shots"]["1"]["by_letter"]
+    s = stats.summarise_calibrated(rows)["shots"]["1"]["by_letter"]
     assert s["letter_fraction"] == pytest.approx(0.65)
     assert s["pretrained"]["letter_unseen"] == pytest.approx(0.6)  # the empty part skipped
     assert s["real_only"]["none"] == pytest.approx(0.4)
-    text = sim2real.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
+    text = docs_page.page({"seconds": 60.0, "calibrated": rows}, {}, "cmd")
     assert (
         "| 1 | 65 % | 80.0 / 40.0 | 80.0 / 40.0 | 80.0 / 40.0 | 50.0 / 30.0 | 60.0 / 30.0 |" in text
     )
     assert "nan" not in text
 
 
-def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeypatch):
+def test_the_calibrated_benchmarks_with_the_forest_read_out(tmp_path, monkeypatch):
     """``--model forest``: every pipeline of the draw (the candidates, the real-only arm) is a
     forest, adapted and fine-tuned on the training slides (its leaves re-estimated, blended),
     every arm scored; the page's model table names both models."""
     from tactilesnn import training
 
     _stand_in(tmp_path / "data", n=18)
-    real = sim2real.load_real(tmp_path / "data")
-    tr, te = sim2real.few_shot_split(real, 1, np.random.default_rng(0))
+    real = data.load_real(tmp_path / "data")
+    tr, te = protocol.few_shot_split(real, 1, np.random.default_rng(0))
     models = []
     fit = training.fit_pipeline
 
@@ -445,7 +453,7 @@ def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeyp
         return fit(cfg, data, *a, **kw)
 
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
-    row = sim2real.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
+    row = calibrated.calibrated_draw(real, tr, te, synthetic=12, budget_s=1.0, seed=0, epochs=3,
                                    model="forest")  # fmt: skip
     assert models and set(models) == {"forest"}
     assert row["finetune"]["prior_windows"] > 0 and row["adapt"]["windows"] > 0
@@ -453,22 +461,22 @@ def test_the_calibrated_protocol_runs_with_the_forest_read_out(tmp_path, monkeyp
         assert 0.0 <= row[key] <= 1.0
     r = {"model": "readout", "other_models": {"forest": {"command": "x", "calibrated": [
         {**row, "k": 1, "draw": 0}]}}}  # fmt: skip
-    text = "\n".join(sim2real._models_section(r, [{**row, "k": 1, "draw": 0}]))
+    text = "\n".join(docs_page._models_section(r, [{**row, "k": 1, "draw": 0}]))
     assert "| 1 | readout |" in text and "| 1 | forest |" in text
 
 
 def test_the_page_counts_the_encoders_and_capacities_chosen():
     rows = [{"encoder": "lif", "pretraining_capacity": "strongest"}] * 2 + [
         {"encoder": "cgwt", "pretraining_capacity": "chosen"}, {"encoder": "stft"}]  # fmt: skip
-    assert sim2real.chosen_counts(rows) == "lif / strongest x 2, cgwt / chosen x 1, stft x 1"
+    assert docs_page.chosen_counts(rows) == "lif / strongest x 2, cgwt / chosen x 1, stft x 1"
 
 
 def test_reused_fits_are_read_where_the_earlier_run_has_them(tmp_path):
     (tmp_path / "fits").mkdir()
     (tmp_path / "fits" / "k1_d0.json").write_text("{}")
-    assert sim2real.reused_fit(tmp_path, 1, 0) == tmp_path / "fits" / "k1_d0.json"
-    assert sim2real.reused_fit(tmp_path, 1, 3) is None  # a draw it did not fit: fitted anew
-    assert sim2real.reused_fit(None, 1, 0) is None
+    assert protocol.reused_fit(tmp_path, 1, 0) == tmp_path / "fits" / "k1_d0.json"
+    assert protocol.reused_fit(tmp_path, 1, 3) is None  # a draw it did not fit: fitted anew
+    assert protocol.reused_fit(None, 1, 0) is None
 
 
 def test_rest_referenced_takes_each_slides_own_rest_level():
@@ -477,7 +485,7 @@ def test_rest_referenced_takes_each_slides_own_rest_level():
     X[:, :, 60:] += 3.0  # the letter, after the rest
     ds = WindowDataset(X, np.array([0, 1]), np.array([0, 1]), 100.0, ("A", "B"),
                        ("a", "b", "c"))  # fmt: skip
-    out = sim2real.rest_referenced(ds, 0.3)
+    out = references.rest_referenced(ds, 0.3)
     assert out.X.dtype == np.float32
     assert np.array_equal(out.X[..., :60], np.zeros((2, 3, 60)))
     assert np.array_equal(out.X[..., 60:], np.full((2, 3, 40), 3.0))
@@ -490,7 +498,7 @@ def test_cross_runs_holds_whole_runs_out(tmp_path, monkeypatch):
     from tactilesnn import training
 
     _stand_in(tmp_path / "data", n=30)
-    real = sim2real.load_real(tmp_path / "data")
+    real = data.load_real(tmp_path / "data")
     real = WindowDataset(
         real.X,
         (np.arange(30) // 5) % 3,
@@ -499,9 +507,9 @@ def test_cross_runs_holds_whole_runs_out(tmp_path, monkeypatch):
         real.class_names,
         real.channel_names,
     )  # six runs, two per letter
-    assert sim2real.has_letter_runs(real.y)
-    render = sim2real.render_synthetic
-    monkeypatch.setattr(sim2real, "render_synthetic",  # the stand-in's own model, no fit file
+    assert protocol.has_letter_runs(real.y)
+    render = data.render_synthetic
+    monkeypatch.setattr(references, "render_synthetic",  # the stand-in's own model, no fit file
                         lambda *a, calibration=None, **kw: render(*a, **kw))  # fmt: skip
     fitted, scored = [], []
     fit_pipeline = training.fit_pipeline
@@ -510,18 +518,18 @@ def test_cross_runs_holds_whole_runs_out(tmp_path, monkeypatch):
         fitted.append(set(data.scan.tolist()))
         return fit_pipeline(cfg, data, *a, **kw)
 
-    accuracy = sim2real._accuracy
+    accuracy = protocol._accuracy
 
     def spy_accuracy(pipe, test, *a, **kw):
         scored.append(set(test.scan.tolist()))
         return accuracy(pipe, test, *a, **kw)
 
     monkeypatch.setattr(training, "fit_pipeline", spy_fit)
-    monkeypatch.setattr(sim2real, "_accuracy", spy_accuracy)
+    monkeypatch.setattr(references, "_accuracy", spy_accuracy)
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "sim2real.json").write_text(json.dumps({"shots": {"1": {}}}))
-    out = sim2real.cross_runs(run_dir, real, triples=2)
+    out = references.cross_runs(run_dir, real, triples=2)
     rows = out["rows"]
     assert len(rows) == 2 * 2 * 3  # triples x (recorded, rest-referenced) x encoders
     assert {r["slides"] for r in rows} == {"recorded", "rest_referenced"}
@@ -537,7 +545,7 @@ def test_cross_runs_holds_whole_runs_out(tmp_path, monkeypatch):
         assert tested == held and not trained & held and len(trained) == 15
     saved = json.loads((run_dir / "sim2real.json").read_text())
     assert saved["cross_run"]["rows"] == json.loads(json.dumps(rows))
-    text = sim2real.page({"seconds": 1.0, "calibrated": [], **saved}, {}, "cmd")
+    text = docs_page.page({"seconds": 1.0, "calibrated": [], **saved}, {}, "cmd")
     assert "## What many real slides reach on runs they never saw" in text
     assert "| rest referenced | lif |" in text
 
@@ -546,4 +554,4 @@ def test_cross_runs_needs_runs_of_one_letter(tmp_path):
     real = WindowDataset(np.zeros((6, 1, 8), np.float32), np.arange(6) % 3, np.arange(6), 10.0,
                          ("A", "B", "C"), ("t",))  # fmt: skip
     with pytest.raises(ValueError, match="runs of one letter"):
-        sim2real.cross_runs(tmp_path, real)
+        references.cross_runs(tmp_path, real)
