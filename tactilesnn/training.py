@@ -211,6 +211,52 @@ def blend_finetuned(pipe: SpikePipeline, *others: SpikePipeline) -> None:
         q.copy_(torch.stack(parts).mean(0))
 
 
+def transfer_pipeline(
+    pipe: SpikePipeline,
+    train: WindowDataset,
+    share: WindowDataset | None = None,
+    *,
+    seed: int,
+    adapt_only: bool = False,
+    choose_prior: bool = False,
+    progress: bool = False,
+    on_arm: Callable[[str, SpikePipeline], None] | None = None,
+) -> dict:
+    """Pretrained ``pipe`` carried over to a new domain's few labelled windows, in place (what
+    ``tactilesnn finetune`` and ``bench sim2real`` both do): the read-out's input scaling
+    re-estimated on ``train`` (:func:`adapt_pipeline`, labels unused); unless ``adapt_only``,
+    the read-out fine-tuned on ``train``'s labels (:func:`finetune_pipeline`, its window
+    confidences ignored) and, given ``share`` (windows weighted by their share of their class's
+    signal, ``confidence``), a copy fine-tuned on those, the two blended
+    (:func:`blend_finetuned`). Each fine-tune runs under ``seeded(seed)``. ``on_arm(name,
+    pipeline)`` sees each stage as it is reached: ``"adapted"``, ``"class_share"`` (the copy),
+    ``"labels"``, ``"blend"``. Returns the reports: ``adapt``, ``finetune``,
+    ``finetune_class_share``."""
+    import copy
+    from dataclasses import replace
+
+    report: dict = {"adapt": adapt_pipeline(pipe, train, progress=progress)}
+    seen = on_arm or (lambda name, p: None)
+    seen("adapted", pipe)
+    if adapt_only:
+        return report
+    if share is not None:
+        soft = copy.deepcopy(pipe)
+        with seeded(seed):
+            report["finetune_class_share"] = finetune_pipeline(soft, share, progress=progress,
+                                                               choose_prior=choose_prior)  # fmt: skip
+        seen("class_share", soft)
+    labels = train if train.confidence is None else replace(train, confidence=None)
+    with seeded(seed):
+        report["finetune"] = finetune_pipeline(pipe, labels, progress=progress,
+                                               choose_prior=choose_prior)  # fmt: skip
+    seen("labels", pipe)
+    if share is not None:
+        blend_finetuned(pipe, soft)
+        seen("blend", pipe)
+    return report
+
+
 def fit_and_evaluate(
     config: PipelineConfig,
     train: WindowDataset,

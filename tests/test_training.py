@@ -277,3 +277,60 @@ def test_evaluate_data_with_channels_in_another_order_scores_the_same(tmp_path, 
     assert same["test_accuracy"] > 0.6 and rev["test_accuracy"] == same["test_accuracy"]
     assert main(["evaluate", str(out), "--data", str(other), "--json"]) != 0
     assert "not the run's" in capsys.readouterr().err
+
+
+def test_transfer_pipeline_is_the_adapt_finetune_and_blend_steps():
+    """``transfer_pipeline`` (used by ``finetune`` and ``bench sim2real``) gives the same read-out
+    as adapting, fine-tuning on the labels and on the class share apart, and blending; its
+    stages are reported in order; ``adapt_only`` fits no weights."""
+    import copy
+    from dataclasses import replace
+
+    import torch
+
+    from tactilesnn.core.data import WindowDataset
+    from tactilesnn.models.base import seeded
+    from tactilesnn.training import (
+        adapt_pipeline,
+        blend_finetuned,
+        finetune_pipeline,
+        fit_pipeline,
+        transfer_pipeline,
+    )
+
+    rng = np.random.default_rng(0)
+
+    def windows(levels, n, seed):
+        r = np.random.default_rng(seed)
+        y = np.arange(n) % 2
+        X = levels[y][:, :, None] + r.normal(0, 1.0, (n, 2, 64))
+        return WindowDataset(X.astype(np.float32), y, np.arange(n), 100.0, ("a", "b"), ("u", "v"))
+
+    source = windows(np.array([[5.0, 1.0], [1.0, 5.0]]), 24, 1)
+    target = windows(np.array([[7.0, 2.0], [2.0, 8.0]]), 8, 2)
+    share = replace(target, confidence=rng.uniform(0.2, 1.0, 8).astype(np.float32))
+    cfg = PipelineConfig.from_flat(encoder="lif", model="readout", epochs=2, channels=("all",))
+    with seeded(0):
+        pre = fit_pipeline(cfg, source, with_past=False).pipeline
+    by_hand, soft = copy.deepcopy(pre), None
+    adapt_pipeline(by_hand, target)
+    soft = copy.deepcopy(by_hand)
+    with seeded(3):
+        finetune_pipeline(soft, share)
+    with seeded(3):
+        finetune_pipeline(by_hand, target)
+    blend_finetuned(by_hand, soft)
+    stages = []
+    report = transfer_pipeline(pre, share, share, seed=3,
+                               on_arm=lambda s, p: stages.append(s))  # fmt: skip
+    assert stages == ["adapted", "class_share", "labels", "blend"]
+    assert set(report) == {"adapt", "finetune", "finetune_class_share"}
+    for a, b in zip(pre.model.finetune_parameters(), by_hand.model.finetune_parameters(),
+                    strict=True):  # fmt: skip
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    kept = copy.deepcopy(pre)
+    only = transfer_pipeline(kept, target, seed=3, adapt_only=True)
+    assert set(only) == {"adapt"}
+    for a, b in zip(kept.model.finetune_parameters(), pre.model.finetune_parameters(),
+                    strict=True):  # fmt: skip
+        torch.testing.assert_close(a, b)

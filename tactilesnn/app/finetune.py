@@ -14,10 +14,8 @@ pretrained run, ``weights.npz``, ``metrics.json``, ``model.onnx``) that ``evalua
 
 from __future__ import annotations
 
-import copy
 import logging
 import platform
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +25,10 @@ import torch
 from ..core.data import confidence_summary
 from ..core.files import file_sha256, write_json_atomic
 from ..core.version import __version__
-from ..models.base import SpikeModel, seeded
+from ..models.base import SpikeModel
 from ..pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
 from ..recordings import datasets_from_arrays, expected_class_signal, read_data_arrays
-from ..training import adapt_pipeline, blend_finetuned, finetune_pipeline
+from ..training import transfer_pipeline
 from .run import RUNS_ROOT, FileSource, export_into_run, load_run, match_channels, match_classes
 from .runs import OutLock, RunWriter, default_run_dir
 
@@ -104,32 +102,8 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
     with OutLock(out):
         writer = RunWriter(out, overwrite=overwrite)  # refuses an existing folder before work
         try:
-            before = _scores(pipe, test.X, test.y, test.scan)
-            log.info("pretrained run on %s's test split: %.2f %% per window", Path(data).name,
-                     100 * before["test_accuracy"])  # fmt: skip
-            adapt = adapt_pipeline(pipe, train, progress=progress)
-            soft = copy.deepcopy(pipe) if class_share else None
-            report = None
-            if not adapt_only:
-                with seeded(pipe.config.seed):
-                    report = finetune_pipeline(pipe, replace(train, confidence=None),
-                                               progress=progress, choose_prior=choose_prior)  # fmt: skip
-            extra = {}
-            if soft is not None:  # the mean of the labels' and the class share's read-outs
-                with seeded(pipe.config.seed):
-                    extra["finetune_class_share"] = finetune_pipeline(
-                        soft, train, progress=progress, choose_prior=choose_prior)  # fmt: skip
-                extra["finetuned_on_labels"] = _scores(pipe, test.X, test.y, test.scan)
-                extra["finetuned_on_class_share"] = _scores(soft, test.X, test.y, test.scan)
-                blend_finetuned(pipe, soft)
-            metrics = {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before, **extra,
-                       **({"train_window_confidence": confidence_summary(train.confidence)}
-                          if train.confidence is not None else {}),
-                       "adapt": adapt, **({"finetune": report} if report is not None else {}),
-                       "adapt_only": adapt_only, "n_train_windows": int(train.y.size),
-                       "n_test_windows": int(test.y.size),
-                       "n_train_recordings": int(np.unique(train.scan).size),
-                       "test_recordings": np.unique(test.scan).tolist()}  # fmt: skip
+            metrics = _transfer(pipe, train, test, Path(data).name, class_share, adapt_only,
+                                choose_prior, progress)  # fmt: skip
             config = {**source.record(), "pipeline": pipe.config.to_dict(),
                       "pretrained_run": {"path": str(run_dir.resolve()),
                                          "weights_sha256": file_sha256(run_dir / "weights.npz"),
@@ -150,6 +124,35 @@ def finetune_run(run_dir: Path, data: Path, out: Path | None = None, overwrite: 
         metrics["onnx"] = export_into_run(pipe, path, test.X, config, progress)
         write_json_atomic(path / "metrics.json", metrics)
     return {**metrics, "path": str(path)}
+
+
+def _transfer(pipe: SpikePipeline, train, test, name: str, class_share: bool, adapt_only: bool,
+              choose_prior: bool, progress: bool) -> dict[str, Any]:  # fmt: skip
+    """``pipe`` carried over to ``train`` in place (:func:`~tactilesnn.training.transfer_pipeline`),
+    scored on ``test`` before and after -> the run's metrics."""
+    before = _scores(pipe, test.X, test.y, test.scan)
+    log.info("pretrained run on %s's test split: %.2f %% per window", name,
+             100 * before["test_accuracy"])  # fmt: skip
+    extra: dict[str, Any] = {}
+
+    def score(stage: str, p: SpikePipeline) -> None:
+        if class_share and stage in ("labels", "class_share"):
+            extra[f"finetuned_on_{stage}"] = _scores(p, test.X, test.y, test.scan)
+
+    report = transfer_pipeline(pipe, train, train if class_share else None,
+                               seed=pipe.config.seed, adapt_only=adapt_only,
+                               choose_prior=choose_prior, progress=progress, on_arm=score)  # fmt: skip
+    if class_share:
+        extra["finetune_class_share"] = report["finetune_class_share"]
+    return {**_scores(pipe, test.X, test.y, test.scan), "pretrained": before, **extra,
+            **({"train_window_confidence": confidence_summary(train.confidence)}
+               if train.confidence is not None else {}),
+            "adapt": report["adapt"],
+            **({"finetune": report["finetune"]} if "finetune" in report else {}),
+            "adapt_only": adapt_only, "n_train_windows": int(train.y.size),
+            "n_test_windows": int(test.y.size),
+            "n_train_recordings": int(np.unique(train.scan).size),
+            "test_recordings": np.unique(test.scan).tolist()}  # fmt: skip
 
 
 def _class_share(record: dict, arrays: dict[str, np.ndarray], data: Path) -> np.ndarray:
