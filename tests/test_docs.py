@@ -1,5 +1,5 @@
 """The README and docs/ teach what the code does: every command in them parses with the CLI's own
-parser, the README's Python quickstart runs, every docs page is linked, the README stays short."""
+parser, the README's Python quickstart runs, every docs page is linked, the README's sections."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ def _commands(text: str) -> list[tuple[str, list[str]]]:
     line with ``[optional]`` parts or ``...`` is skipped)."""
     out = []
     for block in _shell_blocks(text):
-        for raw in block.splitlines():
+        for raw in block.replace("\\\n", " ").splitlines():  # continued lines joined
             line = raw.split(" #")[0].strip()
             for part in re.split(r"&&|;|\|(?!\|)|(?<!&)&(?!&)", line):
                 part = part.strip()
@@ -56,7 +56,26 @@ def test_every_docs_page_is_linked_from_the_readme_and_it_stays_short():
         assert f"](docs/{page.name})" in readme, f"docs/{page.name} is not linked from README"
     for target in re.findall(r"\]\(((?:docs/)?[\w./-]+\.(?:md|png))\)", readme):
         assert (ROOT / target).is_file(), f"README links to a missing {target}"
-    assert len(readme.splitlines()) < 250
+
+
+#: what a newcomer looks for on the README, in this order
+README_SECTIONS = ("## Install and the two commands", "## Command line in six lines",
+                   "## Python in ten lines", "## Concepts", "## Troubleshooting")  # fmt: skip
+
+
+def test_the_readme_teaches_in_its_sections():
+    """The README's sections, in order: the two commands (``make train``, ``make test``), six
+    command lines, the Python quickstart, concepts linking out to docs/, troubleshooting."""
+    readme = (ROOT / "README.md").read_text()
+    at = [readme.find(h + "\n") for h in README_SECTIONS]
+    assert -1 not in at, [h for h, i in zip(README_SECTIONS, at, strict=True) if i < 0]
+    assert at == sorted(at), "README sections out of order"
+    two = readme[at[0] : at[1]]
+    assert "make train" in two and "make test" in two
+    six = readme[at[1] : at[2]]
+    assert len(_commands(six)) == 6, "six command lines"
+    concepts = readme[at[3] : at[4]]
+    assert len(re.findall(r"\]\(docs/[\w.-]+\.md\)", concepts)) >= 5
 
 
 @pytest.mark.slow

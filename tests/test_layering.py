@@ -1,7 +1,7 @@
 """The package's layers import only downwards, and nothing imports in a circle.
 
 Every ``import`` of the package, at module level or inside a function, is an edge; the layers
-are read from the tree (see README "Architecture")."""
+are read from the tree (see docs/architecture.md)."""
 
 from __future__ import annotations
 

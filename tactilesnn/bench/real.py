@@ -486,7 +486,7 @@ Machine: {machine}.
 
 #: the row the README shows per dataset: what ``train --data FILE`` with no flag trains
 README_ROWS = {"braille_icub_abc": ("iCub Braille A/B/C", "default+readout"),
-               "fabric_slide": ("FabricSlide, 966 raw CSVs", "default+readout"),
+               "fabric_slide": ("FabricSlide, 966 CSVs", "default+readout"),
                "st_mnist": ("ST-MNIST events (10 x 10 taxels)", "events+csnn")}  # fmt: skip
 
 
@@ -495,9 +495,9 @@ def readme_table(summary: list[dict]) -> str:
     window / per recording, mean over seeds)."""
 
     def pct(v: float | None) -> str:
-        return "-" if v is None else f"{100 * v:.2f} %"
+        return "-" if v is None else f"{100 * v:.2f}"
 
-    lines = ["| set, as it comes | defaults per window / per recording | best reference | gap "
+    lines = ["| set, as it comes (seeds) | defaults, % per window / recording | best reference | gap "
              "(points) |", "|---|---|---|---|"]  # fmt: skip
     for ds, (label, method) in README_ROWS.items():
         rows = [s for s in summary if s["dataset"] == ds]
@@ -509,7 +509,7 @@ def readme_table(summary: list[dict]) -> str:
         gap = f"{mine['gap_window_points']:+.2f}"
         if mine.get("gap_recording_points") is not None:
             gap += f" / {mine['gap_recording_points']:+.0f}"
-        lines.append(f"| {label} ({mine['seeds']} seeds) | {pct(mine['mean'])} / "
+        lines.append(f"| {label} ({mine['seeds']}) | {pct(mine['mean'])} / "
                      f"{pct(mine['per_recording_mean'])} | {best['method']} {pct(best['mean'])} / "
                      f"{pct(best['per_recording_mean'])} | {gap} |")  # fmt: skip
     return "\n".join(lines) + "\n"
