@@ -307,17 +307,6 @@ def select_encoder(
     # own cross-validation); the chosen config keeps the model as configured
     quick = replace(config.model, **while_selecting(type(config.model)))
 
-    def scored(name: str, fit: WindowDataset, val: WindowDataset) -> tuple[float, float | None]:
-        m = fit_and_evaluate(configs[name].replace(model=quick), fit, val, progress=False,
-                             with_past=False).metrics  # fmt: skip
-        release_memory()  # a candidate's arrays are not the next one's resident memory
-        per_rec = m.get("test_accuracy_per_recording")
-        log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows "
-                 "(fitted on %d, %.1f s)", name, 100 * m["test_accuracy"],
-                 f", {100 * per_rec:.2f} % per recording" if per_rec is not None else "",
-                 val.y.size, fit.y.size, m["encode_seconds"] + m["fit_seconds"])  # fmt: skip
-        return float(m["test_accuracy"]), None if per_rec is None else float(per_rec)
-
     scores: dict[str, dict[str, Any]] = {name: {"rounds": []} for name in candidates}
     keys: dict[str, tuple[float, float]] = {}
     report_rounds = []
@@ -333,7 +322,7 @@ def select_encoder(
         )
         t_round = time.perf_counter()
         for name in alive:
-            acc, per_rec = scored(name, fit, val)
+            acc, per_rec = _scored(name, configs[name].replace(model=quick), fit, val)
             scores[name]["rounds"].append(acc)
             scores[name]["per_window"] = acc
             if per_rec is not None:
@@ -344,13 +333,7 @@ def select_encoder(
                               "seconds": time.perf_counter() - t_round})  # fmt: skip
         alive.sort(key=lambda n: (-keys[n][0], -keys[n][1], candidates.index(n)))
         if r + 1 < len(rounds):
-            top, n_rec = keys[alive[0]][0], np.unique(val.scan).size
-            for name in alive[1:]:
-                if hopeless(keys[name][0], top, n_rec):
-                    scores[name]["stopped_after"] = r + 1
-                    log.info("encoder selection: %s stops after round %d (%.2f %% against "
-                             "%.2f %%)", name, r + 1, 100 * keys[name][0], 100 * top)  # fmt: skip
-            alive = [n for n in alive if not hopeless(keys[n][0], top, n_rec)]
+            alive = _drop_hopeless(alive, keys, scores, np.unique(val.scan).size, r + 1)
         if len(alive) == 1:
             break
     best = alive[0]
@@ -361,3 +344,30 @@ def select_encoder(
               "fit_windows": report_rounds[-1]["fit_windows"],
               "val_windows": report_rounds[-1]["val_windows"], "seconds": seconds}  # fmt: skip
     return configs[best], report
+
+
+def _scored(name: str, config: PipelineConfig, fit: WindowDataset,
+            val: WindowDataset) -> tuple[float, float | None]:  # fmt: skip
+    """Candidate ``name`` fitted on ``fit`` and scored on ``val``: ``(per window, per recording
+    or None)``."""
+    m = fit_and_evaluate(config, fit, val, progress=False, with_past=False).metrics
+    release_memory()  # a candidate's arrays are not the next one's resident memory
+    per_rec = m.get("test_accuracy_per_recording")
+    log.info("encoder selection: %s scores %.2f %% per window%s on %d held-out windows "
+             "(fitted on %d, %.1f s)", name, 100 * m["test_accuracy"],
+             f", {100 * per_rec:.2f} % per recording" if per_rec is not None else "",
+             val.y.size, fit.y.size, m["encode_seconds"] + m["fit_seconds"])  # fmt: skip
+    return float(m["test_accuracy"]), None if per_rec is None else float(per_rec)
+
+
+def _drop_hopeless(alive: list[str], keys: dict[str, tuple[float, float]],
+                   scores: dict[str, dict[str, Any]], n_rec: int, after: int) -> list[str]:  # fmt: skip
+    """``alive`` (ranked) without the candidates :func:`hopeless` against the leader, each
+    dropped one marked ``stopped_after`` round ``after``."""
+    top = keys[alive[0]][0]
+    for name in alive[1:]:
+        if hopeless(keys[name][0], top, n_rec):
+            scores[name]["stopped_after"] = after
+            log.info("encoder selection: %s stops after round %d (%.2f %% against "
+                     "%.2f %%)", name, after, 100 * keys[name][0], 100 * top)  # fmt: skip
+    return [n for n in alive if not hopeless(keys[n][0], top, n_rec)]

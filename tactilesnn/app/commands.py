@@ -148,20 +148,7 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
         StreamEncoderGraph(pipe, stream_step)  # refuses a step that does not fit, first
     test = source_of(cfg).load_test(pipe.config.seed, progress=progress)
     if fmt == "nir":
-        from ..export.nir import compare, write_nir
-
-        path = write_nir(pipe.model, Path(out), overwrite=overwrite)
-        rep = compare(pipe.model, pipe.encode(test.X), path)
-        if not rep["simulated"]:
-            return [f"exported {path} (recurrent graph; not simulated by the reference consumer)"]
-        return [
-            f"exported {path} (model only; input: the spike raster at "
-            f"{pipe.model.config.dt_ms:g} ms). Read back with nir.read and simulated with nirtorch "
-            f"on {test.y.size} test windows: max score difference "
-            f"{rep['subtract_reset_max_score_diff']:.2e}, predictions agree "
-            f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
-            f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
-        ]
+        return _export_nir(pipe, test, Path(out), overwrite)
     from ..export import data_hash, export_pipeline, quantize_int8  # (onnx: ~1.4 s to import)
 
     meta = {"training_data_sha256": data_hash(cfg), "run": str(run_dir)}
@@ -203,6 +190,24 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
             f"{q['int8_bytes']} vs {q['float_bytes']} bytes"
         )
     return lines
+
+
+def _export_nir(pipe, test, out: Path, overwrite: bool) -> list[str]:
+    """The run's model as a NIR graph at ``out``, read back and simulated on the test windows."""
+    from ..export.nir import compare, write_nir
+
+    path = write_nir(pipe.model, out, overwrite=overwrite)
+    rep = compare(pipe.model, pipe.encode(test.X), path)
+    if not rep["simulated"]:
+        return [f"exported {path} (recurrent graph; not simulated by the reference consumer)"]
+    return [
+        f"exported {path} (model only; input: the spike raster at "
+        f"{pipe.model.config.dt_ms:g} ms). Read back with nir.read and simulated with nirtorch "
+        f"on {test.y.size} test windows: max score difference "
+        f"{rep['subtract_reset_max_score_diff']:.2e}, predictions agree "
+        f"{100 * rep['subtract_reset_prediction_agreement']:.2f} % (plain NIR reset-to-zero: "
+        f"{100 * rep['nir_reset_to_zero_prediction_agreement']:.2f} %)"
+    ]
 
 
 # ---------------------------------------------------------------- synthetic tasks

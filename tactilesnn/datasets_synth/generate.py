@@ -91,6 +91,49 @@ def generate(
     if n > task.n_samples:  # resizable tasks: sample indices beyond the default size are valid
         kwargs["n_samples"] = n
         task = get_task(task_name, **kwargs)
+    manifest_path, partial_path = _prepare_out(out, overwrite, resume)
+    out.mkdir(parents=True, exist_ok=True)
+    header = {
+        "task": task_name,
+        "task_kwargs": kwargs,
+        "n_samples": n,
+        "shard_size": shard_size,
+        "generator": GENERATOR_VERSION,
+        "fs_hz": task.fs_hz,
+        "window_samples": task.window,
+        "channel_names": list(task.channel_names),
+        "units": task.units,
+        "class_names": list(task.class_names),
+        "parameters": json.loads(json.dumps(dataclasses.asdict(task), default=str)),
+    }
+    done = _finished_shards(out, header, partial_path) if resume else {}
+    jobs = [(task_name, kwargs, first, min(n, first + shard_size), out / f"shard-{k:05d}.npz")
+            for k, first in enumerate(range(0, n, shard_size))
+            if f"shard-{k:05d}.npz" not in done]  # fmt: skip
+    shards = dict(done)
+
+    def checkpoint() -> None:
+        doc = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
+        write_text_atomic(partial_path, json.dumps(doc, indent=2))
+
+    checkpoint()
+    bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=bar_disabled(progress))
+    for rec in _rendered(jobs, workers, scheduler):
+        shards[rec["file"]] = rec
+        checkpoint()
+        bar.update()
+    bar.close()
+    manifest = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
+    manifest["n_windows"] = sum(s["windows"] for s in manifest["shards"])
+    write_text_atomic(manifest_path, json.dumps(manifest, indent=2))
+    partial_path.unlink(missing_ok=True)
+    return manifest
+
+
+def _prepare_out(out: Path, overwrite: bool, resume: bool) -> tuple[Path, Path]:
+    """Check ``out`` may take a dataset (refusing a file, another dataset without
+    ``overwrite``, foreign files), remove what an earlier generation wrote there when
+    ``overwrite``; returns the manifest's and the partial manifest's paths."""
     if (out.exists() or out.is_symlink()) and (out.is_symlink() or not out.is_dir()):
         raise FileExistsError(f"{out} exists and is not a folder; choose another --out")
     manifest_path, partial_path = out / "manifest.json", out / "manifest.partial.json"
@@ -115,69 +158,42 @@ def generate(
         leftover = sorted(p.name for p in out.iterdir())
         if leftover:
             log.warning("--overwrite kept files the generator did not write: %s", leftover[:5])
-    out.mkdir(parents=True, exist_ok=True)
-    header = {
-        "task": task_name,
-        "task_kwargs": kwargs,
-        "n_samples": n,
-        "shard_size": shard_size,
-        "generator": GENERATOR_VERSION,
-        "fs_hz": task.fs_hz,
-        "window_samples": task.window,
-        "channel_names": list(task.channel_names),
-        "units": task.units,
-        "class_names": list(task.class_names),
-        "parameters": json.loads(json.dumps(dataclasses.asdict(task), default=str)),
-    }
+    return manifest_path, partial_path
+
+
+def _finished_shards(out: Path, header: dict, partial_path: Path) -> dict[str, dict]:
+    """The shards an interrupted generation with the same ``header`` finished (their files
+    present with the recorded hash), by file name."""
     done: dict[str, dict] = {}
-    if resume and partial_path.exists():
-        old = json.loads(partial_path.read_text())
-        if {k: old[k] for k in header} != json.loads(json.dumps(header)):
-            raise ValueError(
-                f"--resume needs the same settings as the interrupted run ({partial_path})"
-            )
-        for sh in old["shards"]:
-            f = out / sh["file"]
-            if f.exists() and _sha256(f) == sh["sha256"]:
-                done[sh["file"]] = sh
-    jobs = []
-    for k, first in enumerate(range(0, n, shard_size)):
-        name = f"shard-{k:05d}.npz"
-        if name not in done:
-            jobs.append((task_name, kwargs, first, min(n, first + shard_size), out / name))
-    shards = dict(done)
+    if not partial_path.exists():
+        return done
+    old = json.loads(partial_path.read_text())
+    if {k: old[k] for k in header} != json.loads(json.dumps(header)):
+        raise ValueError(
+            f"--resume needs the same settings as the interrupted run ({partial_path})"
+        )
+    for sh in old["shards"]:
+        f = out / sh["file"]
+        if f.exists() and _sha256(f) == sh["sha256"]:
+            done[sh["file"]] = sh
+    return done
 
-    def checkpoint() -> None:
-        doc = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
-        write_text_atomic(partial_path, json.dumps(doc, indent=2))
 
-    checkpoint()
-    bar = tqdm(total=len(jobs), desc=f"generate {task_name}", disable=bar_disabled(progress))
-    if scheduler:  # a shard whose worker died is rendered again: it depends only on its inputs
+def _rendered(jobs: list[tuple], workers: int, scheduler: str | None):
+    """Each job's shard record as it is rendered: on the Dask cluster at ``scheduler`` (a shard
+    whose worker died is rendered again: it depends only on its inputs), on ``workers``
+    processes, or here."""
+    if scheduler:
         from ..core.dask_run import on_dask
 
         for _, rec in on_dask(_render_shard, [(j,) for j in jobs], scheduler):
-            shards[rec["file"]] = rec
-            checkpoint()
-            bar.update()
+            yield rec
     elif workers > 1 and len(jobs) > 1:
         with ProcessPoolExecutor(max_workers=workers) as pool:
-            for rec in pool.map(_render_shard, jobs):
-                shards[rec["file"]] = rec
-                checkpoint()
-                bar.update()
+            yield from pool.map(_render_shard, jobs)
     else:
         for job in jobs:
-            rec = _render_shard(job)
-            shards[rec["file"]] = rec
-            checkpoint()
-            bar.update()
-    bar.close()
-    manifest = dict(header, shards=sorted(shards.values(), key=lambda s: s["first"]))
-    manifest["n_windows"] = sum(s["windows"] for s in manifest["shards"])
-    write_text_atomic(manifest_path, json.dumps(manifest, indent=2))
-    partial_path.unlink(missing_ok=True)
-    return manifest
+            yield _render_shard(job)
 
 
 class TaskDataset:

@@ -316,6 +316,20 @@ def lif_rate_bound(
     return dt_ms / (tau_ms * math.log1p(theta / (v - theta)) + refractory_ms) + 1.0
 
 
+def _check_rate_bound(drive: np.ndarray, dt: float, tau: float, theta: float,
+                      refractory_ms: float, max_spikes_per_sample: int) -> None:  # fmt: skip
+    """Refuse (ValueError) a drive (V) that could fire more than ``max_spikes_per_sample``
+    times in one ``dt`` ms sample (:func:`lif_rate_bound`), before any work."""
+    bound = lif_rate_bound(drive, dt, tau, theta, refractory_ms)
+    if bound > max_spikes_per_sample:
+        raise ValueError(
+            f"this input could make a LIF converter fire {bound:.3g} times in one "
+            f"{dt:.3g} ms sample (> max_spikes_per_sample={max_spikes_per_sample}): the drive "
+            f"reaches {float(drive.max()):.3g} V against a {theta:.3g} V threshold; "
+            "lower the gain, raise the threshold, or raise max_spikes_per_sample"
+        )
+
+
 def lif_convert(
     x: np.ndarray,
     fs_hz: float,
@@ -346,14 +360,7 @@ def lif_convert(
     dt = 1000.0 / fs
     # shifted so that rest is 0: threshold theta - v_rest, drive = R I
     theta = float(threshold - v_rest)
-    bound = lif_rate_bound(gain * arr, dt, tau, theta, refractory_ms)
-    if bound > max_spikes_per_sample:
-        raise ValueError(
-            f"this input could make a LIF converter fire {bound:.3g} times in one "
-            f"{dt:.3g} ms sample (> max_spikes_per_sample={max_spikes_per_sample}): the drive "
-            f"reaches {float((gain * arr).max()):.3g} V against a {theta:.3g} V threshold; "
-            "lower the gain, raise the threshold, or raise max_spikes_per_sample"
-        )
+    _check_rate_bound(gain * arr, dt, tau, theta, refractory_ms, max_spikes_per_sample)
     drive = torch.from_numpy(gain * arr.reshape(b * c, n))
     v = torch.zeros(b * c, dtype=torch.float64)
     refr = torch.zeros(b * c, dtype=torch.float64)  # refractory time left, ms

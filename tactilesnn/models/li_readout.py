@@ -384,33 +384,9 @@ class LIReadout(TraceFeatures):
         t0 = time.perf_counter()
         groups = np.arange(n) if groups is None else np.asarray(groups)
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
-        subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
-        factors = PENALTY_FACTORS if cfg.choose else (1.0,)
         whole = 4 * n * d <= EXACT_BUDGET_BYTES
         feats = self._training_features(spikes, None) if whole else None
-        best: tuple = ()
-        table = []
-        cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)), y.numpy())
-        if feats is None:  # over the budget: only the cross-validation's windows featurised
-            cv_feats = self._training_features(spikes, cv)
-        else:
-            cv_feats = feats if len(cv) == n else feats[torch.from_numpy(cv)]
-        for subset in subsets:
-            part = (
-                cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]
-            )
-            lam, rows = choose_penalty(part, y[torch.from_numpy(cv)], groups[cv], self.n_classes,
-                                       [self.penalty * f for f in factors],
-                                       confidence=None if confidence is None else
-                                       confidence[torch.from_numpy(cv)])  # fmt: skip
-            del part
-            acc = max((r["cv_accuracy"] for r in rows), default=0.0)
-            table += [{"instants": len(subset), **r} for r in rows]
-            if not best or acc > best[0]:  # ties: the candidate tried first (more instants)
-                best = (acc, subset, lam)
-        del cv_feats
-        release_memory()  # the cross-validation's features handed back before the final fit
-        _, subset, lam = best
+        subset, lam, table, cv = self._cross_validate(spikes, y, groups, confidence, feats, cols)
         used = cols[:, subset].reshape(-1)
         weight = torch.zeros(self.n_classes, d, dtype=torch.float64)
         report = {"penalty": lam, "instants": len(subset),
@@ -454,6 +430,42 @@ class LIReadout(TraceFeatures):
                  report["seconds"])  # fmt: skip
         self.penalty = lam
         return report
+
+    def _cross_validate(self, spikes: Tensor, y: Tensor, groups: np.ndarray,
+                        confidence: Tensor | None, feats: Tensor | None,
+                        cols: Tensor) -> tuple[list[int], float, list[dict], np.ndarray]:  # fmt: skip
+        """:meth:`solve`'s choice of read-out instants and penalty by cross-validation over
+        ``groups`` on at most ``CV_WINDOWS`` windows (``feats``: every window's features, or
+        None where they are over the budget: then only the cross-validation's are made).
+        Returns ``(instants, penalty, the table of every candidate, the windows used)``."""
+        cfg = self.config
+        n, d = spikes.shape[0], self.linear.in_features
+        subsets = instant_subsets(cfg.n_times) if cfg.choose else [list(range(cfg.n_times))]
+        factors = PENALTY_FACTORS if cfg.choose else (1.0,)
+        best: tuple = ()
+        table = []
+        cv = whole_groups(groups, min(CV_WINDOWS, EXACT_BUDGET_BYTES // (4 * d)), y.numpy())
+        if feats is None:  # over the budget: only the cross-validation's windows featurised
+            cv_feats = self._training_features(spikes, cv)
+        else:
+            cv_feats = feats if len(cv) == n else feats[torch.from_numpy(cv)]
+        for subset in subsets:
+            part = (
+                cv_feats if len(subset) == cfg.n_times else cv_feats[:, cols[:, subset].reshape(-1)]
+            )
+            lam, rows = choose_penalty(part, y[torch.from_numpy(cv)], groups[cv], self.n_classes,
+                                       [self.penalty * f for f in factors],
+                                       confidence=None if confidence is None else
+                                       confidence[torch.from_numpy(cv)])  # fmt: skip
+            del part
+            acc = max((r["cv_accuracy"] for r in rows), default=0.0)
+            table += [{"instants": len(subset), **r} for r in rows]
+            if not best or acc > best[0]:  # ties: the candidate tried first (more instants)
+                best = (acc, subset, lam)
+        del cv_feats
+        release_memory()  # the cross-validation's features handed back before the final fit
+        _, subset, lam = best
+        return subset, lam, table, cv
 
     def bytes_per_sample(self, afferents: int, k: int) -> int:
         return 4 * 4 * afferents * k * self.config.n_times

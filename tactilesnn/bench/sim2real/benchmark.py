@@ -88,6 +88,41 @@ def run(out: Path, data_root: Path, synthetic: int = 300, seeds: int = 3,
 
     # 3. few-shot with and without the synthetic slides
     synth_w = cut(reorder(synth0, order))
+    shots_rows = _few_shot(real, synth_w, cfg, shots, draws, progress)
+    result["few_shot"] = shots_rows
+
+    # 4. randomisation knobs (synthetic only, seed 0, knob_synthetic slides)
+    knob_rows = _knobs(real, cfg, order, real_w, knobs, knob_synthetic, progress)
+    result["knobs"] = knob_rows
+
+    # 5. calibrated: the sensor model fitted to each draw's training slides only
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cal_rows = _calibrated(real, data_root, out, shots, calibrated_draws, calibrated_seeds,
+                           calibrated_synthetic, calibration_budget_s, epochs, reuse_fits,
+                           model)  # fmt: skip
+    result["calibrated"] = cal_rows
+    result["references"] = [{"k": x["k"], "draw": x["draw"], "seed": x["seed"],
+                             **x.pop("references")} for x in cal_rows if "references" in x]  # fmt: skip
+    if cal_rows:
+        result.update(summarise_calibrated(cal_rows))
+        if has_letter_runs(real.y):
+            result["run_rest_spread"] = run_rest_spread(real)
+    if optimisers:
+        result["optimisers"] = compare_optimisers(real, shots, optimisers)
+    result["seconds"] = time.perf_counter() - t_start
+
+    (out / "sim2real.json").write_text(json.dumps(result, indent=2))
+    text = table(result)
+    (out / "sim2real.md").write_text(text)
+    plot(real, synth0, order, result, out / "sim2real.png")
+    print(text)
+    return result
+
+
+def _few_shot(real, synth_w, cfg, shots, draws, progress) -> list[dict]:
+    """k real slides per class (``draws`` random draws each), with and without the synthetic
+    windows (the real ones repeated to their number: joint training); the rest scored."""
     shots_rows = []
     for k in shots:
         for d in range(draws):
@@ -101,9 +136,12 @@ def run(out: Path, data_root: Path, synthetic: int = 300, seeds: int = 3,
                 acc = fit_score(c, train, real_te, progress)
                 shots_rows.append({"k": k, "draw": d, "arm": arm, "accuracy": acc[0],
                                    "per_slide": acc[1], "test_slides": int(te.size)})  # fmt: skip
-    result["few_shot"] = shots_rows
+    return shots_rows
 
-    # 4. randomisation knobs (synthetic only, seed 0, knob_synthetic slides)
+
+def _knobs(real, cfg, order, real_w, knobs, knob_synthetic, progress) -> list[dict]:
+    """Each randomisation knob switched off and doubled (synthetic only, seed 0,
+    ``knob_synthetic`` slides), the change against the defaults."""
     from ...datasets_synth import TASKS
 
     defaults = {f: getattr(TASKS["braille"](), f) for f in KNOBS}
@@ -121,11 +159,14 @@ def run(out: Path, data_root: Path, synthetic: int = 300, seeds: int = 3,
             acc = fit_score(cfg, cut(reorder(s, order)), real_w, progress)
             knob_rows.append({"knob": knob, "value": kw[knob], "accuracy": acc[0], "per_slide": acc[1],
                               "change_points": 100 * (acc[0] - base[0])})  # fmt: skip
-    result["knobs"] = knob_rows
+    return knob_rows
 
-    # 5. calibrated: the sensor model fitted to each draw's training slides only
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+
+def _calibrated(real, data_root, out, shots, calibrated_draws, calibrated_seeds,
+                calibrated_synthetic, calibration_budget_s, epochs, reuse_fits,
+                model) -> list[dict]:  # fmt: skip
+    """The calibrated draws (:func:`~.calibrated.calibrated_draw`): one sensor fit per draw,
+    fitted to its training slides only, trained on with ``calibrated_seeds`` seeds."""
     cal_rows = []
     if calibrated_draws > 0:
         (out / "fits").mkdir(exist_ok=True)
@@ -154,20 +195,4 @@ def run(out: Path, data_root: Path, synthetic: int = 300, seeds: int = 3,
                          "%.3f, pretrained %.3f per window (%.0f s)", k, d, row["seed"],
                          row["synthetic_only"], row["synthetic_only_per_slide"],
                          row["real_only"], row["pretrained"], row["seconds"])  # fmt: skip
-    result["calibrated"] = cal_rows
-    result["references"] = [{"k": x["k"], "draw": x["draw"], "seed": x["seed"],
-                             **x.pop("references")} for x in cal_rows if "references" in x]  # fmt: skip
-    if cal_rows:
-        result.update(summarise_calibrated(cal_rows))
-        if has_letter_runs(real.y):
-            result["run_rest_spread"] = run_rest_spread(real)
-    if optimisers:
-        result["optimisers"] = compare_optimisers(real, shots, optimisers)
-    result["seconds"] = time.perf_counter() - t_start
-
-    (out / "sim2real.json").write_text(json.dumps(result, indent=2))
-    text = table(result)
-    (out / "sim2real.md").write_text(text)
-    plot(real, synth0, order, result, out / "sim2real.png")
-    print(text)
-    return result
+    return cal_rows

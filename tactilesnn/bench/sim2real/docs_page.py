@@ -228,15 +228,9 @@ def _models_section(r: dict, cal: list[dict]) -> list[str]:
     return lines
 
 
-def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = None) -> str:
-    """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values,
-    ``fabric``: the second sensor's statistics-only comparison)."""
-    lines = [PAGE_HEAD, f"Command: `{command}` ({r['seconds'] / 60:.0f} min, "
-             f"{r.get('machine', 'this machine')}). Chance is 33.3 %; means over draws with 95 % "
-             "intervals (t, over draws; a calibrated draw's figure is the mean over its training "
-             "seeds, the fit shared).", ""]  # fmt: skip
-    cal = r.get("calibrated") or []
-    ks = sorted({x["k"] for x in cal})
+def _before_after(r: dict, cal: list[dict], ks: list[int]) -> list[str]:
+    """The before / after table: each k's arms, uncalibrated against calibrated."""
+    lines: list[str] = []
     lines += ["![the statistics of the real slides against the model before (defaults) and after "
               "the fit](sim2real_fit.png)", "",
               "## Before and after (per window / per slide, %)", "",
@@ -281,80 +275,122 @@ def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = Non
                f"{_cell(draw_means(sel, 'pretrained_letter_per_slide'))} |"]
               if all("pretrained_letter" in x for x in sel) else []),
         ]  # fmt: skip
+    return lines
+
+
+def _gains(cal: list[dict], ks: list[int]) -> list[str]:
+    """Pretrained minus real only per k, the encoders chosen, the calibrations' cost; the
+    by-run and by-letter tables; the JSON's summary."""
+    lines: list[str] = []
+    letter = all("pretrained_letter" in x for x in cal)
+    lines += ["", "| k | pretrained + fine-tuned minus real only, per window (points) | "
+              + ("the same, fine-tuned on the letter's share: per window / per slide "
+                 "(points) | " if letter else "")
+              + "encoders (and capacities) chosen, of draws x seeds | "
+              "calibration s (median) | objective (median) |",
+              "|---|---|---|---|---|" + ("---|" if letter else "")]  # fmt: skip
+    for k in ks:
+        sel = [x for x in cal if x["k"] == k]
+        gain = draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"])
+        enc = chosen_counts(sel)
+        soft = ""
+        if letter:
+            gw = draw_means(sel, fn=lambda x: x["pretrained_letter"] - x["real_only"])
+            gs = draw_means(sel, fn=lambda x: x["pretrained_letter_per_slide"]
+                            - x["real_only_per_slide"])  # fmt: skip
+            soft = f"{_cell(gw, sign='+')} / {_cell(gs, sign='+')} | "
+        lines.append(f"| {k} | {_cell(gain, sign='+')} | {soft}{enc} | "
+                     f"{np.median([x['calibration_s'] for x in sel]):.0f} | "
+                     f"{np.median([x['objective'] for x in sel]):.3f} |")  # fmt: skip
+    lines += _by_run_table(cal, ks)
+    lines += _by_letter_table(cal, ks)
+    summary = summarise_calibrated(cal)
+    lines += ["", "In `sim2real.json`: `synthetic_only_per_slide` "
+              f"{summary['synthetic_only_per_slide']:.3f}; `shots`: "
+              + ", ".join(f"k = {k}: real only {v['real_only_per_window']:.3f}, pretrained "
+                          f"{v['pretrained_per_window']:.3f}"
+                          for k, v in summary["shots"].items()) + " (per window)."]  # fmt: skip
+    return lines
+
+
+def _optimisers(opt: list[dict]) -> list[str]:
+    """The calibration optimisers compared (none: no section)."""
+    lines: list[str] = []
+    if not opt:
+        return lines
+    lines += ["", "## Which optimiser", "",
+              "The objective (lower is better) each reaches in the same "
+              f"{int(np.median([x['evaluations'] for x in opt]))} evaluations on the "
+              "training slides of each k's first draw (seeds 0, 1; the same start):", "",
+              "| k | optimiser | objective per seed | seconds (median) |",
+              "|---|---|---|---|"]  # fmt: skip
+    for k in sorted({x["k"] for x in opt}):
+        for name in dict.fromkeys(x["optimiser"] for x in opt):
+            sel = [x for x in opt if x["k"] == k and x["optimiser"] == name]
+            if sel:
+                lines.append(f"| {k} | {name} | " + ", ".join(f"{x['objective']:.3f}" for x in sel)
+                             + f" | {np.median([x['seconds'] for x in sel]):.0f} |")  # fmt: skip
+    return lines
+
+
+def _fitted_values(fits: dict[str, dict]) -> list[str]:
+    """The fitted sensor and scene values, with their units (no fits: no section)."""
+    lines: list[str] = []
+    if not fits:
+        return lines
+    merged = [{**f.get("params", {}), **f.get("scene", {}), **f.get("randomisation", {})}
+              for f in fits.values()]  # fmt: skip
+    names = [n for n in FIT_UNITS if any(n in m for m in merged)]
+    lines += ["", "## The fitted values", "",
+              "| value | unit | " + " | ".join(fits) + " |",
+              "|---|---|" + "---|" * len(fits)]  # fmt: skip
+    for n in names:
+        cells = []
+        for f in fits.values():
+            v = {**f.get("params", {}), **f.get("scene", {}), **f.get("randomisation", {})}.get(n)
+            cells.append("-" if v is None else f"{v:.3g}")
+        lines.append(f"| `{n}` | {FIT_UNITS[n]} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _distances(cal: list[dict], ks: list[int]) -> list[str]:
+    """Which statistic still differs after each fit (no draws: no section)."""
+    lines: list[str] = []
+    if not cal:
+        return lines
+    lines += ["", "## Which statistic still differs", "",
+              "Distances between the k training slides and the fitted model's mean "
+              "responses at the end of each fit (medians over draws; 0 = equal; "
+              "`calibration.statistic_distances`):", "",
+              "| k | mean response (share of variance unexplained) | what tells the "
+              "letters apart (share unexplained) | correlation (mean abs difference) | rest "
+              "(share of the largest range) | range |",
+              "|---|---|---|---|---|---|"]  # fmt: skip
+    for k in ks:
+        d = [x["distances"] for x in cal if x["k"] == k and "distances" in x]
+        if d:
+            lines.append(f"| {k} | " + " | ".join(
+                f"{np.median([x[key] for x in d]):.3f}" if all(key in x for x in d) else "-"
+                for key in ("mean_response", "class_difference", "correlation", "rest",
+                            "range")) + " |")  # fmt: skip
+    return lines
+
+
+def page(r: dict, fits: dict[str, dict], command: str, fabric: dict | None = None) -> str:
+    """The docs page of a run (:data:`PAGE_HEAD`, the before / after tables, the fitted values,
+    ``fabric``: the second sensor's statistics-only comparison)."""
+    lines = [PAGE_HEAD, f"Command: `{command}` ({r['seconds'] / 60:.0f} min, "
+             f"{r.get('machine', 'this machine')}). Chance is 33.3 %; means over draws with 95 % "
+             "intervals (t, over draws; a calibrated draw's figure is the mean over its training "
+             "seeds, the fit shared).", ""]  # fmt: skip
+    cal = r.get("calibrated") or []
+    ks = sorted({x["k"] for x in cal})
+    lines += _before_after(r, cal, ks)
     if cal:
-        letter = all("pretrained_letter" in x for x in cal)
-        lines += ["", "| k | pretrained + fine-tuned minus real only, per window (points) | "
-                  + ("the same, fine-tuned on the letter's share: per window / per slide "
-                     "(points) | " if letter else "")
-                  + "encoders (and capacities) chosen, of draws x seeds | "
-                  "calibration s (median) | objective (median) |",
-                  "|---|---|---|---|---|" + ("---|" if letter else "")]  # fmt: skip
-        for k in ks:
-            sel = [x for x in cal if x["k"] == k]
-            gain = draw_means(sel, fn=lambda x: x["pretrained"] - x["real_only"])
-            enc = chosen_counts(sel)
-            soft = ""
-            if letter:
-                gw = draw_means(sel, fn=lambda x: x["pretrained_letter"] - x["real_only"])
-                gs = draw_means(sel, fn=lambda x: x["pretrained_letter_per_slide"]
-                                - x["real_only_per_slide"])  # fmt: skip
-                soft = f"{_cell(gw, sign='+')} / {_cell(gs, sign='+')} | "
-            lines.append(f"| {k} | {_cell(gain, sign='+')} | {soft}{enc} | "
-                         f"{np.median([x['calibration_s'] for x in sel]):.0f} | "
-                         f"{np.median([x['objective'] for x in sel]):.3f} |")  # fmt: skip
-        lines += _by_run_table(cal, ks)
-        lines += _by_letter_table(cal, ks)
-        summary = summarise_calibrated(cal)
-        lines += ["", "In `sim2real.json`: `synthetic_only_per_slide` "
-                  f"{summary['synthetic_only_per_slide']:.3f}; `shots`: "
-                  + ", ".join(f"k = {k}: real only {v['real_only_per_window']:.3f}, pretrained "
-                              f"{v['pretrained_per_window']:.3f}"
-                              for k, v in summary["shots"].items()) + " (per window)."]  # fmt: skip
-    opt = r.get("optimisers") or []
-    if opt:
-        lines += ["", "## Which optimiser", "",
-                  "The objective (lower is better) each reaches in the same "
-                  f"{int(np.median([x['evaluations'] for x in opt]))} evaluations on the "
-                  "training slides of each k's first draw (seeds 0, 1; the same start):", "",
-                  "| k | optimiser | objective per seed | seconds (median) |",
-                  "|---|---|---|---|"]  # fmt: skip
-        for k in sorted({x["k"] for x in opt}):
-            for name in dict.fromkeys(x["optimiser"] for x in opt):
-                sel = [x for x in opt if x["k"] == k and x["optimiser"] == name]
-                if sel:
-                    lines.append(f"| {k} | {name} | " + ", ".join(f"{x['objective']:.3f}" for x in sel)
-                                 + f" | {np.median([x['seconds'] for x in sel]):.0f} |")  # fmt: skip
-    if fits:
-        merged = [{**f.get("params", {}), **f.get("scene", {}), **f.get("randomisation", {})}
-                  for f in fits.values()]  # fmt: skip
-        names = [n for n in FIT_UNITS if any(n in m for m in merged)]
-        lines += ["", "## The fitted values", "",
-                  "| value | unit | " + " | ".join(fits) + " |",
-                  "|---|---|" + "---|" * len(fits)]  # fmt: skip
-        for n in names:
-            cells = []
-            for f in fits.values():
-                v = {**f.get("params", {}), **f.get("scene", {}), **f.get("randomisation", {})}.get(
-                    n
-                )
-                cells.append("-" if v is None else f"{v:.3g}")
-            lines.append(f"| `{n}` | {FIT_UNITS[n]} | " + " | ".join(cells) + " |")
-    if cal:
-        lines += ["", "## Which statistic still differs", "",
-                  "Distances between the k training slides and the fitted model's mean "
-                  "responses at the end of each fit (medians over draws; 0 = equal; "
-                  "`calibration.statistic_distances`):", "",
-                  "| k | mean response (share of variance unexplained) | what tells the "
-                  "letters apart (share unexplained) | correlation (mean abs difference) | rest "
-                  "(share of the largest range) | range |",
-                  "|---|---|---|---|---|---|"]  # fmt: skip
-        for k in ks:
-            d = [x["distances"] for x in cal if x["k"] == k and "distances" in x]
-            if d:
-                lines.append(f"| {k} | " + " | ".join(
-                    f"{np.median([x[key] for x in d]):.3f}" if all(key in x for x in d) else "-"
-                    for key in ("mean_response", "class_difference", "correlation", "rest",
-                                "range")) + " |")  # fmt: skip
+        lines += _gains(cal, ks)
+    lines += _optimisers(r.get("optimisers") or [])
+    lines += _fitted_values(fits)
+    lines += _distances(cal, ks)
     lines += _models_section(r, cal)
     if r.get("cross_run"):
         lines += _cross_run_section(r["cross_run"], r)
