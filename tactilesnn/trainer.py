@@ -55,18 +55,7 @@ class Trainer:
         :attr:`~SpikeModel.trains_on_confidence`."""
         cfg, model = self.config, self.model
         yt = to_tensor_labels(np.asarray(y), model.n_classes, spikes.shape[0])
-        ct = None
-        if confidence is not None:
-            if not model.trains_on_confidence:
-                raise ValueError(f"{type(model).registry_name} does not train on window "
-                                 "confidences (soft targets)")  # fmt: skip
-            ct = torch.as_tensor(np.asarray(confidence, np.float32))
-            if (
-                ct.shape != yt.shape
-                or not bool(torch.isfinite(ct).all())
-                or (float(ct.min()) < 0 or float(ct.max()) > 1)
-            ):
-                raise ValueError(f"confidence must be [N={yt.numel()}] finite in [0, 1]")
+        ct = None if confidence is None else _confidence(model, confidence, yt)
         gen = torch.Generator().manual_seed(cfg.seed)
         by_rule = model.learns_by_rule
         opt = None if by_rule else torch.optim.Adam(model.parameters(), lr=model.learning_rate())
@@ -82,13 +71,7 @@ class Trainer:
             if on_epoch is not None:
                 on_epoch(0, self.state(st, gen, opt, best_w))
         if resume is not None:
-            _load_state(model, resume["model"])
-            gen.set_state(torch.from_numpy(np.asarray(resume["rng"], dtype=np.uint8)))
-            if opt is not None and "optimizer" in resume:
-                _restore_optimizer(opt, resume["optimizer"])
-            st = {k: resume[k] for k in st}
-            st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
-            best_w = {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}
+            st, best_w = _resumed(model, resume, gen, opt, st)
         # gradient steps on the configured device (rule learning stays on the CPU); the model
         # comes back to the CPU after each epoch, where evaluation, checkpoints and export run
         device = torch.device("cpu") if by_rule else resolve_device(cfg.device)
@@ -105,22 +88,7 @@ class Trainer:
             if device.type != "cpu":
                 model.to(device)
                 _optimizer_to(opt, device)
-            steps = -(-perm.numel() // cfg.batch_size)
-            for j, i in enumerate(range(0, perm.numel(), cfg.batch_size)):
-                idx = perm[i : i + cfg.batch_size]
-                if opt is not None and cfg.lr_schedule != "constant":
-                    for group in opt.param_groups:  # (a function of the step: resumes exactly)
-                        group["lr"] = scheduled_lr(model.learning_rate(), cfg.lr_schedule,
-                                                   epoch * steps + j, cfg.epochs * steps)  # fmt: skip
-                if by_rule:
-                    with torch.no_grad():
-                        model.rule_update(spikes[idx], yt[idx], epoch)
-                else:
-                    extra = {} if ct is None else {"confidence": ct[idx].to(device)}
-                    loss = model.loss(spikes[idx].to(device), yt[idx].to(device), **extra)
-                    opt.zero_grad()
-                    loss.backward()
-                    opt.step()
+            self._epoch(spikes, yt, ct, perm, opt, device, epoch)
             model.to("cpu")
             model.eval()
             err, score = _record(st, model, spikes, yt, val)
@@ -145,6 +113,28 @@ class Trainer:
         model.calibrate_decision(spikes)  # on the weights kept
         self.history = {**st, "solved": solved}
         return st["history"]
+
+    def _epoch(self, spikes: torch.Tensor, yt: torch.Tensor, ct: torch.Tensor | None,
+               perm: torch.Tensor, opt, device: torch.device, epoch: int) -> None:  # fmt: skip
+        """One epoch's mini-batches in the order ``perm``: the local rule, or Adam steps on the
+        model's loss at the scheduled learning rate (a function of the step: resumes exactly)."""
+        cfg, model = self.config, self.model
+        steps = -(-perm.numel() // cfg.batch_size)
+        for j, i in enumerate(range(0, perm.numel(), cfg.batch_size)):
+            idx = perm[i : i + cfg.batch_size]
+            if opt is not None and cfg.lr_schedule != "constant":
+                for group in opt.param_groups:
+                    group["lr"] = scheduled_lr(model.learning_rate(), cfg.lr_schedule,
+                                               epoch * steps + j, cfg.epochs * steps)  # fmt: skip
+            if model.learns_by_rule:
+                with torch.no_grad():
+                    model.rule_update(spikes[idx], yt[idx], epoch)
+            else:
+                extra = {} if ct is None else {"confidence": ct[idx].to(device)}
+                loss = model.loss(spikes[idx].to(device), yt[idx].to(device), **extra)
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
 
     def state(self, st: dict, gen: torch.Generator, opt, best_w: dict) -> dict:
         """Everything needed to resume: weights, optimizer state, RNG, bookkeeping."""
@@ -252,3 +242,29 @@ def _restore_optimizer(opt: torch.optim.Optimizer, flat: dict[str, np.ndarray]) 
         state.setdefault(int(i), {})[name] = torch.from_numpy(np.array(v))
     sd["state"] = state
     opt.load_state_dict(sd)
+
+
+def _confidence(model: SpikeModel, confidence: np.ndarray, yt: torch.Tensor) -> torch.Tensor:
+    """``confidence`` ``[N]`` as a tensor, checked (finite, in [0, 1], one per window) for a
+    model that trains on it."""
+    if not model.trains_on_confidence:
+        raise ValueError(f"{type(model).registry_name} does not train on window "
+                         "confidences (soft targets)")  # fmt: skip
+    ct = torch.as_tensor(np.asarray(confidence, np.float32))
+    if (ct.shape != yt.shape or not bool(torch.isfinite(ct).all())
+            or (float(ct.min()) < 0 or float(ct.max()) > 1)):  # fmt: skip
+        raise ValueError(f"confidence must be [N={yt.numel()}] finite in [0, 1]")
+    return ct
+
+
+def _resumed(model: SpikeModel, resume: dict, gen: torch.Generator, opt,
+             st: dict) -> tuple[dict, dict]:  # fmt: skip
+    """A checkpoint's weights, generator and optimizer state restored in place; returns its
+    bookkeeping (the keys of ``st``) and best weights."""
+    _load_state(model, resume["model"])
+    gen.set_state(torch.from_numpy(np.asarray(resume["rng"], dtype=np.uint8)))
+    if opt is not None and "optimizer" in resume:
+        _restore_optimizer(opt, resume["optimizer"])
+    st = {k: resume[k] for k in st}
+    st["history"], st["val_history"] = list(st["history"]), list(st["val_history"])
+    return st, {k: torch.from_numpy(np.asarray(v)) for k, v in resume["best"].items()}

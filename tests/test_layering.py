@@ -198,3 +198,19 @@ def test_product_code_never_imports_a_benchmark():
             continue
         bad += [f"{mod} -> {d}" for d in deps if d.split(".")[0] == "bench"]
     assert not bad, bad
+
+
+#: the longest a function of the package may be (lines, decorators and docstring included)
+MAX_FUNCTION_LINES = 80
+
+
+def test_no_function_is_longer_than_a_screen():
+    """Functions under ~80 lines: a longer one does several things; split it by concern."""
+    long = []
+    for path in ROOT.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = node.end_lineno - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({n})")
+    assert not long, long

@@ -165,47 +165,15 @@ class FactoredGaborEncoder(nn.Module):
             kernels = scalogram.conv_kernels(n)
             taps = scalogram.band_taps(kernels).astype(float)
             taps[taps > self.pad] = np.inf  # a kernel longer than the padding would wrap
-        factors: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        kind = []
-        dense_ok = 8 * n * frames <= budget_bytes // 4  # one band's float32 columns
-        for b in range(f_total):
-            cost = {"dense": 2 * n * frames if dense_ok else np.inf}
-            cost["conv"] = self.CONV_PENALTY * 2 * frames * (2 * taps[b] + 1)
-            if support[b] <= min(self.MAX_SUPPORT_BINS, self.MAX_FACTOR_ELEMENTS // n):
-                factors[b] = scalogram.band_factors(n, b, tol=self.RANK_TOL)
-                r = factors[b][0].shape[1]
-                cost["low_rank"] = 2 * n * r + 4 * r * frames
-            if not np.isfinite(min(cost.values())):
-                raise ValueError(f"band {b}: no exact form fits a {n}-sample window's budget")
-            kind.append(min(cost, key=cost.get))
+        kind, factors = self._forms(scalogram, n, frames, taps, support, budget_bytes)
         order: list[int] = []
         # low-rank bands, in at most three groups of similar rank: per group one product with
         # its bands' U's (real and imaginary parts, zero columns up to the group's largest rank)
         # and one product batched over its bands with their Vh's (rows = windows x channels)
         first: list[np.ndarray] = []  # every window-side matrix, multiplied in one product
-        lr_first: list[np.ndarray] = []  # the low-rank groups' U's, [window, columns] each
-        lr_second: list[np.ndarray] = []  # and their Vh's, [count, 2 r_max, 2 frames] each
         lr = sorted((b for b in range(f_total) if kind[b] == "low_rank"),
                     key=lambda b: factors[b][0].shape[1])  # fmt: skip
-        rank = np.array([factors[b][0].shape[1] if b in factors else 0 for b in range(f_total)])
-        self.lr_sizes: list[tuple[int, int]] = []
-        for group in _split_by_length(lr, rank, self.MAX_GROUPS):
-            group = sorted(group)  # band order within a group: often no permutation at the end
-            r_max = int(max(rank[b] for b in group))
-            u1 = np.zeros((n, len(group), 2, r_max))
-            # rows (a, b) = (Re, Im) of x U against [[Vr, Vi], [-Vi, Vr]]:
-            # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr), real and imaginary side by side
-            v2 = np.zeros((len(group), 2, r_max, 2, frames))
-            for i, b in enumerate(group):
-                u, vh = factors[b]
-                r = u.shape[1]
-                u1[:, i, 0, :r], u1[:, i, 1, :r] = u.real, u.imag
-                v2[i, 0, :r, 0], v2[i, 0, :r, 1] = vh.real, vh.imag
-                v2[i, 1, :r, 0], v2[i, 1, :r, 1] = -vh.imag, vh.real
-            lr_first.append(u1.reshape(n, -1))
-            lr_second.append(v2.reshape(len(group), 2 * r_max, 2 * frames))
-            self.lr_sizes.append((len(group), r_max))
-            order += group
+        lr_first, lr_second = self._low_rank_groups(lr, factors, f_total, n, frames, order)
         self.lr_cols = [a.shape[1] for a in lr_first]
         lead = [np.linalg.norm(factors[b][0], 2) for b in lr]  # each band's largest gain
         basis = _shared_basis(lr_first, self.RANK_TOL * min(lead)) if lr_first else None
@@ -230,6 +198,73 @@ class FactoredGaborEncoder(nn.Module):
         self.n_second = len(lr_second)
         for gi, v in enumerate(lr_second):
             self.register_buffer(f"lr_v{gi}", torch.from_numpy(v).float().contiguous())
+        self._conv_groups(kernels, taps, kind, order)
+        dense = [b for b in range(f_total) if kind[b] == "dense"]
+        self.n_dense = len(dense)
+        if dense:
+            m = torch.stack([scalogram.band_map(n, b) for b in dense], 1)  # [n, bands, frames]
+            first.append(torch.stack([m.real, m.imag], 2).reshape(n, -1).numpy())
+            order += dense
+        self.first_cols = [a.shape[1] for a in first]
+        cat = np.concatenate(first, axis=1) if first else np.zeros((n, 0))
+        self.register_buffer("first", torch.from_numpy(cat).float().contiguous())
+        self.kinds = kind
+        perm = np.argsort(order)  # band b sits at position perm[b] of the concatenation
+        self.permute = not np.array_equal(perm, np.arange(f_total))
+        self.register_buffer("perm", torch.from_numpy(perm).long())
+        self.order = order
+
+    def _forms(self, scalogram: nn.Module, n: int, frames: int, taps: np.ndarray,
+               support: np.ndarray, budget_bytes: int) -> tuple[list[str], dict]:  # fmt: skip
+        """Each band's cheapest exact form (``dense``, ``conv`` or ``low_rank``) by multiply-adds,
+        and the low-rank factors of the bands that have them."""
+        f_total = len(taps)
+        factors: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        kind = []
+        dense_ok = 8 * n * frames <= budget_bytes // 4  # one band's float32 columns
+        for b in range(f_total):
+            cost = {"dense": 2 * n * frames if dense_ok else np.inf}
+            cost["conv"] = self.CONV_PENALTY * 2 * frames * (2 * taps[b] + 1)
+            if support[b] <= min(self.MAX_SUPPORT_BINS, self.MAX_FACTOR_ELEMENTS // n):
+                factors[b] = scalogram.band_factors(n, b, tol=self.RANK_TOL)
+                r = factors[b][0].shape[1]
+                cost["low_rank"] = 2 * n * r + 4 * r * frames
+            if not np.isfinite(min(cost.values())):
+                raise ValueError(f"band {b}: no exact form fits a {n}-sample window's budget")
+            kind.append(min(cost, key=cost.get))
+        return kind, factors
+
+    def _low_rank_groups(self, lr: list[int], factors: dict, f_total: int, n: int, frames: int,
+                         order: list[int]) -> tuple[list[np.ndarray], list[np.ndarray]]:  # fmt: skip
+        """The low-rank bands ``lr`` (by rank) in at most :data:`MAX_GROUPS` groups of similar
+        rank: each group's window-side U's ``[window, columns]`` and its Vh's ``[count, 2 r_max,
+        2 frames]``; the groups' bands appended to ``order``."""
+        lr_first: list[np.ndarray] = []
+        lr_second: list[np.ndarray] = []
+        rank = np.array([factors[b][0].shape[1] if b in factors else 0 for b in range(f_total)])
+        self.lr_sizes: list[tuple[int, int]] = []
+        for group in _split_by_length(lr, rank, self.MAX_GROUPS):
+            group = sorted(group)  # band order within a group: often no permutation at the end
+            r_max = int(max(rank[b] for b in group))
+            u1 = np.zeros((n, len(group), 2, r_max))
+            # rows (a, b) = (Re, Im) of x U against [[Vr, Vi], [-Vi, Vr]]:
+            # (a + ib)(Vr + iVi) = (a Vr - b Vi) + i (a Vi + b Vr), real and imaginary side by side
+            v2 = np.zeros((len(group), 2, r_max, 2, frames))
+            for i, b in enumerate(group):
+                u, vh = factors[b]
+                r = u.shape[1]
+                u1[:, i, 0, :r], u1[:, i, 1, :r] = u.real, u.imag
+                v2[i, 0, :r, 0], v2[i, 0, :r, 1] = vh.real, vh.imag
+                v2[i, 1, :r, 0], v2[i, 1, :r, 1] = -vh.imag, vh.real
+            lr_first.append(u1.reshape(n, -1))
+            lr_second.append(v2.reshape(len(group), 2 * r_max, 2 * frames))
+            self.lr_sizes.append((len(group), r_max))
+            order += group
+        return lr_first, lr_second
+
+    def _conv_groups(self, kernels, taps: np.ndarray, kind: list[str], order: list[int]) -> None:
+        """The convolution bands, their polyphase weights registered; appended to ``order``."""
+        f_total = len(taps)
         # convolution bands, in at most MAX_CONV_GROUPS kernel lengths (one: see there)
         conv = sorted((b for b in range(f_total) if kind[b] == "conv"), key=lambda b: taps[b])
         self.conv_half: list[int] = []
@@ -245,20 +280,6 @@ class FactoredGaborEncoder(nn.Module):
             self.register_buffer(f"conv{gi}", polyphase_weight(w, self.hop))
             self.conv_half.append(half)
             order += group
-        dense = [b for b in range(f_total) if kind[b] == "dense"]
-        self.n_dense = len(dense)
-        if dense:
-            m = torch.stack([scalogram.band_map(n, b) for b in dense], 1)  # [n, bands, frames]
-            first.append(torch.stack([m.real, m.imag], 2).reshape(n, -1).numpy())
-            order += dense
-        self.first_cols = [a.shape[1] for a in first]
-        cat = np.concatenate(first, axis=1) if first else np.zeros((n, 0))
-        self.register_buffer("first", torch.from_numpy(cat).float().contiguous())
-        self.kinds = kind
-        perm = np.argsort(order)  # band b sits at position perm[b] of the concatenation
-        self.permute = not np.array_equal(perm, np.arange(f_total))
-        self.register_buffer("perm", torch.from_numpy(perm).long())
-        self.order = order
 
     def macs_per_channel(self) -> int:
         """Multiply-adds of the linear part per channel (what the choice of forms minimised)."""

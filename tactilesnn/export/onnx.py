@@ -265,6 +265,54 @@ def _check_early(pipe: SpikePipeline, spikes, cls: np.ndarray, t_ms: np.ndarray)
             "early_windows_differing": int(off.sum())}  # fmt: skip
 
 
+def _verify_parts(pipe: SpikePipeline, model_part: onnx.ModelProto, spikes: torch.Tensor,
+                  held: list[np.ndarray], ref: np.ndarray, tol: np.ndarray, batch: int, bar,
+                  report: dict) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`verify`'s checks of each part: the graph's spike times (``held``'s one array,
+    handed over: released before the model's session opens) against
+    torch's ``spikes``, and the model's graph on torch's very spike times against ``ref``
+    (ExportError past the tolerances); fills ``report``. Returns the windows whose code flipped
+    a spike on a rounding boundary and the score tolerance end to end."""
+    x_n = len(ref)
+    states = list(pipe.model.state_names)
+    got_spikes = held.pop()
+    t_tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
+    frame_ms = pipe.encoder.frame_period_ms
+    # a window whose code flipped a spike on a rounding boundary (what these checks accept)
+    # may score differently end to end: the model sees another input there
+    want_t = spikes.numpy()
+    if frame_ms is None:
+        dt, flips = compare_spike_times(got_spikes, want_t, pipe.duration_ms, t_tol)
+        flipped = (np.isfinite(got_spikes) != np.isfinite(want_t)).any(axis=(1, 2))
+    else:  # a code clocked by frames: the same frames must spike
+        dt, flips, flipped = compare_frame_spikes(got_spikes, want_t, frame_ms)
+    del got_spikes
+    # with the parts checked, scores are held to the spike-time bound (1e-2) where it is the
+    # looser: a degenerate file's LI read-out (a channel at +30,000 through the LIF code)
+    # differs from torch by up to 1.4e-3 in float32 (tests/encoders/test_degenerate_windows.py)
+    tol = np.maximum(tol, t_tol)
+    mod = _session(model_part)
+    feeds_m = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, x_n)}
+    early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
+    got_m, *got_e = run_batched(mod, ["scores", *early], feeds_m, batch, bar("model"),
+                                trim=True)  # fmt: skip
+    per_m = np.abs(got_m - ref).max(1)
+    dm, off_m = float(per_m.max()), int((~(per_m <= tol)).sum())  # NaN counts as off
+    del mod
+    if off_m > _boundary_allowance(x_n):
+        raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
+                          f"{float(np.min(tol)):.3g}) on {off_m} of {x_n} windows")  # fmt: skip
+    if early:
+        report.update(_check_early(pipe, spikes, *got_e))
+    report.update(
+        encoder_max_time_diff_ms=dt,
+        encoder_cutoff_flips=flips,
+        model_max_score_diff=dm,
+        model_windows_beyond_atol=off_m,
+    )
+    return flipped, tol
+
+
 def verify(
     model: onnx.ModelProto,
     pipe: SpikePipeline,
@@ -316,40 +364,8 @@ def verify(
     flipped = np.zeros(len(x), bool)  # windows whose code flipped a spike (with parts)
     if with_parts:
         assert parts is not None
-        t_tol = max(TIME_ATOL_MS, TIME_RTOL * pipe.duration_ms)
-        frame_ms = pipe.encoder.frame_period_ms
-        # a window whose code flipped a spike on a rounding boundary (what these checks accept)
-        # may score differently end to end: the model sees another input there
-        want_t = spikes.numpy()
-        if frame_ms is None:
-            dt, flips = compare_spike_times(got_t[0], want_t, pipe.duration_ms, t_tol)
-            flipped = (np.isfinite(got_t[0]) != np.isfinite(want_t)).any(axis=(1, 2))
-        else:  # a code clocked by frames: the same frames must spike
-            dt, flips, flipped = compare_frame_spikes(got_t[0], want_t, frame_ms)
-        del got_t
-        # with the parts checked, scores are held to the spike-time bound (1e-2) where it is the
-        # looser: a degenerate file's LI read-out (a channel at +30,000 through the LIF code)
-        # differs from torch by up to 1.4e-3 in float32 (tests/encoders/test_degenerate_windows.py)
-        tol = np.maximum(tol, t_tol)
-        mod = _session(parts[1])
-        feeds_m = {"spikes_in": spikes.numpy().astype(np.float32), **_zero_states(states, len(x))}
-        early = list(EARLY_OUTPUTS) if pipe.model.decides_early else []
-        got_m, *got_e = run_batched(mod, ["scores", *early], feeds_m, batch, bar("model"),
-                                    trim=True)  # fmt: skip
-        per_m = np.abs(got_m - ref).max(1)
-        dm, off_m = float(per_m.max()), int((~(per_m <= tol)).sum())  # NaN counts as off
-        del mod
-        if off_m > _boundary_allowance(len(x)):
-            raise ExportError(f"exported model differs from torch by up to {dm:.3g} (> "
-                              f"{float(np.min(tol)):.3g}) on {off_m} of {len(x)} windows")  # fmt: skip
-        if early:
-            report.update(_check_early(pipe, spikes, *got_e))
-        report.update(
-            encoder_max_time_diff_ms=dt,
-            encoder_cutoff_flips=flips,
-            model_max_score_diff=dm,
-            model_windows_beyond_atol=off_m,
-        )
+        flipped, tol = _verify_parts(pipe, parts[1], spikes, got_t, ref, tol, batch, bar,
+                                     report)  # fmt: skip
     per_window = np.abs(got - ref).max(1) if len(x) else np.zeros(0)
     beyond = ~(per_window <= tol)  # a NaN score is off, not within tolerance
     off = int((beyond & ~flipped).sum())

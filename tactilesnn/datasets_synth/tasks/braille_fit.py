@@ -574,6 +574,53 @@ def check_known(known: dict[str, float] | None, letters: str) -> dict[str, float
     return out
 
 
+def _checked_slides(X: np.ndarray, y: np.ndarray, letters: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(X float64 [N, 12, samples], y int64 [N])``, refused (ValueError) unless finite, one
+    label per slide in range, every letter present."""
+    X = np.asarray(X, np.float64)
+    if X.ndim != 3 or X.shape[1] != 12:
+        raise ValueError(f"the Braille fingertip has 12 taxels: X must be [N, 12, samples], "
+                         f"got {X.shape}")  # fmt: skip
+    if not np.isfinite(X).all():
+        raise ValueError("X holds NaN or Inf")
+    y = np.asarray(y, np.int64)
+    if y.shape != (len(X),) or y.min(initial=0) < 0 or y.max(initial=0) >= len(letters):
+        raise ValueError(f"y must hold one label in 0..{len(letters) - 1} per recording")
+    missing = [letters[k] for k in range(len(letters)) if not (y == k).any()]
+    if missing:
+        raise ValueError(f"no recording of letter(s) {', '.join(missing)}: each class needs one")
+    return X, y
+
+
+def _search(start: dict, bounds: dict, known: dict, problem: tuple, pool, optimiser: str,
+            seed: int, limits: tuple[float, float, int], progress: bool) -> tuple:  # fmt: skip
+    """The optimiser's rounds from ``start`` over ``bounds`` (``known`` held), each round's
+    points evaluated on ``pool`` (or here), until ``limits`` (start time, seconds, evaluations)
+    or the optimiser stops -> ``((loss, values, extra) of the best, evaluations, best loss per
+    round)``."""
+    t0, budget_s, max_evals = limits
+    best: tuple = (np.inf, start, None)
+    evals = 0
+    history: list[float] = []
+    for us in ask_tell(optimiser, _to_unit(start, bounds), seed):
+        vs = [{**known, **_from_unit(np.asarray(u), bounds)} for u in us.points]
+        args = [(v, *problem) for v in vs]
+        done = list(pool.map(_objective, *zip(*args, strict=True)) if pool else
+                    (_objective(*a) for a in args))  # fmt: skip
+        for v, (loss, extra) in zip(vs, done, strict=True):
+            evals += 1
+            if loss < best[0]:
+                best = (loss, v, extra)
+        us.tell([loss for loss, _ in done])
+        history.append(float(best[0]))
+        elapsed = time.perf_counter() - t0
+        if progress:
+            log.info("calibrate: %d evaluations, best %.4f, %.0f s", evals, best[0], elapsed)
+        if elapsed > budget_s or evals >= max_evals or us.done:
+            break
+    return best, evals, history
+
+
 def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float = 540.0,
         max_evals: int = MAX_EVALS, seed: int = 0, progress: bool = False,
         optimiser: str = "cma", workers: int | None = None,
@@ -585,19 +632,8 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     :data:`BOUNDS` (or a letter's force scale) the user measured, held fixed and not searched
     (e.g. ``{"speed_mm_s": 10.07}`` from the arm's encoder: the speed trades against the
     contact's width in time, which one or two slides per letter cannot tell apart)."""
-    X = np.asarray(X, np.float64)
-    if X.ndim != 3 or X.shape[1] != 12:
-        raise ValueError(f"the Braille fingertip has 12 taxels: X must be [N, 12, samples], "
-                         f"got {X.shape}")  # fmt: skip
-    if not np.isfinite(X).all():
-        raise ValueError("X holds NaN or Inf")
     letters = task.letters
-    y = np.asarray(y, np.int64)
-    if y.shape != (len(X),) or y.min(initial=0) < 0 or y.max(initial=0) >= len(letters):
-        raise ValueError(f"y must hold one label in 0..{len(letters) - 1} per recording")
-    missing = [letters[k] for k in range(len(letters)) if not (y == k).any()]
-    if missing:
-        raise ValueError(f"no recording of letter(s) {', '.join(missing)}: each class needs one")
+    X, y = _checked_slides(X, y, letters)
     n = X.shape[-1]
     fs = fs_hz / DECIMATE
     n_dec = n // DECIMATE
@@ -614,25 +650,9 @@ def fit(task: Any, X: np.ndarray, y: np.ndarray, fs_hz: float, budget_s: float =
     n_workers = search_workers() if workers is None else max(1, int(workers))
     with _pool(n_workers) as pool:
         start = pitch_start(start, letters, fs, n_dec, cands, real_dec, pool, known)
-        best: tuple = (np.inf, start, None)
-        evals = 0
-        history: list[float] = []
-        for us in ask_tell(optimiser, _to_unit(start, bounds), seed):
-            vs = [{**known, **_from_unit(np.asarray(u), bounds)} for u in us.points]
-            args = [(v, letters, fs, n_dec, cands, real_dec) for v in vs]
-            done = list(pool.map(_objective, *zip(*args, strict=True)) if pool else
-                        (_objective(*a) for a in args))  # fmt: skip
-            for v, (loss, extra) in zip(vs, done, strict=True):
-                evals += 1
-                if loss < best[0]:
-                    best = (loss, v, extra)
-            us.tell([loss for loss, _ in done])
-            history.append(float(best[0]))
-            elapsed = time.perf_counter() - t0
-            if progress:
-                log.info("calibrate: %d evaluations, best %.4f, %.0f s", evals, best[0], elapsed)
-            if elapsed > budget_s or evals >= max_evals or us.done:
-                break
+        problem = (letters, fs, n_dec, cands, real_dec)
+        best, evals, history = _search(start, bounds, known, problem, pool, optimiser, seed,
+                                       (t0, budget_s, max_evals), progress)  # fmt: skip
     values = best[1]
     # the layout chosen on the search's grid, then the pads' gains and offsets again as the
     # task will render them (every frame, the sensor's own quadrature)
