@@ -1,9 +1,11 @@
 """The ``--data`` policy: what ``tactilesnn train --data FILE`` (and ``SpikeClassifier``, ``bench
 real``) starts from when the user sets nothing, derived from the file's facts
-(:class:`~tactilesnn.recordings.DataFacts`: events or analog, taxel grid, window). One module,
-so the defaults of files nobody tuned for are read, changed and measured in one place; every
-value below says what it was measured against. The selection's budget (how much of a run the
-encoder comparison may cost) is :mod:`tactilesnn.selection`'s.
+(:class:`~tactilesnn.core.data.DataFacts`: events or analog, taxel grid, window): the
+defaults of the pipeline, and those that go with one component only. Every value below says
+what it was measured against. :mod:`tactilesnn.resolve` applies them between the data's facts
+and the user's choices; the cut of long recordings is :func:`~tactilesnn.recordings.auto_cut`'s,
+the selection's budget (how much of a run the encoder comparison may cost)
+:mod:`tactilesnn.selection`'s.
 """
 
 from __future__ import annotations
@@ -21,18 +23,32 @@ def data_file_defaults(facts: DataFacts) -> dict[str, Any]:
     normalised codes drop), and for
     event files (``X [N, taxels, polarity, bins]``) the ``events`` encoder; event taxels that form
     a ``grid`` (``"ROWSxCOLS"``, declared or square) or sit in its ``cells`` (placed from their
-    positions) get the convolutional ``csnn`` model."""
-    events, grid, cells = facts.events, facts.grid, facts.cells
+    positions) get the convolutional ``csnn`` model, with the settings of
+    :func:`model_defaults` for it."""
+    events, grid = facts.events, facts.grid
     out: dict[str, Any] = {"channels": ("all",), "model": "readout",
                            "level_neurons": DATA_LEVEL_NEURONS, "level_scale": DATA_LEVEL_SCALE,
                            "level_share": DATA_LEVEL_SHARE}  # fmt: skip
     if events:  # counts: the rank pair alone (see DATA_LEVEL_SCALE)
         out.update(encoder="events", level_scale="rank", level_share=False)
     if events and grid is not None:  # the conv model maps every afferent onto the grid
-        out.update(model="csnn", csnn_grid=grid, level_neurons=0, epochs=CSNN_DATA_EPOCHS,
-                   lr_schedule="cosine", csnn_dt_ms=0.0, csnn_tau_ms=0.0)  # fmt: skip
-        if cells:
-            out["csnn_cells"] = tuple(cells)
+        out["model"] = "csnn"
+    return out
+
+
+def model_defaults(facts: DataFacts, model: str) -> dict[str, Any]:
+    """Flat settings that go with ``model`` on this data, whichever way it was chosen (by
+    :func:`data_file_defaults` or by the user), and only with it: the ``csnn`` on an event file
+    whose taxels form a grid gets the grid (and the taxels' ``cells``), every afferent on it (no
+    level code), its epochs and the cosine schedule (:data:`CSNN_DATA_EPOCHS`), and its time step
+    and constant from the window. Another model on the same file keeps its own defaults."""
+    if model != "csnn" or not facts.events or facts.grid is None:
+        return {}
+    out: dict[str, Any] = {"csnn_grid": facts.grid, "level_neurons": 0,
+                           "epochs": CSNN_DATA_EPOCHS, "lr_schedule": "cosine",
+                           "csnn_dt_ms": 0.0, "csnn_tau_ms": 0.0}  # fmt: skip
+    if facts.cells:
+        out["csnn_cells"] = tuple(facts.cells)
     return out
 
 

@@ -26,12 +26,11 @@ from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.utils.multiclass import check_classification_targets
 from sklearn.utils.validation import check_array, check_is_fitted, column_or_1d
 
-from .config import DEFAULT_ENCODER, PipelineConfig
 from .core.checks import check_float32_range, check_rate
-from .core.data import WindowDataset
-from .data_policy import DATA_ENCODER_CANDIDATES, DATA_LEVEL_NEURONS, data_file_defaults
+from .core.data import DataFacts, WindowDataset
 from .models.base import seeded
-from .recordings import DataFacts
+from .recordings import events_as_channels, layout_of
+from .resolve import Resolution, resolve
 from .selection import fit_encoder_to_data, select_encoder
 from .training import fit_pipeline
 
@@ -45,8 +44,10 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
 
     Parameters
     ----------
-    encoder : registered encoder name, or ``"auto"`` (chosen on held-out training windows).
-    model : registered model name (``readout``, ``snn``, ``tempotron``, ``csnn``...).
+    encoder : registered encoder name, or ``"auto"``: as ``train --data`` (chosen on held-out
+        training windows; the ``events`` encoder for event counts).
+    model : registered model name (``readout``, ``snn``, ``tempotron``, ``csnn``...), or
+        ``"auto"``: as ``train --data`` (``readout``; ``csnn`` for event taxels on a grid).
     encoder_params, model_params : settings of the encoder's / model's config (field names, e.g.
         ``{"n_bands": 16}``, ``{"hidden": 64}``); unset fields keep the component's defaults
         for the data's rate and window.
@@ -55,7 +56,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
     batch_size, clock_afferents, seed : as ``tactilesnn train``.
     level_neurons : receptive fields of the calibrated level code appended to the encoder's
         spikes (:mod:`tactilesnn.encoders.level`; 0 = off, needed by models that map every
-        afferent onto a taxel grid, such as ``csnn``).
+        afferent onto a taxel grid, such as ``csnn``; None: as ``train --data``).
     level_scale, level_share : what the level code's pairs code (``"rank"``, ``"linear"`` or
         ``"rank+linear"``) and whether each channel's share of the window's total level is a
         third statistic (None: as ``train --data`` for the data: ``rank+linear`` and the share
@@ -69,14 +70,14 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
     def __init__(
         self,
         encoder: str = AUTO,
-        model: str = "readout",
+        model: str = AUTO,
         encoder_params: dict | None = None,
         model_params: dict | None = None,
         channels: str | tuple[str, ...] = "all",
         epochs: int | None = None,
         batch_size: int = 32,
         clock_afferents: int = 5,
-        level_neurons: int = DATA_LEVEL_NEURONS,
+        level_neurons: int | None = None,
         level_scale: str | None = None,
         level_share: bool | None = None,
         val_fraction: float = 0.0,
@@ -122,11 +123,12 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.n_features_in_ = int(np.prod(data.X.shape[1:]))
         self.channel_names_ = data.channel_names
         self.fs_hz_ = data.fs_hz
-        config = self._config(data)
-        self.encoder_selection_: dict[str, Any] | None = None
-        if self.encoder == AUTO and data.X.ndim == 3:
-            config, self.encoder_selection_ = select_encoder(config, data,
-                                                             DATA_ENCODER_CANDIDATES)  # fmt: skip
+        res = self._config(data)
+        config, self.encoder_selection_ = res.config, None
+        if res.select:  # as train --data: the encoder chosen on held-out training recordings
+            config, self.encoder_selection_ = select_encoder(config, data, res.select)
+        elif res.keep is not None:  # the encoder named: its bands follow the data
+            config = fit_encoder_to_data(config, data, keep=res.keep)
         with seeded(config.seed):  # the one fit path (as tactilesnn train fits)
             fitted = fit_pipeline(config, data, progress=self.progress,
                                   val_fraction=float(self.val_fraction))  # fmt: skip
@@ -154,6 +156,9 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
                              "SpikeClassifier(fs_hz=...)")  # fmt: skip
         fs = _rate(fs)
         arr = _windows(X)
+        facts = None
+        if arr.ndim == 4:  # event counts: a channel per taxel and polarity, as train --data
+            facts, arr, channel_names = _event_channels(arr, fs, channel_names)
         labels, y_idx = np.unique(column_or_1d(y, warn=True), return_inverse=True)
         if len(y_idx) != len(arr):
             raise ValueError(f"X has {len(arr)} windows but y has {len(y_idx)} labels")
@@ -164,30 +169,28 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if len(scan) != len(arr):
             raise ValueError(f"groups has {len(scan)} entries for {len(arr)} windows")
         data = WindowDataset(arr, y_idx.astype(np.int64), scan.astype(np.int64), float(fs),
-                             tuple(str(c) for c in labels), names)  # fmt: skip
+                             tuple(str(c) for c in labels), names, facts=facts)  # fmt: skip
         return data, labels
 
-    def _config(self, data: WindowDataset) -> PipelineConfig:
-        """The pipeline settings: ``train --data``'s defaults, then this estimator's."""
-        defaults = data_file_defaults(DataFacts(events=data.X.ndim == 4))
-        flat = {k: v for k, v in defaults.items() if k not in ("encoder", "model")}
-        encoder = self.encoder if self.encoder != AUTO else defaults.get("encoder", DEFAULT_ENCODER)
-        d = PipelineConfig.from_flat(encoder=encoder, model=self.model, **flat).to_dict()
-        d["encoder"].update(self.encoder_params or {})
-        d["model"].update(self.model_params or {})
-        d["channels"] = ["all"] if self.channels == "all" else list(self.channels)
-        d["clock_afferents"] = self.clock_afferents
-        d["level_neurons"] = self.level_neurons
-        if self.level_scale is not None:
-            d["level_scale"] = self.level_scale
-        if self.level_share is not None:
-            d["level_share"] = self.level_share
-        d["train"].update(batch_size=self.batch_size, seed=self.seed,
-                          **({"epochs": self.epochs} if self.epochs is not None else {}))  # fmt: skip
-        # bands that follow the rate and spectrum, as train --data sets them (the user's win)
-        return fit_encoder_to_data(
-            PipelineConfig.from_dict(d), data, keep=self.encoder_params or ()
-        )
+    def _config(self, data: WindowDataset) -> Resolution:
+        """The run's settings as ``tactilesnn train --data`` resolves them for the file the
+        windows were read from (their :attr:`~WindowDataset.facts`; windows from elsewhere are
+        analog recordings), this estimator's parameters the user's choices
+        (:func:`~tactilesnn.resolve.resolve`)."""
+        given: dict[str, Any] = {
+            "channels": ("all",) if self.channels == "all" else tuple(self.channels),
+            "clock_afferents": self.clock_afferents, "batch_size": self.batch_size,
+            "seed": self.seed,
+        }  # fmt: skip
+        for key in ("encoder", "model"):
+            if getattr(self, key) != AUTO:
+                given[key] = getattr(self, key)
+        for key in ("level_neurons", "level_scale", "level_share", "epochs"):
+            if getattr(self, key) is not None:
+                given[key] = getattr(self, key)
+        return resolve(given, facts=data.facts or DataFacts(events=False),
+                       fields={"encoder": self.encoder_params or {},
+                               "model": self.model_params or {}})  # fmt: skip
 
     # ------------------------------------------------------------------ predict
     def decision_function(self, X: Any) -> np.ndarray:
@@ -208,6 +211,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         if isinstance(X, WindowDataset):  # it says its rate and channels: checked, as the CLI does
             X = self._matched(X)
         arr = _windows(X, min_samples=1)  # (a wrong window length is reported below)
+        if arr.ndim == 4:  # event counts, a channel per taxel and polarity (as in fit)
+            arr = arr.reshape(len(arr), -1, arr.shape[-1])
         want = (len(self.channel_names_), self.pipeline_.window)
         if arr.shape[1:3] != want:
             raise ValueError(
@@ -301,6 +306,20 @@ def _windows(X: Any, min_samples: int = 2) -> np.ndarray:
         raise ValueError(f"windows need at least 2 samples, got shape {list(arr.shape)}")
     check_float32_range(arr, "X")
     return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+def _event_channels(arr: np.ndarray, fs: float,
+                    names: Any) -> tuple[DataFacts, np.ndarray, np.ndarray]:  # fmt: skip
+    """Event counts ``[N, taxels, polarity, bins]`` -> ``(their facts, [N, taxels x polarity,
+    bins], the channels' names <taxel>:<polarity>)`` as ``train --data`` reads an event file
+    (``names``: the taxels' names); taxels that fill a square form its grid."""
+    taxels = arr.shape[1]
+    arrays = {"X": arr, "fs": np.asarray(fs)}
+    if names is not None:
+        arrays["channel_names"] = np.asarray([str(c) for c in names])
+    out = events_as_channels(arrays, "X")
+    layout = layout_of(taxels, None, None, "X")
+    return DataFacts(True, *(layout or (None, ()))), out["X"], out["channel_names"]
 
 
 def _channel_names(names: Any, n: int) -> tuple[str, ...]:

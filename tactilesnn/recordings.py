@@ -19,7 +19,6 @@ from __future__ import annotations
 import logging
 import math
 import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +30,7 @@ from .core.checks import (
     check_positive,
     check_rate,
 )
-from .core.data import WindowDataset
+from .core.data import DataFacts, WindowDataset
 from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
 
@@ -303,7 +302,10 @@ def datasets_from_arrays(
     recordings' ``class_signal`` where the arrays hold one)."""
     if "X" in arrays:
         check_sizes(np.shape(arrays["X"]), path)
+    facts = DataFacts(False)
     if "X" in arrays and arrays["X"].ndim == 4:  # events [N, taxels, polarity, bins]
+        layout = layout_of(arrays["X"].shape[1], arrays.get("taxel_xy"), arrays.get("grid"), path)
+        facts = DataFacts(True, *(layout or (None, ())))
         arrays = events_as_channels(arrays, path)
     if any(k.startswith("X@") for k in arrays):
         arrays = merge_streams(arrays, path)
@@ -348,30 +350,35 @@ def datasets_from_arrays(
         check_finite(X, f"{path}: X")
         check_float32_range(X, f"{path}: X")
     groups = recording_ids(arrays.get("recording"), y.size, path)
-    split = arrays.get("split")
-    if split is None:
-        split = split_by_recording(y, groups, test_fraction, seed)
-    else:
-        split = np.asarray(split)
-        if split.shape != y.shape or not np.isin(split, (0, 1)).all():
-            raise ValueError(f"{path}: split must be [N] of 0 (train) / 1 (test)")
-        if not ((split == 0).any() and (split == 1).any()):
-            raise ValueError(f"{path}: split must put windows in both train (0) and test (1)")
-        straddle = np.intersect1d(groups[split == 0], groups[split == 1])
-        if straddle.size and "recording" in arrays:
-            raise ValueError(
-                f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets"
-            )
+    split = _split(arrays, y, groups, test_fraction, seed, path)
 
     signal = _class_signal(arrays, X.shape, path)
 
     def take(m: np.ndarray) -> WindowDataset:
-        ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch)
+        ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch, facts=facts)
         if window is None:
             return ds
         return cut_windows(ds, *window, class_signal=None if signal is None else signal[m])
 
     return take(split == 0), take(split == 1)
+
+
+def _split(arrays: dict[str, np.ndarray], y: np.ndarray, groups: np.ndarray, test_fraction: float,
+           seed: int, path: Path | str) -> np.ndarray:  # fmt: skip
+    """``[N]`` 0 (train) / 1 (test): the file's ``split`` (checked: both sets, no recording in
+    both), else ``test_fraction`` of the recordings by class from ``seed``."""
+    split = arrays.get("split")
+    if split is None:
+        return split_by_recording(y, groups, test_fraction, seed)
+    split = np.asarray(split)
+    if split.shape != y.shape or not np.isin(split, (0, 1)).all():
+        raise ValueError(f"{path}: split must be [N] of 0 (train) / 1 (test)")
+    if not ((split == 0).any() and (split == 1).any()):
+        raise ValueError(f"{path}: split must put windows in both train (0) and test (1)")
+    straddle = np.intersect1d(groups[split == 0], groups[split == 1])
+    if straddle.size and "recording" in arrays:
+        raise ValueError(f"{path}: split puts recording(s) {straddle[:5].tolist()} in both sets")
+    return split
 
 
 def _class_signal(arrays: dict[str, np.ndarray], shape: tuple[int, ...],
@@ -452,62 +459,44 @@ def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
 
 
 def event_layout(path: Path) -> tuple[str, tuple[int, ...]] | None:
-    """``(grid "ROWSxCOLS", cells)`` of an event file's taxels: from its ``taxel_xy`` ``[taxels, 2]``
-    (mm) when given (:func:`~tactilesnn.core.layout.place_on_grid`: any layout, any order), else
-    ``(event_grid(path), ())`` (the taxels fill the grid row by row), else None."""
+    """``(grid "ROWSxCOLS", cells)`` of an event file's taxels (headers and the small arrays
+    only; :func:`layout_of`), or None (not an event file, or no grid)."""
     try:
         shape = _npy_shape(path, "X.npy")
         with zipfile.ZipFile(path) as z:
-            has_xy = "taxel_xy.npy" in z.namelist()
-        if has_xy:
+            names = set(z.namelist())
+        if len(shape) != 4:
+            return None
+        if "taxel_xy.npy" in names:
             check_allocation(16 * shape[1], "taxel_xy")
-            xy = np.load(path, allow_pickle=False)["taxel_xy"]
+        small = {}
+        with np.load(path, allow_pickle=False) as f:
+            for key in ("taxel_xy", "grid"):
+                if f"{key}.npy" in names:
+                    small[key] = f[key]
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return None  # the loader reports what is wrong with the file
-    if len(shape) != 4:
-        return None
-    if has_xy:
-        rows, cols, cells = place_on_grid(check_taxel_xy(xy, shape[1], f"{path}: taxel_xy"))
+    return layout_of(shape[1], small.get("taxel_xy"), small.get("grid"), path)
+
+
+def layout_of(taxels: int, taxel_xy: np.ndarray | None, grid: np.ndarray | None,
+              path: Path | str) -> tuple[str, tuple[int, ...]] | None:  # fmt: skip
+    """``(grid "ROWSxCOLS", cells)`` of ``taxels`` event taxels: from their ``taxel_xy``
+    ``[taxels, 2]`` (mm) when given (:func:`~tactilesnn.core.layout.place_on_grid`: any layout,
+    any order), else the declared ``grid`` ``[2]`` (rows x cols must equal the taxels) or a
+    square when the taxel count is one (>= 4), the taxels filling it row by row; else None."""
+    if taxel_xy is not None:
+        rows, cols, cells = place_on_grid(check_taxel_xy(taxel_xy, taxels, f"{path}: taxel_xy"))
         return f"{rows}x{cols}", tuple(int(c) for c in cells)
-    grid = event_grid(path)
-    return (grid, ()) if grid is not None else None
-
-
-def event_grid(path: Path) -> str | None:
-    """``"ROWSxCOLS"`` of an event file's taxels: its ``grid`` ``[2]`` if given (rows x cols must
-    equal the taxels), else a square when the taxel count is one (>= 4), else None."""
-    try:
-        shape = _npy_shape(path, "X.npy")
-        with zipfile.ZipFile(path) as z:
-            declared = "grid.npy" in z.namelist()
-        grid = np.load(path, allow_pickle=False)["grid"] if declared else None
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return None  # the loader reports what is wrong with the file
-    if len(shape) != 4:
-        return None
-    taxels = shape[1]
     if grid is not None:
         g = np.asarray(grid).reshape(-1)
         if g.size != 2 or g.dtype.kind not in "iu" or int(g[0]) * int(g[1]) != taxels:
             raise ValueError(
                 f"{path}: grid must be [rows, cols] with rows x cols = {taxels} taxels"
             )
-        return f"{int(g[0])}x{int(g[1])}"
+        return f"{int(g[0])}x{int(g[1])}", ()
     side = math.isqrt(taxels)
-    return f"{side}x{side}" if side >= 2 and side * side == taxels else None
-
-
-@dataclass(frozen=True)
-class DataFacts:
-    """What the defaults of ``train --data`` follow, read from a file's headers once per run:
-    whether it holds events (``X [N, taxels, polarity, bins]``), their taxels' ``grid`` and
-    ``cells`` (:func:`event_layout`), and the window its recordings are cut into when none is
-    set (``auto_cut``: ``(window_s, hop_s)`` or None)."""
-
-    events: bool
-    grid: str | None = None
-    cells: tuple[int, ...] = ()
-    auto_cut: tuple[float, float] | None = None
+    return (f"{side}x{side}", ()) if side >= 2 and side * side == taxels else None
 
 
 def data_facts(path: Path) -> DataFacts:

@@ -18,7 +18,7 @@ ROOT = Path(tactilesnn.__file__).resolve().parent
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("core",)),
     ("components", ("datasets_synth", "encoders", "models", "recordings", "readers")),
-    ("pipeline", ("config", "data_policy", "pipeline", "trainer", "baselines")),
+    ("pipeline", ("config", "data_policy", "resolve", "pipeline", "trainer", "baselines")),
     (
         "training | export | service",
         ("training", "selection", "estimator", "streaming", "export", "service"),

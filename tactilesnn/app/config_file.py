@@ -27,7 +27,7 @@ COMMAND = {"out": str, "overwrite": bool, "resume": bool, "quiet": bool}
 @dataclass(frozen=True)
 class TrainFile:
     """What a ``--config`` file holds: its text, the run options it sets and its pipeline
-    settings (nested or flat, as :func:`tactilesnn.app.defaults.pipeline_config` takes them)."""
+    settings (nested or flat, as :func:`tactilesnn.resolve.resolve` takes them)."""
 
     text: str
     run: dict[str, Any] = field(default_factory=dict)

@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from ..config import PipelineConfig
-from ..data_policy import DATA_ENCODER_CANDIDATES, data_file_defaults
+from ..data_policy import DATA_ENCODER_CANDIDATES
 from ..datasets_synth import WindowDataset
 from ..recordings import DataFacts, auto_window, load_data_file
+from ..resolve import resolve
 
 log = logging.getLogger("tactilesnn")
 
@@ -106,25 +107,38 @@ PIPELINES = (
     # transform -> code: Gabor band envelopes into LIF converters (the bands encoder's defaults)
     ("gwt>lif+readout", "bands", "readout", "analog", {}),
     # convolutions need a taxel grid, every afferent on it (as train --data gives a grid file)
-    ("events+csnn", "events", "csnn", "events", {"level_neurons": 0}),
+    # (pinned as measured: train --data gives a grid file's csnn 12 epochs on a cosine schedule,
+    # its time step and constant from the window, the grid from the file)
+    (
+        "events+csnn",
+        "events",
+        "csnn",
+        "events",
+        {
+            "level_neurons": 0,
+            "epochs": 40,
+            "lr_schedule": "constant",
+            "csnn_dt_ms": 5.0,
+            "csnn_tau_ms": 50.0,
+            "csnn_grid": "auto",
+        },
+    ),
     # the continuous code and the stream model: scored per window and as it runs frame by frame
-    ("frames+stream", "frames", "stream", "analog", {}),
+    # (40 epochs pinned as measured: the stream model's own default is 15)
+    ("frames+stream", "frames", "stream", "analog", {"epochs": 40}),
 )
 
 
 def default_config(events: bool, encoder: str | None, model: str, seed: int,
-                   settings: dict | None = None) -> PipelineConfig:  # fmt: skip
+                   settings: dict | None = None,
+                   facts: DataFacts | None = None) -> PipelineConfig:  # fmt: skip
     """What ``tactilesnn train --data FILE [--encoder E] --model M --seed S [settings]`` would
-    use."""
-    flat = {
-        **data_file_defaults(DataFacts(events)),
-        "model": model,
-        "seed": seed,
-        **(settings or {}),
-    }
+    use (:func:`~tactilesnn.resolve.resolve`; ``facts``: the file's, else those of an analog or
+    ``events`` file without a grid)."""
+    given = {"model": model, "seed": seed, **(settings or {})}
     if encoder is not None:
-        flat["encoder"] = encoder
-    return PipelineConfig.from_flat(flat, strict=True)
+        given["encoder"] = encoder
+    return resolve(given, facts=facts or DataFacts(events)).config
 
 
 # ---------------------------------------------------------------- non-spiking references
@@ -309,7 +323,7 @@ def _one_split(name: str, seed: int, train, test, events: bool, chosen: list, ep
     for label, enc, model, applies, settings in chosen:
         if applies == ("analog" if events else "events"):
             continue
-        cfg = default_config(events, enc, model, seed, settings)
+        cfg = default_config(events, enc, model, seed, settings, train.facts)
         if epochs is not None:
             cfg = cfg.replace(train=replace(cfg.train, epochs=epochs))
         t0 = time.perf_counter()

@@ -24,6 +24,21 @@ import numpy as np
 
 
 @dataclass(frozen=True)
+class DataFacts:
+    """What the defaults of ``train --data`` follow, read once per run from a file's headers
+    (:func:`~tactilesnn.recordings.data_facts`) or kept by the windows loaded from it
+    (:attr:`WindowDataset.facts`): whether it holds events (``X [N, taxels, polarity, bins]``),
+    their taxels' ``grid`` (``"ROWSxCOLS"``) and ``cells``
+    (:func:`~tactilesnn.recordings.event_layout`), and the window its recordings are cut into
+    when none is set (``auto_cut``: ``(window_s, hop_s)`` or None)."""
+
+    events: bool
+    grid: str | None = None
+    cells: tuple[int, ...] = ()
+    auto_cut: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
 class WindowDataset:
     """Windows of one split: ``X [N, C, W]`` float32, ``y [N]`` int64, ``scan [N]`` int64."""
 
@@ -35,6 +50,9 @@ class WindowDataset:
     channel_names: tuple[str, ...]
     transform: Callable[[np.ndarray], Any] | None = field(default=None, compare=False)
     confidence: np.ndarray | None = field(default=None, compare=False)
+    #: the facts of the file the windows were read from (None: not read from a file), which
+    #: the defaults of ``train --data`` and ``SpikeClassifier`` follow alike
+    facts: DataFacts | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         c = self.confidence
