@@ -159,7 +159,7 @@ class SpikePipeline:
         carries state across windows: the encoder's ``codes_with_past``), so that a window
         served in a stream differs from the same window alone. Not for a pipeline that runs
         frame by frame: its model's state is carried too, and it is scored so
-        (:mod:`~tactilesnn.streaming`), not as windows served one by one."""
+        (:mod:`~tactilesnn.stream_training`), not as windows served one by one."""
         return self.encoder.codes_with_past and self.frame_problem() is not None
 
     def encode_in_recordings(

@@ -24,7 +24,7 @@ from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
 from .pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
-from .streaming import fit_streams, stream_evaluation
+from .stream_training import fit_streams, stream_evaluation
 from .trainer import Trainer
 
 log = logging.getLogger("tactilesnn")

@@ -101,3 +101,47 @@ def test_generated_tables_are_the_ones_their_json_gives():
     assert (docs / "real.md").read_text() == real.page(r["summary"], r["command"], r["machine"])
     readme = (ROOT / "README.md").read_text()
     assert real.with_readme_table(readme, r["summary"]) == readme, "README's table is stale"
+
+
+def _dotted_names(text: str) -> set[str]:
+    """``tactilesnn.a.b`` references (code spans, Sphinx roles; a leading ``~`` dropped)."""
+    return set(re.findall(r"(?<![\w.])tactilesnn(?:\.[A-Za-z_]\w*)+", text))
+
+
+def _resolves(name: str) -> bool:
+    """``name`` is a module of the package, or an attribute of one (a class's member too)."""
+    import importlib
+
+    parts = name.split(".")
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        for attr in parts[i:]:
+            if not hasattr(obj, attr):
+                return False
+            obj = getattr(obj, attr)
+        return True
+    return False
+
+
+def test_every_module_path_named_in_docs_and_docstrings_exists():
+    """Every ``tactilesnn.x.y`` a page or a docstring names, and every ``x/y.py`` a page names,
+    is in the package (renames and removals leave no dangling name)."""
+    pkg = ROOT / "tactilesnn"
+    texts = {p.name: p.read_text() for p in PAGES}
+    texts |= {str(p.relative_to(ROOT)): p.read_text() for p in pkg.rglob("*.py")}
+    tags = set(re.findall(r"= \"(tactilesnn\.[\w.]+)\"", "".join(texts.values())))  # kind tags
+    bad = sorted({f"{where}: {n}" for where, text in texts.items() for n in _dotted_names(text)
+                  if n not in tags and not _resolves(n.rstrip("."))})  # fmt: skip
+    files = {str(p.relative_to(pkg)) for p in pkg.rglob("*.py")}
+    for page in PAGES:
+        for path in re.findall(r"`((?:[a-z_]+/)+[a-z_]+\.py)`", page.read_text()):
+            rel = path.removeprefix("tactilesnn/")
+            if (
+                not any(f == rel or f.endswith("/" + rel) for f in files)
+                and not (ROOT / path).is_file()
+            ):
+                bad.append(f"{page.name}: {path}")
+    assert not bad, bad

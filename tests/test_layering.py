@@ -21,7 +21,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("pipeline", ("config", "data_policy", "resolve", "pipeline", "trainer", "baselines")),
     (
         "training | export | service",
-        ("training", "selection", "estimator", "streaming", "export", "service"),
+        ("training", "selection", "estimator", "stream_training", "export", "service"),
     ),
     ("application", ("app",)),
     ("benchmarks", ("bench",)),
@@ -33,7 +33,7 @@ SIDE_BY_SIDE = {
     "training": "training",
     "selection": "training",
     "estimator": "training",
-    "streaming": "training",
+    "stream_training": "training",
     "export": "export",
     "service": "service",
 }

@@ -51,7 +51,7 @@ def parity_line(rep: dict) -> str:
 
 def frame_stream_line(st: dict) -> str:
     """The train command's line for a stream model scored frame by frame
-    (:func:`~tactilesnn.streaming.stream_evaluation`)."""
+    (:func:`~tactilesnn.stream_training.stream_evaluation`)."""
     text = (f"as a stream (frame by frame, state carried, a decision every {st['frame_ms']:.3g} "
             f"ms frame): per window {100 * st['per_window']:.2f} %")  # fmt: skip
     if "per_recording" in st:
@@ -143,7 +143,7 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
     if fmt == "nir":
         pipe.model.to_nir()  # refuses models NIR cannot express, before any work
     if stream:
-        from ..export.stream import StreamEncoderGraph
+        from ..export.stream_graph import StreamEncoderGraph
 
         StreamEncoderGraph(pipe, stream_step)  # refuses a step that does not fit, first
     test = source_of(cfg).load_test(pipe.config.seed, progress=progress)
@@ -165,7 +165,7 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
             f"{100 * rep['decisions_agree']:.2f} %"
         ]
     if stream:
-        from ..export.stream import export_stream
+        from ..export.stream_graph import export_stream
 
         rep = export_stream(pipe, Path(out), test.X, metadata=meta, overwrite=overwrite,
                             step=stream_step)  # fmt: skip

@@ -2,7 +2,7 @@
 validation, export) and every pipeline setting of the registered components.
 
 The command line builds its ``train`` flags from it, a sweep file and a TOML ``--config`` are
-checked against it, and :func:`tactilesnn.app.select.run_spec` turns a settings dict into a
+checked against it, and :func:`tactilesnn.app.defaults.run_spec` turns a settings dict into a
 :class:`~tactilesnn.app.run.RunSpec`. Values are checked by type here (a TOML ``"false"`` is not
 a boolean, ``1e9`` is not an integer), ranges by the component configs.
 """

@@ -313,7 +313,7 @@ def _stream_call(
 
     from ..core.onnx_prune import prune_to_outputs
     from ..export.onnx import build_model_part
-    from ..export.stream import build_stream_graph, initial_state, stream_session
+    from ..export.stream_graph import build_stream_graph, initial_state, stream_session
 
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = 1

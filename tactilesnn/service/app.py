@@ -43,7 +43,7 @@ from starlette.routing import Route
 from .live import LiveHub, page_html, page_script_js, window_event
 from .runtime import InputError, PipelineSession
 from .security import BrowserGuard, default_allowed_hosts
-from .streams import StreamTable, TooManyStreams
+from .stream_table import StreamTable, TooManyStreams
 
 MAX_BODY_BYTES = 8 << 20
 MAX_STREAMS = 256

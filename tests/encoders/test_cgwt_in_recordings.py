@@ -11,7 +11,7 @@ import torch
 from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig
 from tactilesnn.core.data import join_run, recording_runs
-from tactilesnn.export.stream import export_stream
+from tactilesnn.export.stream_graph import export_stream
 from tactilesnn.pipeline import SpikePipeline
 
 FS, WINDOW = 1000.0, 200

@@ -95,7 +95,7 @@ def test_the_cgwt_stream_graph_holds_at_any_scale(scale, tmp_path):
     """The stream graph's recursion runs on the samples times a fitted power of two per
     channel: at 1e-40 (subnormal float32) it once rounded unlike the float64 reference and the
     export failed ("a spike ... is missing"); the gain is exact and the code scale-free."""
-    from tactilesnn.export.stream import export_stream
+    from tactilesnn.export.stream_graph import export_stream
 
     x, y = _windows(n=24)
     x = x[:, [0, 0, 0, 0]] * np.float32(scale) * np.float32([1.0, 3.0, 0.25, 1e3])[:, None]

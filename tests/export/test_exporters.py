@@ -14,7 +14,7 @@ from tactilesnn.config import PipelineConfig
 from tactilesnn.core.onnx_graph import chosen_exporter, component_to_onnx, operator_nodes
 from tactilesnn.export import export_pipeline
 from tactilesnn.export.onnx import build_graph
-from tactilesnn.export.stream import export_stream, stream_windows
+from tactilesnn.export.stream_graph import export_stream, stream_windows
 from tactilesnn.pipeline import SpikePipeline
 from tactilesnn.service.runtime import PipelineSession
 

@@ -10,7 +10,7 @@ import pytest
 from tactilesnn.cli import main
 from tactilesnn.config import PipelineConfig
 from tactilesnn.export import export_pipeline
-from tactilesnn.export.stream import build_stream_graph, export_stream, stream_windows
+from tactilesnn.export.stream_graph import build_stream_graph, export_stream, stream_windows
 from tactilesnn.pipeline import SpikePipeline
 from tactilesnn.service.runtime import InputError, PipelineSession, StreamState
 

@@ -181,7 +181,7 @@ def test_soak_thousands_of_abandoned_streams_never_lock_out(tmp_path, served):
 
 @pytest.mark.slow
 def test_the_service_serves_a_stream_graph(tmp_path):
-    from tactilesnn.export.stream import export_stream
+    from tactilesnn.export.stream_graph import export_stream
 
     cfg = PipelineConfig.from_flat(encoder="cgwt", epochs=2)
     run, _ = run_task("hook_loop", SMALL, cfg, tmp_path / "r", progress=False)

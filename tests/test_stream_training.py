@@ -1,4 +1,4 @@
-"""A stream model scored as it runs (streaming.py): the settle latency on hand-made decisions,
+"""A stream model scored as it runs (stream_training.py): the settle latency on hand-made decisions,
 and the figures of a trained pipeline over recordings tiled by windows."""
 
 import numpy as np
@@ -7,7 +7,7 @@ import torch
 
 from tactilesnn.config import PipelineConfig
 from tactilesnn.pipeline import SpikePipeline
-from tactilesnn.streaming import settle_latency_ms, stream_evaluation
+from tactilesnn.stream_training import settle_latency_ms, stream_evaluation
 
 
 def test_the_settle_latency():
@@ -67,7 +67,7 @@ def test_window_pipelines_are_not_scored_as_frames():
 
 @pytest.mark.slow
 def test_training_on_streams_is_bounded_by_a_byte_budget(monkeypatch):
-    import tactilesnn.streaming as streaming
+    import tactilesnn.stream_training as streaming
 
     X, y, scan = _recordings(n_rec=6, windows=4)
     cfg = PipelineConfig.from_flat(encoder="frames", model="stream", channels=("all",), epochs=1,
