@@ -99,7 +99,7 @@ def _task_option_values(args: argparse.Namespace) -> dict:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from .app.commands import frame_stream_line, parity_line, stream_hint
+    from .app.commands import condition_lines, frame_stream_line, parity_line, stream_hint
     from .app.defaults import run_spec
     from .app.run import train_run
 
@@ -129,6 +129,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     if "test_accuracy_per_recording" in m:
         print(f"per recording (scores summed over its windows): "
               f"{100 * m['test_accuracy_per_recording']:.2f} % on {m['n_test_recordings']}")  # fmt: skip
+    for line in condition_lines(m, spec.source):
+        print(line)
     if "in_stream" in m:
         st = m["in_stream"]
         print(f"as a stream serves them (each window coded with its recording's past, "

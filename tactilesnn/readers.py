@@ -19,7 +19,9 @@
   Recordings of different lengths are cut into windows of the shortest one's length among those
   at least half the median length (at least :data:`MIN_WINDOW` samples; shorter ones are left
   out, said in the log), every half window; windows keep their recording's id, so they never
-  straddle a split and scores are also summed per recording.
+  straddle a split and scores are also summed per recording. Conditions the file names state
+  (``Class_F150_V-50mmps_3.csv``: ``F`` = 150, ``V`` = -50) or sub-folder levels below the
+  class's become ``group_<name>`` arrays (:func:`conditions_from_names`).
 
 Every conversion is logged in one line (layout found, rate, jitter, what was resampled or cut);
 a file that is almost right gets an error naming the fix.
@@ -36,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation
+from .core.data import GROUP_PREFIX
 from .core.files import npy_header
 from .core.tables import Table, read_table
 
@@ -254,6 +257,40 @@ def _label_of(p: Path, folder: Path) -> str:
     return readable_name(re.split(r"[_\-\s]", p.stem, maxsplit=1)[0] or p.stem)
 
 
+#: a file-name field that states a condition: letters, then a number, then an optional unit
+#: (``F150`` -> ``F`` = 150, ``V-50mmps`` -> ``V`` = -50)
+CONDITION_FIELD = re.compile(r"^([A-Za-z]+)(-?\d+(?:\.\d+)?)([A-Za-z/]*)$")
+
+
+def conditions_from_names(files: list[Path], folder: Path) -> dict[str, np.ndarray]:
+    """Conditions ``{name: [recordings]}`` stated by every file: fields of the file name after
+    the class (``Class_F150_V-50mmps_3.csv``: ``F`` = 150, ``V`` = -50; a bare number, the
+    repetition, is none) and the sub-folder levels below the class's (``folder/<class>/<day>/
+    file.csv``: ``level1`` = the day's folder name). A field only some files state is none."""
+    found: list[dict[str, object]] = []
+    for p in files:
+        rel = p.relative_to(folder)
+        fields: dict[str, object] = {f"level{i}": readable_name(part)
+                                     for i, part in enumerate(rel.parts[1:-1], 1)}  # fmt: skip
+        tokens = p.stem.split("_")[1:] if len(rel.parts) == 1 else p.stem.split("_")
+        for token in tokens:
+            m = CONDITION_FIELD.match(token)
+            if m and m.group(1) not in fields:
+                fields[m.group(1)] = float(m.group(2))
+        found.append(fields)
+    common = set.intersection(*(set(f) for f in found)) if found else set()
+    out = {}
+    for name in sorted(common):
+        values = [f[name] for f in found]
+        if len(set(values)) > 1:  # one value everywhere says nothing about a condition
+            out[name] = np.asarray(values)
+    return out
+
+
+def _plain(v: object) -> str:
+    return f"{v:g}" if isinstance(v, float | np.floating) else str(v)
+
+
 def readable_name(name: str) -> str:
     """A file or folder name as text: bytes that are not UTF-8 (a folder written under another
     locale, kept by Python as surrogate escapes that no file or JSON can hold) as ``\\xff``
@@ -329,6 +366,11 @@ def _read_folder(folder: Path, fs_hz: float | None = None) -> tuple[dict, Conver
         )
     arrays = {"X": X, "y": y, "recording": rec, "fs": np.array(fs),
               "class_names": np.array(classes), "channel_names": np.array(names)}  # fmt: skip
+    for name, values in conditions_from_names(files, folder).items():
+        arrays[GROUP_PREFIX + name] = values[rec]
+        notes.append(f"condition {name!r} from the file names: "
+                     f"{', '.join(map(_plain, np.unique(values)[:8]))}"
+                     f"{' ...' if np.unique(values).size > 8 else ''}")  # fmt: skip
     resampled += sum(r.resampled for r in recs)
     return arrays, Conversion(f"{folder.name}/: a folder of recordings", fs, jitter, resampled,
                               notes)  # fmt: skip

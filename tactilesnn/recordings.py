@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,7 +32,7 @@ from .core.checks import (
     check_positive,
     check_rate,
 )
-from .core.data import DataFacts, WindowDataset
+from .core.data import GROUP_PREFIX, DataFacts, WindowDataset
 from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
 
@@ -44,6 +46,7 @@ def load_data_file(
     window_s: float | None = None,
     hop_s: float | None = None,
     fs_hz: float | None = None,
+    hold_out: str | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:
     """Recordings in the documented format, or a folder written by ``tactilesnn generate``
     (:func:`~tactilesnn.core.dataset_folder.read_dataset_folder`) -> ``(train, test)``
@@ -59,13 +62,16 @@ def load_data_file(
     per recording; with ``class_signal`` ``[N, samples]`` in the data (a generated folder of a
     task that renders it), each window's share of it is its confidence. ``fs_hz``: the
     sampling rate (Hz) of a folder of recordings without timestamps (``--fs``); where the data
-    states its rate, a different ``fs_hz`` is refused.
+    states its rate, a different ``fs_hz`` is refused. ``hold_out``: the test split is the
+    recordings of the conditions it names (``"F>=180"``; :func:`hold_out_mask`), the training
+    split the others.
     """
     if window_s is None and hop_s is not None:
         raise ValueError("a hop (--data-hop-s) needs a window length (--data-window-s)")
     arrays = read_data_arrays(Path(path), fs_hz)
     return datasets_from_arrays(arrays, path, seed, test_fraction,
-                                None if window_s is None else (window_s, hop_s))  # fmt: skip
+                                None if window_s is None else (window_s, hop_s),
+                                hold_out=hold_out)  # fmt: skip
 
 
 #: channels (taxels x polarities for events) a recordings file may hold
@@ -243,7 +249,7 @@ def cut_windows(ds: WindowDataset, window_s: float, hop_s: float | None = None,
     if class_signal is not None:
         conf = window_confidence(class_signal, n, s, n_win, starts)
     return WindowDataset(X, ds.y[rep], ds.scan[rep], ds.fs_hz, ds.class_names, ds.channel_names,
-                         confidence=conf)  # fmt: skip
+                         confidence=conf, facts=ds.facts, conditions=ds.conditions)  # fmt: skip
 
 
 #: a window holding this share of its recording's class signal (or more) is trained on its
@@ -295,11 +301,12 @@ def expected_class_signal(signal: np.ndarray, signal_y: np.ndarray,
 
 def datasets_from_arrays(
     arrays: dict[str, np.ndarray], path: Path | str, seed: int, test_fraction: float = 0.2,
-    window: tuple[float, float | None] | None = None,
+    window: tuple[float, float | None] | None = None, hold_out: str | None = None,
 ) -> tuple[WindowDataset, WindowDataset]:  # fmt: skip
     """:func:`load_data_file` on arrays already in memory (``path`` names them in errors);
     ``window``: ``(window_s, hop_s)`` to cut each split into (:func:`cut_windows`, with the
-    recordings' ``class_signal`` where the arrays hold one)."""
+    recordings' ``class_signal`` where the arrays hold one); ``hold_out``: the test split is the
+    recordings whose condition matches (:func:`hold_out_mask`: ``"F>=180"``, ``"run=3,4"``)."""
     if "X" in arrays:
         check_sizes(np.shape(arrays["X"]), path)
     facts = DataFacts(False)
@@ -350,17 +357,91 @@ def datasets_from_arrays(
         check_finite(X, f"{path}: X")
         check_float32_range(X, f"{path}: X")
     groups = recording_ids(arrays.get("recording"), y.size, path)
-    split = _split(arrays, y, groups, test_fraction, seed, path)
+    conditions = read_conditions(arrays, groups, path)
+    if hold_out is not None:
+        if "split" in arrays:
+            raise ValueError(f"{path}: the file gives its own split; drop --hold-out or the split")
+        split = hold_out_mask(hold_out, conditions, groups, path).astype(np.int64)
+        if split.all() or not split.any():
+            raise ValueError(f"{path}: --hold-out {hold_out} leaves "
+                             f"{'no training' if split.all() else 'no test'} recording")  # fmt: skip
+    else:
+        split = _split(arrays, y, groups, test_fraction, seed, path)
 
     signal = _class_signal(arrays, X.shape, path)
 
     def take(m: np.ndarray) -> WindowDataset:
-        ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch, facts=facts)
+        ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch, facts=facts,
+                           conditions=conditions)  # fmt: skip
         if window is None:
             return ds
         return cut_windows(ds, *window, class_signal=None if signal is None else signal[m])
 
     return take(split == 0), take(split == 1)
+
+
+def read_conditions(arrays: dict[str, np.ndarray], groups: np.ndarray,
+                    path: Path | str) -> dict[str, dict[int, Any]] | None:  # fmt: skip
+    """The file's ``group_<name> [N]`` arrays as ``{name: {recording id: value}}`` (numbers or
+    text; one value per recording, else ValueError), or None where it states none."""
+    out: dict[str, dict[int, Any]] = {}
+    for key in sorted(k for k in arrays if k.startswith(GROUP_PREFIX)):
+        name, v = key[len(GROUP_PREFIX) :], np.asarray(arrays[key])
+        if not name or v.shape != groups.shape or v.dtype.kind not in "fiuUS":
+            raise ValueError(f"{path}: {key} must be [N={groups.size}] numbers or names, one "
+                             f"per row, got {v.dtype} {v.shape}")  # fmt: skip
+        table: dict[int, Any] = {}
+        for g, value in zip(groups.tolist(), v.tolist(), strict=True):
+            if table.setdefault(g, value) != value:
+                raise ValueError(f"{path}: {key} gives recording {g} two values "
+                                 f"({table[g]!r}, {value!r}); a condition is the recording's")  # fmt: skip
+        out[name] = table
+    return out or None
+
+
+#: ``--hold-out`` forms: ``NAME=V1,V2`` (those values) or ``NAME>=X`` (and ``>``, ``<=``, ``<``)
+HOLD_OUT = re.compile(r"^\s*(?P<name>[A-Za-z_]\w*)\s*(?P<op>>=|<=|=|>|<)\s*(?P<values>.+?)\s*$")
+
+
+def hold_out_mask(spec: str, conditions: dict[str, dict[int, Any]] | None, groups: np.ndarray,
+                  path: Path | str) -> np.ndarray:  # fmt: skip
+    """Which rows' recordings ``spec`` holds out for testing: ``NAME=V1,V2`` (the values, as
+    text or numbers) or a bound on a numeric condition, ``NAME>=X`` / ``>`` / ``<=`` / ``<``."""
+    m = HOLD_OUT.match(spec)
+    if m is None:
+        raise ValueError(f"--hold-out {spec!r}: expected NAME=V1,V2 or NAME>=X (>, <=, <)")
+    name, op, text = m.group("name"), m.group("op"), m.group("values")
+    table = (conditions or {}).get(name)
+    if table is None:
+        raise ValueError(f"--hold-out {spec}: {path} states no condition {name!r} (it states "
+                         f"{sorted(conditions or {}) or 'none'}: group_<name> arrays, or fields "
+                         "of the file names such as F150)")  # fmt: skip
+    values = np.asarray([table[g] for g in groups.tolist()])
+    if op == "=":
+        wanted = [w.strip() for w in text.split(",")]
+        as_text = np.asarray([_condition_text(v) for v in values])
+        mask = np.isin(as_text, [_condition_text(w) for w in wanted])
+        missing = sorted(set(map(_condition_text, wanted)) - set(as_text.tolist()))
+        if missing:
+            raise ValueError(f"--hold-out {spec}: no recording has {name} = {', '.join(missing)} "
+                             f"(values: {', '.join(sorted(set(as_text.tolist()))[:12])})")  # fmt: skip
+        return mask
+    if values.dtype.kind not in "fiu":
+        raise ValueError(f"--hold-out {spec}: {name} holds names, not numbers: use {name}=A,B")
+    try:
+        bound = float(text)
+    except ValueError:
+        raise ValueError(f"--hold-out {spec}: {text!r} is not a number") from None
+    compare = {">=": np.greater_equal, ">": np.greater, "<=": np.less_equal, "<": np.less}[op]
+    return compare(values.astype(np.float64), bound)
+
+
+def _condition_text(v: Any) -> str:
+    """A condition value as its hold-out spelling (``150.0`` and ``"150"`` alike: ``150``)."""
+    try:
+        return f"{float(v):g}"
+    except (TypeError, ValueError):
+        return str(v).strip()
 
 
 def _split(arrays: dict[str, np.ndarray], y: np.ndarray, groups: np.ndarray, test_fraction: float,

@@ -277,6 +277,7 @@ def select_encoder(
     fraction: float = 0.25,
     budget: SelectionBudget | None = None,
     configs: dict[str, PipelineConfig] | None = None,
+    leave_out: str | None = None,
 ) -> tuple[PipelineConfig, dict[str, Any]]:
     """The candidate encoder (each with its default settings for the data's rate and window:
     :func:`candidate_configs`; the rest of ``config`` unchanged) that scores best on
@@ -291,11 +292,15 @@ def select_encoder(
     :data:`SELECTION_SHARE` of the run. Windows are coded alone here (an encoder that also codes
     windows with their recording's past gets those in the final fit only). Returns the chosen
     config and a report (``scores`` per candidate, with ``rounds`` (accuracy per round) and
-    ``stopped_after`` where it stopped early, ``ranked_by``, windows per round, ``seconds``)."""
+    ``stopped_after`` where it stopped early, ``ranked_by``, windows per round, ``seconds``,
+    ``validation``). ``leave_out``: a condition of the data (:attr:`WindowDataset.conditions`):
+    the held-out recordings are those of whole values of it, so what transfers to an unseen
+    condition is chosen (where the training data holds two values or more)."""
     if not candidates:
         raise ValueError("encoder selection needs at least one candidate encoder")
     t0 = time.perf_counter()
-    fit_set, val_set = split_validation(train, fraction, config.seed + 1)
+    by, validation = _left_out(train, leave_out)
+    fit_set, val_set = split_validation(train, fraction, config.seed + 1, by=by)
     assert val_set is not None
     cap = max(SELECT_MIN_WINDOWS, train.y.size // max(1, len(candidates)))
     fit_set = selection_subset(fit_set, cap, config.seed)
@@ -338,12 +343,26 @@ def select_encoder(
             break
     best = alive[0]
     seconds = time.perf_counter() - t0
-    log.info("encoder selection: %s (%.0f s)", best, seconds)
+    log.info("encoder selection: %s (%.0f s; held out: %s)", best, seconds, validation)
     report = {"chosen": best, "ranked_by": "per window, then per recording",
+              "validation": validation,
               "scores": scores, "rounds": report_rounds,
               "fit_windows": report_rounds[-1]["fit_windows"],
               "val_windows": report_rounds[-1]["val_windows"], "seconds": seconds}  # fmt: skip
     return configs[best], report
+
+
+def _left_out(train: WindowDataset, leave_out: str | None) -> tuple[np.ndarray | None, str]:
+    """The groups the selection holds out whole (each window's value of condition ``leave_out``,
+    or None: recordings) and how it says so in the log and report."""
+    if leave_out is None:
+        return None, "recordings"
+    values = train.condition(leave_out)
+    if np.unique(values).size < 2:
+        log.info("encoder selection: the training recordings hold one value of %s: held-out "
+                 "recordings instead", leave_out)  # fmt: skip
+        return None, "recordings"
+    return values, f"whole values of condition {leave_out} (unseen as the test's are)"
 
 
 def _scored(name: str, config: PipelineConfig, fit: WindowDataset,

@@ -42,22 +42,45 @@ class TrainResult:
 
 
 def split_validation(
-    data: WindowDataset, fraction: float, seed: int
+    data: WindowDataset, fraction: float, seed: int, by: np.ndarray | None = None
 ) -> tuple[WindowDataset, WindowDataset | None]:
     """Hold out ``fraction`` of the training scans (whole scans, so windows of one scan never
-    straddle the split) for early stopping and best-weight selection."""
+    straddle the split) for early stopping and best-weight selection; ``by`` ``[N]``: hold out
+    whole groups of these values instead (a condition: each recording has one value, so its
+    windows stay together too)."""
     if fraction <= 0:
         return data, None
     if not 0 < fraction < 1:
         raise ValueError(f"val_fraction must be in [0, 1), got {fraction}")
-    groups = np.unique(data.scan)
+    keys = data.scan if by is None else np.asarray(by)
+    groups = np.unique(keys)
     rng = np.random.default_rng([seed, 7919])
     n_val = max(1, round(fraction * groups.size))
     if n_val >= groups.size:
-        raise ValueError(f"too few scans ({groups.size}) to hold out a validation fraction")
+        what = "scans" if by is None else "condition values"
+        raise ValueError(f"too few {what} ({groups.size}) to hold out a validation fraction")
     val_groups = rng.choice(groups, n_val, replace=False)
-    is_val = np.isin(data.scan, val_groups)
+    is_val = np.isin(keys, val_groups)
     return data.subset(~is_val), data.subset(is_val)
+
+
+def condition_accuracy(scores: np.ndarray, test: WindowDataset) -> dict[str, dict[str, dict]]:
+    """Test accuracy per value of each condition the data states (:attr:`WindowDataset.conditions`):
+    ``{name: {value: {"windows", "accuracy", "accuracy_per_recording"}}}``."""
+    out: dict[str, dict[str, dict]] = {}
+    pred = scores.argmax(1)
+    for name in sorted(test.conditions or {}):
+        values = test.condition(name)
+        rows: dict[str, dict] = {}
+        for v in np.unique(values):
+            m = values == v
+            rec = recording_accuracy(scores[m], test.y[m], test.scan[m]) or {}
+            rows[f"{v:g}" if isinstance(v, float | np.floating) else str(v)] = {
+                "windows": int(m.sum()), "accuracy": float((pred[m] == test.y[m]).mean()),
+                "accuracy_per_recording": rec.get("test_accuracy_per_recording"),
+            }  # fmt: skip
+        out[name] = rows
+    return out
 
 
 @dataclass
@@ -315,6 +338,8 @@ def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bo
         metrics["train_window_confidence"] = confidence_summary(c)
     if test_rec is not None or in_rec is not None:
         metrics["in_stream"] = stream_metrics(pipe, test_scores, test_rec, test.y, in_rec)
+    if test.conditions:
+        metrics["by_condition"] = condition_accuracy(test_scores, test)
     frames = stream_evaluation(pipe, test.X, test.y, test.scan, test_scores)
     if frames is not None:
         metrics["frame_stream"] = frames

@@ -121,6 +121,28 @@ def evaluation_lines(rep: dict[str, Any]) -> list[str]:
     return lines
 
 
+def condition_lines(m: dict, source: Any) -> list[str]:
+    """The test accuracy per value of each condition the data states (``metrics.json``'s
+    ``by_condition``), the held-out condition first and named so."""
+    left_out = getattr(source, "condition_left_out", None)
+    lines = []
+    for name, rows in sorted(
+        (m.get("by_condition") or {}).items(), key=lambda kv: kv[0] != left_out
+    ):
+        parts = []
+        for value, r in rows.items():
+            rec = r.get("accuracy_per_recording")
+            per = f" ({100 * rec:.1f} % per recording)" if rec is not None else ""
+            parts.append(f"{name}={value}: {100 * r['accuracy']:.1f} %{per}")
+        head = (
+            f"on the held-out conditions ({source.hold_out}, none trained on)"
+            if name == left_out
+            else f"by condition {name}"
+        )
+        lines.append(f"{head}: " + "; ".join(parts))
+    return lines
+
+
 # ---------------------------------------------------------------- export
 def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False,
                stream_step: int | None = None, quantize: bool = False, overwrite: bool = False,

@@ -5,7 +5,7 @@ where it came from, lengths, what was dropped), written nowhere."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +30,8 @@ class ConvertReport:
     channels: list[str]
     windows: int
     notes: list[str]
+    #: each condition the data states: ``{name: {value: recordings}}`` (``--hold-out`` names)
+    conditions: dict[str, dict[str, int]] = field(default_factory=dict)
 
     def lines(self) -> list[str]:
         head = (f"wrote {self.out}" if self.out else "would read") + (
@@ -38,7 +40,12 @@ class ConvertReport:
         )
         shown = ", ".join(self.channels[:8]) + (" ..." if len(self.channels) > 8 else "")
         counts = ", ".join(f"{k} ({v})" for k, v in self.classes.items())
-        return [head, f"  channels: {shown}", f"  classes (recordings): {counts}",
+        conds = [f"  condition {name} (recordings): "
+                 + ", ".join(f"{v} ({n})" for v, n in values.items())
+                 for name, values in self.conditions.items()]  # fmt: skip
+        hint = (["  test on unseen conditions: tactilesnn train --data FILE --hold-out "
+                 f"'{next(iter(self.conditions))}=VALUE'"] if self.conditions else [])  # fmt: skip
+        return [head, f"  channels: {shown}", f"  classes (recordings): {counts}", *conds, *hint,
                 *(f"  {n}" for n in self.notes)]  # fmt: skip
 
 
@@ -60,7 +67,7 @@ def convert(source: Path, out: Path | None, fs_hz: float | None = None, overwrit
     else:
         arrays = read_data_arrays(source, fs_hz)
     train, test = datasets_from_arrays(arrays, source, seed=0)  # checks the result
-    names = [str(c) for c in arrays["class_names"]]
+    names = list(train.class_names)  # (a file without class_names: named from its labels)
     rec = arrays.get("recording")
     ids = np.asarray(rec) if rec is not None else np.arange(len(arrays["y"]))
     per_class = {
@@ -76,10 +83,21 @@ def convert(source: Path, out: Path | None, fs_hz: float | None = None, overwrit
         [str(c) for c in channels] if channels is not None else [f"ch{i}" for i in range(n_ch)],
         len(train) + len(test),
         notes,
+        _conditions(train.concat(test)),
     )
     if not dry_run:
         write_npz_atomic(Path(out), arrays)  # type: ignore[arg-type]
     return report
+
+
+def _conditions(data) -> dict[str, dict[str, int]]:
+    """Each condition's values with their recording counts."""
+    out: dict[str, dict[str, int]] = {}
+    for name, table in sorted((data.conditions or {}).items()):
+        values = list(table.values())
+        out[name] = {(f"{v:g}" if isinstance(v, float) else str(v)): values.count(v)
+                     for v in sorted(set(values), key=lambda x: (str(type(x)), x))}  # fmt: skip
+    return out
 
 
 def _notes(conv: Conversion) -> list[str]:

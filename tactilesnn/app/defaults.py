@@ -83,7 +83,8 @@ def run_spec(
         facts = data_facts(Path(data))
         res = resolve(given, toml, facts=facts)
         source: Any = FileSource(Path(data), *data_window(settings, facts),
-                                 fs_hz=settings.get("fs"))  # fmt: skip
+                                 fs_hz=settings.get("fs"),
+                                 hold_out=settings.get("hold_out"))  # fmt: skip
     else:
         params = task_params(settings["task"], settings)
         res = resolve(given, toml, task=get_task(settings["task"], **params))
@@ -98,6 +99,8 @@ def check_run_options(settings: dict[str, Any]) -> None:
     rate are a ``--data`` file's."""
     if (settings.get("data_window_s") or settings.get("data_hop_s")) and not settings.get("data"):
         raise ValueError("--data-window-s / --data-hop-s cut a --data file's recordings")
+    if settings.get("hold_out") and not settings.get("data"):
+        raise ValueError("--hold-out names conditions of a --data file's recordings")
     if settings.get("fs") is not None and not settings.get("data"):
         raise ValueError("--fs states the rate of --data recordings; a synthetic task has its own")
     if settings.get("data_window_s") == 0 and settings.get("data_hop_s") is not None:

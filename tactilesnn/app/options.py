@@ -121,6 +121,13 @@ RUN_OPTIONS: tuple[Option, ...] = (
         float,
     ),
     Option(
+        "hold_out",
+        None,
+        "with --data: test on the recordings of these conditions, train on the others, and "
+        "compare the encoders by leaving conditions out: NAME=V1,V2 or NAME>=X (>, <=, <), "
+        "NAME a group_<name> array of the file or a field of its file names (F150: F)",
+    ),
+    Option(
         "difficulty",
         1.0,
         "multiplier of noise, speed variation, Z ripple and texture irregularity",

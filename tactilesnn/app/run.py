@@ -34,7 +34,7 @@ from ..core.stages import StagePlan
 from ..core.version import __version__
 from ..datasets_synth import get_task
 from ..pipeline import SpikePipeline, select_channels
-from ..recordings import load_data_file
+from ..recordings import HOLD_OUT, load_data_file
 from ..selection import (
     SelectionBudget,
     candidate_configs,
@@ -68,6 +68,8 @@ class TaskSource:
 
     name: str = "hook_loop"
     params: dict[str, Any] = field(default_factory=dict)
+    #: a task states no conditions: its encoder selection holds out recordings
+    condition_left_out = None
 
     @property
     def label(self) -> str:
@@ -99,6 +101,8 @@ class FileSource:
     hop_s: float | None = None
     sha256: str | None = None
     fs_hz: float | None = None  # the rate the user stated (--fs), for files without timestamps
+    #: the conditions tested on (``--hold-out``: ``"F>=180"``), the others trained on
+    hold_out: str | None = None
 
     @property
     def label(self) -> str:
@@ -115,8 +119,18 @@ class FileSource:
         cut = {"data_window_s": self.window_s, "data_hop_s": self.hop_s} if self.window_s else {}
         if self.fs_hz is not None:
             cut["data_fs_hz"] = self.fs_hz
+        if self.hold_out is not None:
+            cut["data_hold_out"] = self.hold_out
         return {"task": None, "task_kwargs": {}, "data": str(Path(self.path).resolve()),
                 "data_sha256": self.current_sha256, **cut}  # fmt: skip
+
+    @property
+    def condition_left_out(self) -> str | None:
+        """The condition ``hold_out`` names (the encoder selection leaves its values out)."""
+        if self.hold_out is None:
+            return None
+        m = HOLD_OUT.match(self.hold_out)
+        return m.group("name") if m else None
 
     def check_config(self, config: PipelineConfig) -> None:
         """Channels are checked against the file when it is read."""
@@ -129,7 +143,7 @@ class FileSource:
                 "data, or evaluate on new data with --data"
             )
         return load_data_file(Path(self.path), seed, window_s=self.window_s, hop_s=self.hop_s,
-                              fs_hz=self.fs_hz)  # fmt: skip
+                              fs_hz=self.fs_hz, hold_out=self.hold_out)  # fmt: skip
 
     def load_test(self, seed: int, progress: bool = False) -> WindowDataset:
         """``load(seed)[1]`` (the split is drawn over the whole file, so the file is read)."""
@@ -144,7 +158,7 @@ def source_of(record: dict[str, Any]) -> DataSource:
     if record.get("data"):
         return FileSource(Path(record["data"]), record.get("data_window_s"),
                           record.get("data_hop_s"), record.get("data_sha256"),
-                          record.get("data_fs_hz"))  # fmt: skip
+                          record.get("data_fs_hz"), record.get("data_hold_out"))  # fmt: skip
     return TaskSource(record["task"], dict(record.get("task_kwargs") or {}))
 
 
@@ -219,7 +233,8 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
         if spec.select_encoders:
             with plan.stage("encoder selection"):
                 config, selection = select_encoder(config, train, spec.select_encoders,
-                                                   budget=budget, configs=configs)  # fmt: skip
+                                                   budget=budget, configs=configs,
+                                                   leave_out=spec.source.condition_left_out)  # fmt: skip
             assert budget is not None
             plan.estimate(
                 "fit",

@@ -22,6 +22,10 @@ from typing import Any
 
 import numpy as np
 
+#: an npz array ``group_<name> [N]`` holds each recording's value of condition ``<name>``
+#: (recording run, day, force, speed, sensor unit): ``--hold-out`` tests on unseen values
+GROUP_PREFIX = "group_"
+
 
 @dataclass(frozen=True)
 class DataFacts:
@@ -53,6 +57,18 @@ class WindowDataset:
     #: the facts of the file the windows were read from (None: not read from a file), which
     #: the defaults of ``train --data`` and ``SpikeClassifier`` follow alike
     facts: DataFacts | None = field(default=None, compare=False)
+    #: conditions the file states per recording (run, day, force, speed...): ``{name:
+    #: {recording id (scan): value}}``, so any subset of windows keeps them; None: none stated
+    conditions: dict[str, dict[int, Any]] | None = field(default=None, compare=False)
+
+    def condition(self, name: str) -> np.ndarray:
+        """Each window's value of condition ``name`` ``[N]`` (KeyError naming the conditions
+        the data states)."""
+        table = (self.conditions or {}).get(name)
+        if table is None:
+            raise KeyError(f"no condition {name!r}; the data states "
+                           f"{sorted(self.conditions or {}) or 'none'}")  # fmt: skip
+        return np.asarray([table[int(s)] for s in self.scan])
 
     def __post_init__(self) -> None:
         c = self.confidence

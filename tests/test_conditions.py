@@ -1,0 +1,149 @@
+"""Conditions in the data (recording run, day, force, speed...): read from ``group_<name>``
+arrays or file names, listed by ``convert --dry-run``, held out by ``train --hold-out``, scored
+per value, and left out whole by the encoder selection so that it never sees a test condition."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tactilesnn.readers import conditions_from_names
+from tactilesnn.recordings import datasets_from_arrays, hold_out_mask
+
+
+def _arrays(n_rec: int = 12, per: int = 2, seed: int = 0) -> dict[str, np.ndarray]:
+    """``n_rec`` recordings of ``per`` windows; class = level pattern; force 1..3 scales it."""
+    rng = np.random.default_rng(seed)
+    rec = np.repeat(np.arange(n_rec), per)
+    y = rec % 2
+    force = (rec // 2) % 3 + 1
+    X = (np.array([[3.0, 1.0], [1.0, 3.0]])[y] * force[:, None])[:, :, None]
+    X = X + rng.normal(0, 0.3, (rec.size, 2, 64))
+    return {"X": X.astype(np.float32), "y": y, "fs": np.asarray(100.0), "recording": rec,
+            "class_names": np.array(["a", "b"]), "group_force": force,
+            "group_day": np.array(["mon", "tue"])[rec % 2 * 0 + (rec >= n_rec // 2)]}  # fmt: skip
+
+
+def test_conditions_come_from_the_fields_every_file_name_states(tmp_path):
+    names = ["Denim_F120_V-10mmps_0.csv", "Denim_F150_V20mmps_1.csv", "Silk_F120_V20mmps_2.csv",
+             "Silk_F150_V-10mmps_3.csv"]  # fmt: skip
+    files = [tmp_path / n for n in names]
+    got = conditions_from_names(files, tmp_path)
+    assert sorted(got) == ["F", "V"]
+    assert got["F"].tolist() == [120, 150, 120, 150] and got["V"].tolist() == [-10, 20, 20, -10]
+    some = conditions_from_names([*files, tmp_path / "Silk_F150_3.csv"], tmp_path)
+    assert sorted(some) == ["F"]  # a field only some files state is none
+    sub = [tmp_path / "Denim" / "day1" / "r0.csv", tmp_path / "Silk" / "day2" / "r1.csv"]
+    assert conditions_from_names(sub, tmp_path)["level1"].tolist() == ["day1", "day2"]
+
+
+def test_hold_out_tests_on_the_named_conditions_only():
+    arrays = _arrays()
+    train, test = datasets_from_arrays(arrays, "f.npz", 0, hold_out="force>=3")
+    assert set(test.condition("force")) == {3} and set(train.condition("force")) == {1, 2}
+    assert not set(train.scan) & set(test.scan)
+    _, test2 = datasets_from_arrays(arrays, "f.npz", 0, hold_out="day=tue")
+    assert set(test2.condition("day")) == {"tue"}
+    _, test3 = datasets_from_arrays(arrays, "f.npz", 0, hold_out="force=1,2")
+    assert set(test3.condition("force")) == {1, 2}
+
+
+@pytest.mark.parametrize(
+    ("spec", "change", "message"),
+    [
+        ("speed>=3", {}, "states no condition 'speed'"),
+        ("day>=3", {}, "holds names, not numbers"),
+        ("force=7", {}, "no recording has force = 7"),
+        ("force>=9", {}, "leaves no test recording"),
+        ("force>=0", {}, "leaves no training recording"),
+        ("force", {}, "expected NAME=V1,V2"),
+        ("force>=3", {"split": "both"}, "gives its own split"),
+        ("force>=3", {"group_force": "two per recording"}, "two values"),
+    ],
+)
+def test_a_hold_out_that_cannot_be_made_is_refused_by_name(spec, change, message):
+    arrays = _arrays()
+    if change.get("split"):
+        arrays["split"] = (arrays["recording"] >= 6).astype(np.int64)
+    if change.get("group_force"):
+        arrays["group_force"] = np.arange(arrays["y"].size)
+    with pytest.raises(ValueError, match=message):
+        datasets_from_arrays(arrays, "f.npz", 0, hold_out=spec)
+
+
+def test_the_mask_reads_numbers_and_names_alike():
+    groups = np.array([0, 1, 2])
+    table = {"F": {0: 120.0, 1: 150.0, 2: 180.0}}
+    assert hold_out_mask("F=150", table, groups, "x").tolist() == [False, True, False]
+    assert hold_out_mask("F > 120", table, groups, "x").tolist() == [False, True, True]
+
+
+def _file(path: Path, **extra) -> Path:
+    arrays = {**_arrays(n_rec=24, per=2), **extra}
+    np.savez(path, **arrays)
+    return path
+
+
+@pytest.mark.slow
+def test_a_held_out_run_reports_unseen_conditions_and_the_selection_never_sees_them(
+    tmp_path, monkeypatch, capsys
+):
+    import tactilesnn.app.run as app_run
+    from tactilesnn.cli import main
+
+    seen = []
+    select = app_run.select_encoder
+
+    def spy(config, train, *a, **kw):
+        seen.append((set(train.condition("force")), kw.get("leave_out")))
+        return select(config, train, *a, **kw)
+
+    monkeypatch.setattr(app_run, "select_encoder", spy)
+    path = _file(tmp_path / "f.npz")
+    out = tmp_path / "run"
+    assert main(["train", "--data", str(path), "--hold-out", "force>=3", "--out", str(out),
+                 "--quiet", "--no-export"]) == 0  # fmt: skip
+    assert seen == [({1, 2}, "force")]
+    import json
+
+    m = json.loads((out / "metrics.json").read_text())
+    assert set(m["by_condition"]["force"]) == {"3"}
+    assert m["encoder_selection"]["validation"].startswith("whole values of condition force")
+    text = capsys.readouterr().out
+    assert "on the held-out conditions (force>=3, none trained on): force=3:" in text
+    assert json.loads((out / "config.json").read_text())["data_hold_out"] == "force>=3"
+    assert main(["evaluate", str(out), "--quiet"]) == 0  # the run's own split again
+
+
+@pytest.mark.slow
+def test_a_file_without_conditions_runs_as_before(tmp_path, monkeypatch):
+    import tactilesnn.app.run as app_run
+    from tactilesnn.app.defaults import run_spec
+
+    arrays = _arrays(n_rec=24, per=2)
+    for k in ("group_force", "group_day"):
+        arrays.pop(k)
+    path = tmp_path / "plain.npz"
+    np.savez(path, **arrays)
+    spec = run_spec({"data": str(path), "epochs": 1}, tmp_path / "r", progress=False)
+    assert spec.source.hold_out is None and spec.source.condition_left_out is None
+    res = app_run.train_run(spec)
+    assert "by_condition" not in res.metrics
+    assert res.metrics["encoder_selection"]["validation"] == "recordings"
+
+
+def test_convert_dry_run_lists_the_conditions_and_needs_no_class_names(tmp_path):
+    """``convert --dry-run`` names each condition with its recordings per value; a file with
+    ``X`` / ``y`` / ``fs`` and no ``class_names`` is described, not a KeyError."""
+    from tactilesnn.app.convert import convert
+
+    arrays = _arrays()
+    arrays.pop("class_names")
+    path = tmp_path / "c.npz"
+    np.savez(path, **arrays)
+    lines = convert(path, None, dry_run=True).lines()
+    assert "  condition force (recordings): 1 (4), 2 (4), 3 (4)" in lines
+    assert "  condition day (recordings): mon (6), tue (6)" in lines
+    assert any("--hold-out" in line for line in lines)
