@@ -19,6 +19,7 @@ for _name, _module in (
     ("serve", "serve"), ("tasks", "tasks"), ("real", "real"), ("pareto", "pareto"),
     ("stability", "stability"), ("skip", "skip"), ("busy", "busy"), ("sim2real", "sim2real"),
     ("localise", "localise"), ("fit", "fit"), ("gpu", "gpu"), ("graphs", "graphs"),
+    ("shift", "shift"),
 ):  # fmt: skip
     BENCHMARKS.register_module(_name, f"{__name__}.{_module}")
 
