@@ -117,7 +117,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         held = ", ".join(f"{k} {100 * v['per_window']:.1f} %"
                          + (f" (round {v['stopped_after']})" if v.get("stopped_after") else "")
                          for k, v in sel["scores"].items())  # fmt: skip
-        print(f"encoder chosen on held-out training recordings: {encoder} (per window: {held}; "
+        how = ("held-out training recordings" if sel.get("validation", "recordings") == "recordings"
+               else sel["validation"].split(" (")[0])  # fmt: skip
+        print(f"encoder chosen on {how}: {sel['chosen']} (per window: {held}; "
               f"last round {sel['fit_windows']} + {sel['val_windows']} windows, "
               f"{sel['seconds']:.0f} s)")  # fmt: skip
     print(

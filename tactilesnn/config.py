@@ -124,6 +124,12 @@ class PipelineConfig:
         help="add a third level statistic: the channel's share of the window's total level "
         "across channels (a scale-free spatial pattern: where a press is, whatever its force)",
     )
+    gain_norm: bool = setting(
+        False,
+        help="divide each window by its mean absolute level over the pipeline's channels before "
+        "coding (a harder press scales every channel alike: the code sees the pattern, not the "
+        "force); window graphs only",
+    )
     encoder: Any = field(default_factory=lambda: ENCODERS.config_class(DEFAULT_ENCODER)())
     model: Any = field(default_factory=lambda: MODELS.config_class(DEFAULT_MODEL)())
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -145,6 +151,8 @@ class PipelineConfig:
                              f"{self.level_scale!r}")  # fmt: skip
         if not isinstance(self.level_share, bool):
             raise TypeError(f"level_share must be true or false, got {self.level_share!r}")
+        if not isinstance(self.gain_norm, bool):
+            raise TypeError(f"gain_norm must be true or false, got {self.gain_norm!r}")
         ENCODERS.name_of_config(self.encoder)  # TypeError if not a registered encoder's config
         MODELS.name_of_config(self.model)
         if not isinstance(self.train, TrainConfig):

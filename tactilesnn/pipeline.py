@@ -39,6 +39,16 @@ def select_channels(wanted: Sequence[str], available: Sequence[str]) -> list[int
     return [list(available).index(c) for c in wanted]
 
 
+def gain_normalised(x: np.ndarray) -> np.ndarray:
+    """Windows ``[N, C, W]`` each divided by its mean absolute value over channels and samples
+    (float32, as the exported graph computes it; a silent window stays zero): the pattern
+    across channels and time without the overall level a harder press or a more sensitive
+    sensor scales."""
+    x = np.asarray(x, np.float32)
+    level = np.abs(x).mean(axis=(1, 2), keepdims=True, dtype=np.float32)
+    return x / np.maximum(level, np.finfo(np.float32).tiny)
+
+
 #: float32 weights, their gradients and Adam's two moments
 TRAINING_BYTES_PER_PARAMETER = 16
 
@@ -119,11 +129,12 @@ class SpikePipeline:
         return self.model.bytes_per_sample(self.n_afferents, self.max_spikes)
 
     def encoder_input(self, X: np.ndarray) -> np.ndarray:
-        """Validated ``X`` restricted to the pipeline's channels (a view when that is all)."""
+        """Validated ``X`` restricted to the pipeline's channels (a view when that is all), each
+        window divided by its level where the configuration asks (:func:`gain_normalised`)."""
         arr = self.validate(X)
-        if list(self.channel_idx) == list(range(arr.shape[1])):
-            return arr
-        return arr[:, self.channel_idx]
+        if list(self.channel_idx) != list(range(arr.shape[1])):
+            arr = arr[:, self.channel_idx]
+        return gain_normalised(arr) if self.config.gain_norm else arr
 
     def calibrate(self, X: np.ndarray) -> None:
         """Fit the encoder's data-dependent state (e.g. the LIF code's level) and the level
@@ -160,7 +171,8 @@ class SpikePipeline:
         served in a stream differs from the same window alone. Not for a pipeline that runs
         frame by frame: its model's state is carried too, and it is scored so
         (:mod:`~tactilesnn.stream_training`), not as windows served one by one."""
-        return self.encoder.codes_with_past and self.frame_problem() is not None
+        return (self.encoder.codes_with_past and self.frame_problem() is not None
+                and not self.config.gain_norm)  # fmt: skip
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray
@@ -220,6 +232,8 @@ class SpikePipeline:
                     "needs a stream model (--model stream)")  # fmt: skip
         if self.level is not None or self.n_clock:  # (a stream model gets neither)
             return "the level code and clock afferents are window codes"
+        if self.config.gain_norm:
+            return "gain_norm divides a whole window by its level: a window code"
         f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
         if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
             return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "

@@ -147,3 +147,56 @@ def test_convert_dry_run_lists_the_conditions_and_needs_no_class_names(tmp_path)
     assert "  condition force (recordings): 1 (4), 2 (4), 3 (4)" in lines
     assert "  condition day (recordings): mon (6), tue (6)" in lines
     assert any("--hold-out" in line for line in lines)
+
+
+def test_gain_normalised_windows_against_a_float64_reference():
+    from tactilesnn.pipeline import gain_normalised
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 1, (4, 3, 50)).astype(np.float32) * np.array([1e-3, 1.0, 1e4, 0.0],
+                                                                  np.float32)[:, None, None]  # fmt: skip
+    got = gain_normalised(x)
+    ref = x.astype(np.float64) / np.abs(x.astype(np.float64)).mean(axis=(1, 2), keepdims=True)
+    np.testing.assert_allclose(got[:3], ref[:3], rtol=1e-5)
+    assert np.all(got[3] == 0) and np.isfinite(got).all()  # a silent window stays silent
+    np.testing.assert_allclose(gain_normalised(7.0 * x[:3]), got[:3], rtol=1e-5)  # scale-free
+
+
+@pytest.mark.slow
+def test_gain_norm_exports_in_the_window_graph_and_is_refused_by_the_stream_graph(tmp_path):
+    """``gain_norm`` is a stage of the exported window graph (verified against torch, as every
+    stage), also on windows louder than any training one; the stream graph refuses it."""
+    import onnxruntime as ort
+
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.export import export_pipeline
+    from tactilesnn.export.stream_graph import StreamEncoderGraph
+    from tactilesnn.recordings import datasets_from_arrays
+    from tactilesnn.training import fit_pipeline
+
+    train, test = datasets_from_arrays(_arrays(n_rec=24, per=2), "f.npz", 0, hold_out="force>=3")
+    cfg = PipelineConfig.from_flat(encoder="cgwt", model="readout", channels=("all",),
+                                   gain_norm=True, level_neurons=0)  # fmt: skip
+    pipe = fit_pipeline(cfg, train, with_past=False).pipeline
+    louder = np.concatenate([test.X, 40.0 * test.X])
+    report = export_pipeline(pipe, tmp_path / "g.onnx", louder)
+    assert report["prediction_agreement"] == 1.0
+    got = ort.InferenceSession(str(tmp_path / "g.onnx")).run(["scores"], {"window": louder})[0]
+    want = pipe.scores(pipe.encode(louder)).numpy()
+    np.testing.assert_allclose(got, want, atol=1e-3, rtol=1e-3)
+    np.testing.assert_allclose(want[: len(test.X)], want[len(test.X) :], atol=1e-3)  # scale-free
+    with pytest.raises(ValueError, match="gain_norm"):
+        StreamEncoderGraph(pipe)
+
+
+def test_the_selection_tries_each_encoder_for_unseen_conditions_too():
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.selection import SHIFT_VARIANT, candidate_configs
+
+    train, _ = datasets_from_arrays(_arrays(), "f.npz", 0, hold_out="force>=3")
+    base = PipelineConfig.from_flat(model="readout", channels=("all",), level_neurons=2)
+    plain = candidate_configs(base, train, ("cgwt", "lif"))
+    shifted = candidate_configs(base, train, ("cgwt", "lif"), shift=True)
+    assert list(plain) == ["cgwt", "lif"]
+    assert list(shifted) == ["cgwt", "lif", "cgwt+gain", "lif+gain"]
+    assert shifted["cgwt+gain"] == plain["cgwt"].replace(**SHIFT_VARIANT)

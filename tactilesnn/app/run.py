@@ -38,6 +38,7 @@ from ..recordings import HOLD_OUT, load_data_file
 from ..selection import (
     SelectionBudget,
     candidate_configs,
+    condition_groups,
     fit_encoder_to_data,
     probe,
     select_encoder,
@@ -288,7 +289,10 @@ def _plan(spec: RunSpec, train: WindowDataset, test: WindowDataset):
     candidates' configs and probes."""
     n_tr, n_te = train.y.size, test.y.size
     if spec.select_encoders:
-        configs = candidate_configs(spec.config, train, spec.select_encoders)
+        # unseen test conditions: each encoder's variant for them too (selection.SHIFT_VARIANT)
+        left_out = condition_groups(train, spec.source.condition_left_out)[0]
+        configs = candidate_configs(spec.config, train, spec.select_encoders,
+                                    shift=left_out is not None)  # fmt: skip
     else:
         configs = {spec.config.encoder_type: spec.config}
     probes = {name: probe(cfg, train) for name, cfg in configs.items()}

@@ -72,9 +72,13 @@ class PipelineEncoderGraph(nn.Module):
         self.register_buffer("clock", clock)
         self.with_clock = pipe.n_clock > 0
         self.clock_like_slice = pipe.encoder.n_afferents >= pipe.n_clock
+        self.gain_norm = pipe.config.gain_norm
 
     def forward(self, x: Tensor) -> Tensor:
         x = torch.index_select(x, 1, self.channel_idx) if self.select else x
+        if self.gain_norm:  # as pipeline.gain_normalised
+            level = x.abs().mean(dim=(1, 2), keepdim=True)
+            x = x / torch.clamp(level, min=torch.finfo(torch.float32).tiny)
         return self.append(self.encoder(x), x)
 
     def append(self, s: Tensor, x: Tensor) -> Tensor:
