@@ -96,17 +96,17 @@ def run_defaults(train: WindowDataset, test: WindowDataset, leave_out: str | Non
 
     t0 = time.perf_counter()
     res = resolve({"seed": seed}, facts=train.facts)
-    config, validation = res.config, None
+    config, validation, chosen = res.config, None, res.config.encoder_type
     if res.select:
         config, sel = select_encoder(config, train, res.select, leave_out=leave_out)
-        validation = sel["validation"]
+        validation, chosen = sel["validation"], sel["chosen"]
     elif res.keep is not None:
         config = fit_encoder_to_data(config, train, keep=res.keep)
     fitted = fit_and_evaluate(config, train, test)
     m = fitted.metrics
     return {"per_window": m["test_accuracy"],
             "per_recording": m.get("test_accuracy_per_recording"),
-            "encoder": config.encoder_type, "model": config.model_type,
+            "encoder": chosen, "model": config.model_type,
             "validation": validation, "seconds": time.perf_counter() - t0}, fitted.pipeline  # fmt: skip
 
 
