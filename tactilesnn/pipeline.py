@@ -41,11 +41,14 @@ def select_channels(wanted: Sequence[str], available: Sequence[str]) -> list[int
 
 def gain_normalised(x: np.ndarray) -> np.ndarray:
     """Windows ``[N, C, W]`` each divided by its mean absolute value over channels and samples
-    (float32, as the exported graph computes it; a silent window stays zero): the pattern
+    (as the exported graph computes it; a silent window stays zero): the pattern
     across channels and time without the overall level a harder press or a more sensitive
     sensor scales."""
     x = np.asarray(x, np.float32)
-    level = np.abs(x).mean(axis=(1, 2), keepdims=True, dtype=np.float32)
+    # the level summed in float64, then rounded: any summation order gives the same float32
+    # (onnxruntime's and numpy's float32 sums differ in the last bit, which a latency code near
+    # a threshold turned into a 1.6 ms spike shift on FabricSlide's harder presses)
+    level = np.abs(x.astype(np.float64)).mean(axis=(1, 2), keepdims=True).astype(np.float32)
     return x / np.maximum(level, np.finfo(np.float32).tiny)
 
 

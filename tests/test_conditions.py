@@ -200,3 +200,24 @@ def test_the_selection_tries_each_encoder_for_unseen_conditions_too():
     assert list(plain) == ["cgwt", "lif"]
     assert list(shifted) == ["cgwt", "lif", "cgwt+gain", "lif+gain"]
     assert shifted["cgwt+gain"] == plain["cgwt"].replace(**SHIFT_VARIANT)
+
+
+def test_the_gain_level_is_the_same_whatever_sums_it():
+    """The level is summed in float64 and rounded once, so numpy's order and the graph's (torch
+    here, onnxruntime there) give the same float32 windows bit for bit: a last-bit difference
+    moved a latency spike by 1.6 ms on FabricSlide's harder presses and failed the export."""
+    import torch
+
+    from tactilesnn.pipeline import gain_normalised
+
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((64, 18, 141)) * 10.0 ** rng.uniform(-3, 4, (64, 1, 1))
+    x = x.astype(np.float32)
+    t = torch.from_numpy(x)
+    level = t.double().abs().mean(dim=[1, 2], keepdim=True).float()
+    graph = (t / torch.clamp(level, min=float(np.finfo(np.float32).tiny))).numpy()
+    np.testing.assert_array_equal(gain_normalised(x), graph)
+    shuffled = x[:, :, rng.permutation(x.shape[-1])]  # another summation order, same level
+    np.testing.assert_array_equal(
+        np.sort(gain_normalised(shuffled), axis=-1), np.sort(gain_normalised(x), axis=-1)
+    )
