@@ -306,17 +306,15 @@ def select_encoder(
     the last round, or fewer where ``budget`` says the rounds would take more than
     :data:`SELECTION_SHARE` of the run. Windows are coded alone here (an encoder that also codes
     windows with their recording's past gets those in the final fit only). Returns the chosen
-    config and a report (``scores`` per candidate, with ``rounds`` (accuracy per round) and
-    ``stopped_after`` where it stopped early, ``ranked_by``, windows per round, ``seconds``,
-    ``validation``). ``leave_out``: a condition of the data (:attr:`WindowDataset.conditions`):
-    the held-out recordings are those of whole values of it, so what transfers to an unseen
-    condition is chosen (where the training data holds two values or more)."""
+    config and a report (``scores`` per candidate with ``rounds`` and ``stopped_after``,
+    ``ranked_by``, windows per round, ``seconds``, ``validation``). ``leave_out``: a condition
+    of the data held out by whole values (:func:`condition_groups`; each encoder then also as
+    its :data:`SHIFT_VARIANT`), so what transfers to an unseen condition is chosen."""
     if not candidates:
         raise ValueError("encoder selection needs at least one candidate encoder")
     t0 = time.perf_counter()
     by, validation = condition_groups(train, leave_out)
-    configs = configs or candidate_configs(config, train, candidates,
-                                           shift=by is not None)  # fmt: skip
+    configs = configs or candidate_configs(config, train, candidates, shift=by is not None)
     fit_set, val_set = split_validation(train, fraction, config.seed + 1, by=by)
     assert val_set is not None
     cap = max(SELECT_MIN_WINDOWS, train.y.size // max(1, len(candidates)))  # (per encoder)
