@@ -8,9 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .protocol import LETTER_SHARE
-from .report import _cell, _cross_run_section
-from .stats import by_letter_summary, by_run_summary, count_draws, draw_means, summarise_calibrated
+from .report import _by_letter_table, _by_run_table, _cell, _cross_run_section, _fabric_section
+from .stats import count_draws, draw_means, summarise_calibrated
 
 log = logging.getLogger("tactilesnn")
 
@@ -89,29 +88,6 @@ def _references_section(refs: list[dict], cal: list[dict]) -> list[str]:
     return lines
 
 
-def _fabric_section(fab: dict) -> list[str]:
-    sh = fab["spectrum_shape_bands_hz"]
-    return ["", "## A second sensor: FabricSlide against the `texture` task's capacitive stack", "",
-            "`tactilesnn calibrate --statistics-only --task texture --data "
-            "../shared/data/fabric_slide/fabric --out docs/sim2real_fabric.json --plot "
-            "docs/sim2real_fabric.png` (15 s): the CPM-Finger's recordings "
-            f"({fab['recordings']} windows) next to the stack model at its defaults "
-            f"({fab['model_samples']} windows). There is nothing to fit: "
-            + "; ".join(fab["cannot_express"]) + ". What compares is unit-free: the spectra's "
-            f"shapes over the bands both resolve ({sh[0][0]:g}-{sh[-1][1]:g} Hz) are "
-            f"{fab['spectrum_shape_rms_decades']:.2f} decades apart (rms; the fabric's power "
-            "falls off with frequency, "
-            + ", ".join(f"{v:.2f}" for v in fab["spectrum_shape_real"])
-            + " log10 shares per octave band, the model's is flatter: "
-            + ", ".join(f"{v:.2f}" for v in fab["spectrum_shape_model"])
-            + "), and the mean cross-channel correlation is "
-            f"{fab['mean_cross_channel_correlation']['real']:.2f} (recordings) against "
-            f"{fab['mean_cross_channel_correlation']['model']:.2f} (the model's two channels). A "
-            "calibration of this sensor needs a finger model with 16 taxels and a fabric scene "
-            "(the fingertip model reads dots, not weaves).", "",
-            "![FabricSlide against the texture task's stack](sim2real_fabric.png)"]  # fmt: skip
-
-
 def chosen_counts(rows: list[dict]) -> str:
     """The pretraining candidates the rows chose, with how often: ``lif / strongest x 7, ...``
     (rows before the capacities: the encoder alone)."""
@@ -122,64 +98,6 @@ def chosen_counts(rows: list[dict]) -> str:
     return ", ".join(
         f"{key} x {n}" for key, n in sorted(keys.items(), key=lambda kv: (-kv[1], kv[0]))
     )
-
-
-def _by_run_table(cal: list[dict], ks: list[int]) -> list[str]:
-    """The page's table of each arm per window by recording run (rows with ``by_run``)."""
-    if not all("by_run" in x for x in cal):
-        return []
-    lines = ["", "By recording run (per window, %; a run: five consecutive slides of one "
-             "letter, `RUN_SLIDES`): on the test slides of the runs the k training slides come "
-             "from (seen) and of the other runs (unseen); the last column pretrained minus real "
-             "only on the unseen runs (points).", "",
-             "| k | test windows in seen runs | real only: seen / unseen | synthetic only | "
-             "pretrained (the mean) | labels' fine-tune | letter's share's | pretrained minus "
-             "real only, unseen runs |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for k in ks:
-        sel = [x for x in cal if x["k"] == k]
-        b = by_run_summary(sel)
-
-        def pair(arm: str, b: dict = b) -> str:
-            return " / ".join("-" if b[f"{arm}_{p}"] is None else f"{100 * b[f'{arm}_{p}']:.1f}"
-                              for p in ("seen", "unseen"))  # fmt: skip
-
-        gain = [v for v in draw_means(sel, fn=lambda x: x["by_run"]["pretrained"][1]
-                                      - x["by_run"]["real_only"][1]) if np.isfinite(v)]  # fmt: skip
-        lines.append(f"| {k} | {100 * b['seen_fraction']:.0f} % | {pair('real_only')} | "
-                     f"{pair('synthetic_only')} | {pair('pretrained')} | "
-                     f"{pair('pretrained_labels')} | {pair('pretrained_letter')} | "
-                     + (_cell(gain, sign="+") if gain else "-") + " |")  # fmt: skip
-    return lines
-
-
-def _by_letter_table(cal: list[dict], ks: list[int]) -> list[str]:
-    """The page's table of each arm per window on the test windows that hold the letter and on
-    the others (rows with ``by_letter``), and on those of unseen recording runs."""
-    if not all("by_letter" in x for x in cal):
-        return []
-    runs = all("letter_unseen" in x["by_letter"]["pretrained"] for x in cal)
-    lines = ["", "By where the letter is (per window, %): on the test windows in which the fitted "
-             f"model places at least {100 * LETTER_SHARE:.0f} % of the letter's signal (`letter`) and on "
-             "the others (`none`: the slide before and after the letter, where only a rest level "
-             "tells the letters apart)" + (", over all test windows and on the unseen runs" if runs
-                                           else "") + ".", "",
-             "| k | test windows with the letter | real only: letter / none | synthetic only | "
-             "pretrained | " + ("unseen runs: real only | unseen runs: pretrained |" if runs
-                                else ""),
-             "|---|---|---|---|---|" + ("---|---|" if runs else "")]  # fmt: skip
-
-    def pair(b: dict, arm: str, suffix: str = "") -> str:
-        return " / ".join("-" if b[arm][f"{p}{suffix}"] is None
-                          else f"{100 * b[arm][f'{p}{suffix}']:.1f}" for p in ("letter", "none"))  # fmt: skip
-
-    for k in ks:
-        b = by_letter_summary([x for x in cal if x["k"] == k])
-        cells = [str(k), f"{100 * b['letter_fraction']:.0f} %", pair(b, "real_only"),
-                 pair(b, "synthetic_only"), pair(b, "pretrained")]  # fmt: skip
-        if runs:
-            cells += [pair(b, "real_only", "_unseen"), pair(b, "pretrained", "_unseen")]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
 
 
 def _models_section(r: dict, cal: list[dict]) -> list[str]:
