@@ -31,7 +31,7 @@ from .core.data import DataFacts, WindowDataset
 from .models.base import seeded
 from .recordings import events_as_channels, layout_of
 from .resolve import Resolution, resolve
-from .selection import fit_encoder_to_data, select_encoder
+from .selection import resolved_config
 from .training import fit_pipeline
 
 #: ``encoder=AUTO``: chosen among the data-file candidates on held-out training windows (not a
@@ -123,12 +123,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
         self.n_features_in_ = int(np.prod(data.X.shape[1:]))
         self.channel_names_ = data.channel_names
         self.fs_hz_ = data.fs_hz
-        res = self._config(data)
-        config, self.encoder_selection_ = res.config, None
-        if res.select:  # as train --data: the encoder chosen on held-out training recordings
-            config, self.encoder_selection_ = select_encoder(config, data, res.select)
-        elif res.keep is not None:  # the encoder named: its bands follow the data
-            config = fit_encoder_to_data(config, data, keep=res.keep)
+        config, self.encoder_selection_ = resolved_config(self._config(data), data)
         with seeded(config.seed):  # the one fit path (as tactilesnn train fits)
             fitted = fit_pipeline(config, data, progress=self.progress,
                                   val_fraction=float(self.val_fraction))  # fmt: skip

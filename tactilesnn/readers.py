@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .core.checks import check_allocation
-from .core.data import GROUP_PREFIX
+from .core.data import GROUP_PREFIX, condition_text
 from .core.files import npy_header
 from .core.tables import Table, read_table
 
@@ -287,10 +287,6 @@ def conditions_from_names(files: list[Path], folder: Path) -> dict[str, np.ndarr
     return out
 
 
-def _plain(v: object) -> str:
-    return f"{v:g}" if isinstance(v, float | np.floating) else str(v)
-
-
 def readable_name(name: str) -> str:
     """A file or folder name as text: bytes that are not UTF-8 (a folder written under another
     locale, kept by Python as surrogate escapes that no file or JSON can hold) as ``\\xff``
@@ -369,7 +365,7 @@ def _read_folder(folder: Path, fs_hz: float | None = None) -> tuple[dict, Conver
     for name, values in conditions_from_names(files, folder).items():
         arrays[GROUP_PREFIX + name] = values[rec]
         notes.append(f"condition {name!r} from the file names: "
-                     f"{', '.join(map(_plain, np.unique(values)[:8]))}"
+                     f"{', '.join(map(condition_text, np.unique(values)[:8]))}"
                      f"{' ...' if np.unique(values).size > 8 else ''}")  # fmt: skip
     resampled += sum(r.resampled for r in recs)
     return arrays, Conversion(f"{folder.name}/: a folder of recordings", fs, jitter, resampled,

@@ -32,7 +32,7 @@ from .core.checks import (
     check_positive,
     check_rate,
 )
-from .core.data import GROUP_PREFIX, DataFacts, WindowDataset
+from .core.data import GROUP_PREFIX, DataFacts, WindowDataset, condition_text
 from .core.files import npy_header
 from .core.layout import check_taxel_xy, place_on_grid
 
@@ -419,9 +419,9 @@ def hold_out_mask(spec: str, conditions: dict[str, dict[int, Any]] | None, group
     values = np.asarray([table[g] for g in groups.tolist()])
     if op == "=":
         wanted = [w.strip() for w in text.split(",")]
-        as_text = np.asarray([_condition_text(v) for v in values])
-        mask = np.isin(as_text, [_condition_text(w) for w in wanted])
-        missing = sorted(set(map(_condition_text, wanted)) - set(as_text.tolist()))
+        as_text = np.asarray([condition_text(v) for v in values])
+        mask = np.isin(as_text, [condition_text(w) for w in wanted])
+        missing = sorted(set(map(condition_text, wanted)) - set(as_text.tolist()))
         if missing:
             raise ValueError(f"--hold-out {spec}: no recording has {name} = {', '.join(missing)} "
                              f"(values: {', '.join(sorted(set(as_text.tolist()))[:12])})")  # fmt: skip
@@ -434,14 +434,6 @@ def hold_out_mask(spec: str, conditions: dict[str, dict[int, Any]] | None, group
         raise ValueError(f"--hold-out {spec}: {text!r} is not a number") from None
     compare = {">=": np.greater_equal, ">": np.greater, "<=": np.less_equal, "<": np.less}[op]
     return compare(values.astype(np.float64), bound)
-
-
-def _condition_text(v: Any) -> str:
-    """A condition value as its hold-out spelling (``150.0`` and ``"150"`` alike: ``150``)."""
-    try:
-        return f"{float(v):g}"
-    except (TypeError, ValueError):
-        return str(v).strip()
 
 
 def _split(arrays: dict[str, np.ndarray], y: np.ndarray, groups: np.ndarray, test_fraction: float,

@@ -119,17 +119,12 @@ def _policy(facts: DataFacts, flat: dict[str, Any], base: dict[str, Any],
         part = owners[key].part if key in owners else None
         if key not in user and part not in user:
             out[key] = value
-    model = flat.get("model", out.get("model", _model_of(base)))
+    model = flat.get("model", out.get("model", _component_of(base, "model")))
     sections = {k for k, v in base.items() if isinstance(v, dict)}  # a file's [model], [train]
     for key, value in model_defaults(facts, model).items():
         if key not in user and owners[key].part not in sections:
             out[key] = value
     return out
-
-
-def _model_of(base: dict[str, Any]) -> str:
-    """The model a ``--config`` file names (its default when it names none)."""
-    return _component_of(base, "model")
 
 
 def _component_of(base: dict[str, Any], kind: str) -> str:

@@ -114,6 +114,20 @@ def candidate_configs(
 SHIFT_VARIANT = {"gain_norm": True, "level_neurons": 0}
 
 
+def resolved_config(
+    res: Any, train: WindowDataset, leave_out: str | None = None
+) -> tuple[PipelineConfig, dict[str, Any] | None]:
+    """A :class:`~tactilesnn.resolve.Resolution` made concrete on the training windows, as
+    ``train --data`` does it: the encoder chosen among ``res.select`` (:func:`select_encoder`,
+    its report second; ``leave_out``: a condition held out by whole values), else fitted to the
+    data except the user's fields ``res.keep``, else ``res.config`` as it is."""
+    if res.select:
+        return select_encoder(res.config, train, res.select, leave_out=leave_out)
+    if res.keep is not None:
+        return fit_encoder_to_data(res.config, train, keep=res.keep), None
+    return res.config, None
+
+
 def fit_encoder_to_data(config: PipelineConfig, train: WindowDataset, keep: Iterable[str] = (),
                         median_hz: float | None = None) -> PipelineConfig:  # fmt: skip
     """``config`` with its encoder's settings that follow the data (``data_defaults`` of its

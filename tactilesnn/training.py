@@ -19,7 +19,7 @@ import torch
 from sklearn.metrics import confusion_matrix
 
 from .config import PipelineConfig
-from .core.data import WindowDataset, confidence_summary
+from .core.data import WindowDataset, condition_text, confidence_summary
 from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
@@ -75,7 +75,7 @@ def condition_accuracy(scores: np.ndarray, test: WindowDataset) -> dict[str, dic
         for v in np.unique(values):
             m = values == v
             rec = recording_accuracy(scores[m], test.y[m], test.scan[m]) or {}
-            rows[f"{v:g}" if isinstance(v, float | np.floating) else str(v)] = {
+            rows[condition_text(v)] = {
                 "windows": int(m.sum()), "accuracy": float((pred[m] == test.y[m]).mean()),
                 "accuracy_per_recording": rec.get("test_accuracy_per_recording"),
             }  # fmt: skip

@@ -124,7 +124,7 @@ def evaluation_lines(rep: dict[str, Any]) -> list[str]:
 def condition_lines(m: dict, source: Any) -> list[str]:
     """The test accuracy per value of each condition the data states (``metrics.json``'s
     ``by_condition``), the held-out condition first and named so."""
-    left_out = getattr(source, "condition_left_out", None)
+    left_out = source.condition_left_out
     lines = []
     for name, rows in sorted(
         (m.get("by_condition") or {}).items(), key=lambda kv: kv[0] != left_out

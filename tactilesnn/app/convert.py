@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.data import condition_text
 from ..core.files import write_npz_atomic
 from ..readers import Conversion, needs_reading, read_recordings
 from ..recordings import datasets_from_arrays, read_data_arrays
@@ -95,7 +96,7 @@ def _conditions(data) -> dict[str, dict[str, int]]:
     out: dict[str, dict[str, int]] = {}
     for name, table in sorted((data.conditions or {}).items()):
         values = list(table.values())
-        out[name] = {(f"{v:g}" if isinstance(v, float) else str(v)): values.count(v)
+        out[name] = {condition_text(v): values.count(v)
                      for v in sorted(set(values), key=lambda x: (str(type(x)), x))}  # fmt: skip
     return out
 

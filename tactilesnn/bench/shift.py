@@ -91,17 +91,13 @@ def run_defaults(train: WindowDataset, test: WindowDataset, leave_out: str | Non
     """The defaults as ``train --data`` runs them (the encoder chosen leaving whole values of
     ``leave_out`` out) -> ``(row part, the fitted pipeline)``."""
     from ..resolve import resolve
-    from ..selection import fit_encoder_to_data, select_encoder
+    from ..selection import resolved_config
     from ..training import fit_and_evaluate
 
     t0 = time.perf_counter()
-    res = resolve({"seed": seed}, facts=train.facts)
-    config, validation, chosen = res.config, None, res.config.encoder_type
-    if res.select:
-        config, sel = select_encoder(config, train, res.select, leave_out=leave_out)
-        validation, chosen = sel["validation"], sel["chosen"]
-    elif res.keep is not None:
-        config = fit_encoder_to_data(config, train, keep=res.keep)
+    config, sel = resolved_config(resolve({"seed": seed}, facts=train.facts), train, leave_out)
+    validation = None if sel is None else sel["validation"]
+    chosen = config.encoder_type if sel is None else sel["chosen"]
     fitted = fit_and_evaluate(config, train, test)
     m = fitted.metrics
     return {"per_window": m["test_accuracy"],

@@ -27,6 +27,15 @@ import numpy as np
 GROUP_PREFIX = "group_"
 
 
+def condition_text(v: Any) -> str:
+    """A condition value as text, as ``--hold-out`` names it and the run reports it (``150.0``,
+    ``150`` and ``"150"`` alike: ``150``; names as they are)."""
+    try:
+        return f"{float(v):g}"
+    except (TypeError, ValueError):
+        return str(v).strip()
+
+
 @dataclass(frozen=True)
 class DataFacts:
     """What the defaults of ``train --data`` follow, read once per run from a file's headers
