@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-if TYPE_CHECKING:  # the settings need torch: imported once the command line is known good
+if TYPE_CHECKING:
     from .app.options import Option
 
 log = logging.getLogger("tactilesnn")
@@ -394,8 +394,7 @@ def _parse_export(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_generate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .app.commands import task_names
-    from .app.options import run_options
+    from .app.options import run_options, task_names
 
     p = _command(sub, "generate", "render a synthetic task into sharded files")
     p.add_argument("--task", default="hook_loop", choices=task_names(), help="synthetic task")
@@ -431,7 +430,7 @@ def _name_value(text: str) -> tuple[str, float]:
 
 
 def _parse_calibrate(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .app.commands import task_names
+    from .app.options import task_names
 
     p = _command(sub, "calibrate", "fit a task's sensor model to your recordings (a fit file "
                  "that generate / train read with --task-kw calibration=FILE)")  # fmt: skip
@@ -498,7 +497,7 @@ def _parse_sweep(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .app.commands import add_serve_arguments
+    from .app.options import add_serve_arguments
 
     p = _command(sub, "serve", "HTTP inference service (onnxruntime + numpy only; without "
                  "torch: python -m tactilesnn.service)")  # fmt: skip
@@ -508,7 +507,7 @@ def _parse_serve(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
 
 
 def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
-    from .app.commands import task_names
+    from .app.options import task_names
 
     p = _command(sub, "demo-stream", "stream a synthetic task to a running service (live page)")
     p.add_argument("--url", default="http://127.0.0.1:8000", help="the service's base URL")
@@ -524,14 +523,20 @@ def _parse_demo_stream(sub: argparse._SubParsersAction) -> argparse.ArgumentPars
     return p
 
 
-def _parse_bench(sub: argparse._SubParsersAction) -> argparse.ArgumentParser:
+def _parse_bench(sub: argparse._SubParsersAction, full: bool = True) -> argparse.ArgumentParser:
+    """``bench NAME``: each benchmark's flags (``full=False``: its names only, nothing imported,
+    for a command line that is not ``bench``)."""
     p = _command(sub, "bench", "benchmarks (each has its own flags: tactilesnn bench NAME --help)")
     names = p.add_subparsers(dest="name", required=True, metavar="NAME", help="which benchmark")
     from .bench import BENCHMARKS, benchmark
 
-    for name in BENCHMARKS:
+    for name in BENCHMARKS.names():
+        if not full:
+            names.add_parser(name)
+            continue
         module = benchmark(name)
         b = _command(names, name, module.HELP)
+        p.commands[name] = b  # type: ignore[attr-defined]
         b.add_argument("--out", help="output folder")
         b.add_argument("--quiet", action="store_true", help="no progress bars")
         module.add_arguments(b)
@@ -548,8 +553,17 @@ COMMANDS = {"train": _parse_train, "evaluate": _parse_evaluate, "finetune": _par
             "serve": _parse_serve, "demo-stream": _parse_demo_stream, "bench": _parse_bench}  # fmt: skip
 
 
+#: flags whose value is a path that must exist, per command
+EXISTING_PATHS = {"train": ("--data", "--config"), "evaluate": ("--data",)}
+
+
 class SuggestingParser(argparse.ArgumentParser):
-    """An argument parser whose errors suggest the closest flag or choice ("did you mean")."""
+    """An argument parser whose errors suggest the closest flag or choice ("did you mean");
+    ``commands``: the sub-commands' parsers by name."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.commands: dict[str, argparse.ArgumentParser] = {}
 
     def error(self, message: str) -> NoReturn:
         import difflib
@@ -581,7 +595,10 @@ def _all_flags(parser: argparse.ArgumentParser) -> set[str]:
     return out
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(bench: bool = True) -> SuggestingParser:
+    """The command line, built from the settings schema (:mod:`tactilesnn.schema`; torch is not
+    imported). ``bench=False``: the benchmarks' own flags are left out (their modules unimported),
+    for a command line that does not start with ``bench``."""
     from .app.environment import __version__
 
     parser = SuggestingParser(prog="tactilesnn", description=DESCRIPTION,
@@ -590,10 +607,24 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"tactilesnn {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name, add in COMMANDS.items():
-        p = add(sub)
-        if name == "train":
-            parser.train_parser = p  # type: ignore[attr-defined]  # (--config sets its defaults)
+        p = _parse_bench(sub, full=bench) if name == "bench" else add(sub)
+        parser.commands[name] = p
     return parser
+
+
+def _check_args(parser: SuggestingParser, argv: list[str]) -> argparse.Namespace:
+    """``argv`` parsed; an unknown flag is answered by its command's parser (the closest of that
+    command's flags), a path that must exist (``--data``, ``--config``) before any work."""
+    args, extra = parser.parse_known_args(argv)
+    command = parser.commands.get(args.command, parser)
+    command = getattr(command, "commands", {}).get(getattr(args, "name", None), command)
+    if extra:
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
+    for flag in EXISTING_PATHS.get(args.command, ()):
+        value = getattr(args, flag.lstrip("-"), None)
+        if isinstance(value, str) and not Path(value).exists():
+            command.error(f"{flag} {value}: no such file or folder")
+    return args
 
 
 def _read_config(parser: argparse.ArgumentParser, argv: list[str]):
@@ -609,27 +640,20 @@ def _read_config(parser: argparse.ArgumentParser, argv: list[str]):
     from .app.config_file import read_train_file
 
     file = read_train_file(Path(known.config))
-    parser.train_parser.set_defaults(train_file=file, **file.run, **file.command)
+    parser.commands["train"].set_defaults(train_file=file, **file.run, **file.command)
     return file
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from .app.quick_args import QuickError, check
-
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:  # mistakes answered before the settings (and torch) are imported
-        check(argv)
-    except QuickError as e:
-        prog = f"tactilesnn {e.command}" if e.command else "tactilesnn"
-        print(f"usage: {prog} [-h] ...\n{prog}: error: {e}", file=sys.stderr)
-        raise SystemExit(2) from None  # as argparse does
-    parser = build_parser()
+    first = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(bench=first == "bench")
     try:
         _read_config(parser, argv)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    args = parser.parse_args(argv)
+    args = _check_args(parser, argv)
     from .app.environment import fit_threads, tune_allocator
 
     tune_allocator()

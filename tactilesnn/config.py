@@ -26,16 +26,15 @@ config field declares its flat name (:func:`~tactilesnn.core.settings.setting`).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-from .core.checks import check_choice, check_int
-from .core.device import check_device_name
+from .core.checks import check_choice, check_device_name, check_int
 from .core.registry import Registry
 from .core.settings import choices_of, flag_fields, help_texts, legacy_values, setting
-from .encoders import ENCODERS
-from .encoders.level import SCALES as LEVEL_SCALES
-from .models import MODELS
+from .schema.encoders import ENCODERS, LEVEL_SCALES
+from .schema.models import MODELS
 
 DEFAULT_ENCODER = "gwt"
 #: a time reference needs a few afferents; thousands are a typo (and gigabytes of spike times)
@@ -130,6 +129,12 @@ class PipelineConfig:
         "coding (a harder press scales every channel alike: the code sees the pattern, not the "
         "force); window graphs only",
     )
+    rest_ms: float = setting(
+        0.0,
+        help="rest reference: each channel less its mean over the window's first rest_ms ms (a "
+        "re-mounted sensor's or a new session's offset drops out; before gain_norm); 0 = off; "
+        "window graphs only",
+    )
     encoder: Any = field(default_factory=lambda: ENCODERS.config_class(DEFAULT_ENCODER)())
     model: Any = field(default_factory=lambda: MODELS.config_class(DEFAULT_MODEL)())
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -153,6 +158,8 @@ class PipelineConfig:
             raise TypeError(f"level_share must be true or false, got {self.level_share!r}")
         if not isinstance(self.gain_norm, bool):
             raise TypeError(f"gain_norm must be true or false, got {self.gain_norm!r}")
+        if not (isinstance(self.rest_ms, int | float) and 0 <= self.rest_ms < math.inf):
+            raise ValueError(f"rest_ms must be a finite number of ms >= 0, got {self.rest_ms!r}")
         ENCODERS.name_of_config(self.encoder)  # TypeError if not a registered encoder's config
         MODELS.name_of_config(self.model)
         if not isinstance(self.train, TrainConfig):

@@ -52,6 +52,15 @@ def gain_normalised(x: np.ndarray) -> np.ndarray:
     return x / np.maximum(level, np.finfo(np.float32).tiny)
 
 
+def rest_referenced(x: np.ndarray, n_rest: int) -> np.ndarray:
+    """Windows ``[N, C, W]``, each channel less its mean over the window's first ``n_rest``
+    samples (its rest level before contact; summed in float64 as the exported graph sums it), so
+    an offset that a re-mounted sensor or a new session moves drops out."""
+    x = np.asarray(x, np.float32)
+    rest = x[..., : max(1, int(n_rest))].astype(np.float64).mean(-1, keepdims=True)
+    return x - rest.astype(np.float32)
+
+
 #: float32 weights, their gradients and Adam's two moments
 TRAINING_BYTES_PER_PARAMETER = 16
 
@@ -133,11 +142,20 @@ class SpikePipeline:
 
     def encoder_input(self, X: np.ndarray) -> np.ndarray:
         """Validated ``X`` restricted to the pipeline's channels (a view when that is all), each
-        window divided by its level where the configuration asks (:func:`gain_normalised`)."""
+        window less its rest level (:func:`rest_referenced`) and divided by its level
+        (:func:`gain_normalised`) where the configuration asks."""
         arr = self.validate(X)
         if list(self.channel_idx) != list(range(arr.shape[1])):
             arr = arr[:, self.channel_idx]
+        if self.config.rest_ms:
+            arr = rest_referenced(arr, self.rest_samples)
         return gain_normalised(arr) if self.config.gain_norm else arr
+
+    @property
+    def rest_samples(self) -> int:
+        """Samples of the window's start that are its rest reference (``rest_ms``; at least
+        one, at most the window)."""
+        return min(self.window, max(1, round(self.config.rest_ms * self.fs_hz / 1000.0)))
 
     def calibrate(self, X: np.ndarray) -> None:
         """Fit the encoder's data-dependent state (e.g. the LIF code's level) and the level
@@ -175,7 +193,16 @@ class SpikePipeline:
         frame by frame: its model's state is carried too, and it is scored so
         (:mod:`~tactilesnn.stream_training`), not as windows served one by one."""
         return (self.encoder.codes_with_past and self.frame_problem() is not None
-                and not self.config.gain_norm)  # fmt: skip
+                and self.window_stage() is None)  # fmt: skip
+
+    def window_stage(self) -> str | None:
+        """The stage that reads a whole window before coding it (None: none), which a stream
+        or frame graph, coding each sample once, cannot have."""
+        if self.config.gain_norm:
+            return "gain_norm divides a whole window by its level"
+        if self.config.rest_ms:
+            return "rest_ms subtracts the window's first samples' level"
+        return None
 
     def encode_in_recordings(
         self, X: np.ndarray, scan: np.ndarray
@@ -235,8 +262,8 @@ class SpikePipeline:
                     "needs a stream model (--model stream)")  # fmt: skip
         if self.level is not None or self.n_clock:  # (a stream model gets neither)
             return "the level code and clock afferents are window codes"
-        if self.config.gain_norm:
-            return "gain_norm divides a whole window by its level: a window code"
+        if self.window_stage():
+            return f"{self.window_stage()}: a window code"
         f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
         if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
             return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "

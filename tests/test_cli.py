@@ -204,28 +204,15 @@ def test_a_mistyped_flag_or_choice_gets_a_suggestion(capsys):
     assert "did you mean cgwt?" in capsys.readouterr().err
 
 
-def test_the_quick_flag_table_is_the_parser_s():
-    """``app/flag_table.json`` answers typos before torch is imported; it must list exactly
-    the full parser's flags and choices. Regenerate with
-    ``python -c "from tests.test_cli import write_flag_table; write_flag_table()"``."""
-    import json
-
-    from tactilesnn.app.quick_args import TABLE_FILE, flag_table
-    from tactilesnn.cli import build_parser
-
-    assert json.loads(TABLE_FILE.read_text()) == json.loads(
-        json.dumps(flag_table(build_parser()))
-    ), "app/flag_table.json is stale: " + write_flag_table.__doc__
-
-
-def write_flag_table() -> None:
-    """regenerate it with tests.test_cli.write_flag_table()"""
-    import json
-
-    from tactilesnn.app.quick_args import TABLE_FILE, flag_table
-    from tactilesnn.cli import build_parser
-
-    TABLE_FILE.write_text(json.dumps(flag_table(build_parser()), indent=1, sort_keys=True) + "\n")
+def test_the_parser_is_built_without_torch():
+    """The settings schema (:mod:`tactilesnn.schema`) declares every flag without torch: the
+    whole parser but the benchmarks' own flags is built with torch, scipy and the components'
+    modules unimported."""
+    code = ("import sys; from tactilesnn.cli import build_parser; p = build_parser(bench=False); "
+            "print(sorted(m for m in ('torch', 'scipy', 'tactilesnn.encoders.base', "
+            "'tactilesnn.datasets_synth') if m in sys.modules), len(p.commands))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["[]", "12"], out.stdout
 
 
 @pytest.mark.parametrize(
@@ -239,6 +226,7 @@ def write_flag_table() -> None:
     ],
 )
 def test_mistakes_are_answered_before_torch_is_imported(argv, match):
+    """The parser itself answers, from the torch-free schema (no mirror of its flags)."""
     import subprocess
     import sys
 
@@ -250,13 +238,16 @@ def test_mistakes_are_answered_before_torch_is_imported(argv, match):
     assert match in r.stderr
 
 
-def test_the_quick_check_leaves_good_command_lines_to_the_parser():
-    from tactilesnn.app.quick_args import check
+def test_good_command_lines_parse():
+    from tactilesnn.cli import _check_args, build_parser
 
     for argv in (["train", "--epochs", "3", "--encoder", "stft", "--no-export"],
-                 ["train", "--ep", "3"], ["bench", "fit", "--anything"], ["--version"],
-                 ["train", "--help"], ["-v", "train", "--difficulty", "-0.5"]):  # fmt: skip
-        check(argv)
+                 ["train", "--ep", "3"], ["-v", "train", "--difficulty", "-0.5"],
+                 ["train", "--encoder", "lif", "--lif-neurons", "4"]):  # fmt: skip
+        args = _check_args(build_parser(bench=False), argv)
+        assert args.command == "train"
+    args = _check_args(build_parser(), ["bench", "fit", "--quiet"])
+    assert (args.command, args.name, args.quiet) == ("bench", "fit", True)
 
 
 def test_the_command_line_loads_onnx_only_to_export() -> None:

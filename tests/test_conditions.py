@@ -221,3 +221,48 @@ def test_the_gain_level_is_the_same_whatever_sums_it():
     np.testing.assert_array_equal(
         np.sort(gain_normalised(shuffled), axis=-1), np.sort(gain_normalised(x), axis=-1)
     )
+
+
+def test_rest_referenced_windows_against_a_float64_reference():
+    from tactilesnn.pipeline import rest_referenced
+
+    rng = np.random.default_rng(3)
+    x = (rng.normal(size=(4, 3, 50)) + rng.uniform(-1e3, 1e3, size=(4, 3, 1))).astype(np.float32)
+    got = rest_referenced(x, 5)
+    ref = x.astype(np.float64) - x[..., :5].astype(np.float64).mean(-1, keepdims=True)
+    np.testing.assert_allclose(got, ref, atol=1e-3)
+    np.testing.assert_allclose(rest_referenced(x + 250.0, 5), got, atol=1e-3)  # offset-free
+    assert got.dtype == np.float32
+
+
+@pytest.mark.slow
+def test_rest_ms_exports_in_the_window_graph_and_is_refused_by_the_stream_graph(tmp_path):
+    """``rest_ms`` (each channel less its level over the window's first ms) is a stage of the
+    exported window graph, verified against torch, also on windows offset beyond any training
+    one (the scores do not move); the stream graph refuses it."""
+    import onnxruntime as ort
+
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.export import export_pipeline
+    from tactilesnn.export.stream_graph import StreamEncoderGraph
+    from tactilesnn.recordings import datasets_from_arrays
+    from tactilesnn.training import fit_pipeline
+
+    train, test = datasets_from_arrays(_arrays(n_rec=24, per=2), "f.npz", 0, hold_out="force>=3")
+    cfg = PipelineConfig.from_flat(encoder="cgwt", model="readout", channels=("all",),
+                                   rest_ms=20.0, level_neurons=0)  # fmt: skip
+    pipe = fit_pipeline(cfg, train, with_past=False).pipeline
+    assert pipe.rest_samples == round(20.0 * train.fs_hz / 1000)
+    offset = np.concatenate([test.X, test.X + 5.0 * np.abs(test.X).max()]).astype(np.float32)
+    report = export_pipeline(pipe, tmp_path / "g.onnx", offset)
+    assert report["prediction_agreement"] == 1.0
+    got = ort.InferenceSession(str(tmp_path / "g.onnx")).run(["scores"], {"window": offset})[0]
+    want = pipe.scores(pipe.encode(offset)).numpy()
+    np.testing.assert_allclose(got, want, atol=1e-3, rtol=1e-3)
+    n = len(test.X)
+    # offset-free (up to float32 rounding of the offset windows near a latency threshold)
+    assert np.mean(want[:n].argmax(1) == want[n:].argmax(1)) >= 0.95
+    with pytest.raises(ValueError, match="rest_ms"):
+        StreamEncoderGraph(pipe)
+    with pytest.raises(ValueError, match="rest_ms must be"):
+        cfg.replace(rest_ms=float("nan"))

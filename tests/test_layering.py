@@ -17,6 +17,7 @@ ROOT = Path(tactilesnn.__file__).resolve().parent
 #: bottom to top; a module is in the first layer with a matching prefix
 LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("core", ("core",)),
+    ("schema", ("schema",)),
     ("components", ("datasets_synth", "encoders", "models", "recordings", "readers")),
     ("pipeline", ("config", "data_policy", "resolve", "pipeline", "trainer", "baselines")),
     (
@@ -27,7 +28,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("benchmarks", ("bench",)),
     ("cli", ("cli", "__main__")),
 ]
-#: layer 3's parts sit side by side: none imports another (the estimator and the encoder
+#: layer 4's parts sit side by side: none imports another (the estimator and the encoder
 #: selection are part of training)
 SIDE_BY_SIDE = {
     "training": "training",

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.checks import ExportError
-from ..datasets_synth import TASKS, get_task
+from ..datasets_synth import get_task
 from ..datasets_synth.generate import generate
 from ..encoders import ENCODERS
 from ..pipeline import accuracy_ci95
@@ -18,6 +18,7 @@ from ..service import command as service_command
 from ..service.client import ServiceError
 from ..training import recording_accuracy, stream_metrics
 from .demo import demo_stream
+from .options import task_names
 from .run import evaluation_data, load_run, source_of
 
 __all__ = [
@@ -30,11 +31,6 @@ __all__ = [
     "stream_demo",
     "task_names",
 ]  # fmt: skip
-
-
-def task_names() -> list[str]:
-    """The registered synthetic tasks, sorted."""
-    return sorted(TASKS)
 
 
 def parity_line(rep: dict) -> str:

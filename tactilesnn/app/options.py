@@ -9,12 +9,13 @@ a boolean, ``1e9`` is not an integer), ranges by the component configs.
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass
 from typing import Any
 
 from ..config import DEFAULT_ENCODER, DEFAULT_MODEL, flat_settings, registries
-from ..datasets_synth import TASKS
+from ..schema.tasks import TASKS
 
 #: largest integer a setting may take (counts are further bounded by the components)
 MAX_INT = 1 << 31
@@ -206,3 +207,16 @@ def check_settings(settings: dict[str, Any], where: str) -> dict[str, Any]:
         except ValueError as e:
             raise ValueError(f"{where}: {e}") from e
     return out
+
+
+def task_names() -> list[str]:
+    """The synthetic tasks' names, sorted (declared in :mod:`tactilesnn.schema.tasks`)."""
+    return sorted(TASKS)
+
+
+def add_serve_arguments(p: argparse.ArgumentParser) -> None:
+    """``serve``'s flags, as ``python -m tactilesnn.service`` has them (onnxruntime is not
+    imported)."""
+    from ..service import command
+
+    command.add_arguments(p)

@@ -145,3 +145,15 @@ def check_range(value: object, name: str, lo: float, hi: float) -> float:
 class ExportError(RuntimeError):
     """The exported graph does not reproduce the torch pipeline (nothing is written). Here, not
     in :mod:`tactilesnn.export`, so that the CLI catches it without importing onnx."""
+
+
+#: the devices :mod:`tactilesnn.core.device` resolves (and ``cuda:N``)
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def check_device_name(name: str) -> str:
+    """``name`` if it names a device this module resolves (ValueError otherwise)."""
+    base, _, index = str(name).partition(":")
+    if base not in DEVICES or (index and (base != "cuda" or not index.isdigit())):
+        raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {name!r}")
+    return str(name)

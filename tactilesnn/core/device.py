@@ -6,15 +6,7 @@ from __future__ import annotations
 
 import torch
 
-DEVICES = ("auto", "cpu", "cuda")
-
-
-def check_device_name(name: str) -> str:
-    """``name`` if it names a device this module resolves (ValueError otherwise)."""
-    base, _, index = str(name).partition(":")
-    if base not in DEVICES or (index and (base != "cuda" or not index.isdigit())):
-        raise ValueError(f"device must be auto, cpu, cuda or cuda:N, got {name!r}")
-    return str(name)
+from .checks import check_device_name
 
 
 def resolve_device(name: str = "auto") -> torch.device:

@@ -3,9 +3,11 @@ and its config class.
 
 A registry maps a name to ``(component class, config class)``. Configurations are frozen
 dataclasses; the registry gives each its ``type`` tag, so a configuration alone says which
-component it builds, and code outside the registries never branches on component names. An
-entry may also be a module path imported when first asked for (:meth:`Registry.register_module`:
-the benchmarks, so that building the command line imports none of them).
+component it builds, and code outside the registries never branches on component names. A name
+may be *declared* before its class is imported (:meth:`Registry.declare`: its config class and
+the module that registers the class, imported when the class is first asked for), so the settings
+schema and the command line need neither torch nor the components' modules; an entry may also be
+a module itself (:meth:`Registry.register_module`: the benchmarks).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ class Registry:
         self.kind = kind
         self._entries: dict[str, tuple[Any, type | None]] = {}
         self._modules: dict[str, str] = {}  # name -> module path, imported on first get()
+        self._declared: dict[str, type | None] = {}  # name -> config class, class not imported
 
     def register(self, name: str, config: type | None = None) -> Callable[[type], type]:
         """Class decorator registering the class under ``name``; names must be unique."""
@@ -30,6 +33,8 @@ class Registry:
         def deco(cls: type) -> type:
             if name in self._entries:
                 raise ValueError(f"{self.kind} {name!r} is already registered")
+            if name in self._declared and self._declared[name] is not config:
+                raise ValueError(f"{self.kind} {name!r} was declared with another config class")
             if config is not None:
                 if not dataclasses.is_dataclass(config):
                     raise TypeError(f"{self.kind} {name!r}: config must be a dataclass")
@@ -40,6 +45,16 @@ class Registry:
             return cls
 
         return deco
+
+    def declare(self, name: str, config: type | None, module: str) -> None:
+        """Declare ``name`` with its config class; ``module`` registers the component class
+        (with :meth:`register`) and is imported when the class is first asked for."""
+        if name in self:
+            raise ValueError(f"{self.kind} {name!r} is already registered")
+        if config is not None and any(c is config for c in self._declared.values()):
+            raise ValueError(f"{config.__name__} already configures another {self.kind}")
+        self._declared[name] = config
+        self._modules[name] = module
 
     def register_module(self, name: str, path: str) -> None:
         """Register the module at ``path`` as ``name``, imported when :meth:`get` first asks."""
@@ -59,6 +74,14 @@ class Registry:
     def names(self) -> tuple[str, ...]:
         return tuple(sorted({*self._entries, *self._modules}))
 
+    def registered(self, name: str) -> bool:
+        """True if ``name``'s class (or module) is registered, not only declared."""
+        return name in self._entries
+
+    def registered_items(self) -> list[tuple[str, Any]]:
+        """``(name, class)`` of the classes registered so far (nothing imported)."""
+        return [(n, c) for n, (c, _) in self._entries.items()]
+
     def items(self) -> Iterator[tuple[str, Any]]:
         """``(name, class or module)`` in name order (modules imported)."""
         return ((n, self.get(n)) for n in self.names())
@@ -71,21 +94,31 @@ class Registry:
                 f"unknown {self.kind} {name!r}; choose one of: {', '.join(self.names())}"
             )
         if name not in self._entries:
-            self._entries[name] = (importlib.import_module(self._modules[name]), None)
+            module = importlib.import_module(self._modules[name])
+            if name in self._declared:  # the module registers the class
+                if name not in self._entries:
+                    raise ValueError(f"{self.kind} {name!r}: {module.__name__} registered no "
+                                     "class under that name")  # fmt: skip
+            else:
+                self._entries[name] = (module, None)
         return self._entries[name][0]
 
     __getitem__ = get
 
     def config_class(self, name: str) -> type:
-        self.get(name)
-        cfg = self._entries[name][1]
+        """The config class of ``name`` (a declared name's without importing its module)."""
+        if name in self._declared and name not in self._entries:
+            cfg = self._declared[name]
+        else:
+            self.get(name)
+            cfg = self._entries[name][1]
         if cfg is None:
             raise ValueError(f"{self.kind} {name!r} has no configuration class")
         return cfg
 
     def name_of_config(self, config: object) -> str:
         """The registered name whose config class ``config`` is an instance of."""
-        for name, (_, cfg) in self._entries.items():
+        for name, cfg in self._configs():
             if cfg is not None and type(config) is cfg:
                 return name
         raise TypeError(
@@ -93,7 +126,11 @@ class Registry:
         )
 
     def component_for(self, config: object) -> type:
-        return self._entries[self.name_of_config(config)][0]
+        return self.get(self.name_of_config(config))
+
+    def _configs(self) -> Iterator[tuple[str, type | None]]:
+        yield from self._declared.items()
+        yield from ((n, c) for n, (_, c) in self._entries.items() if n not in self._declared)
 
     def config_from_dict(self, d: dict[str, Any]) -> Any:
         """``{"type": name, **fields}`` -> the config instance (unknown fields refused)."""

@@ -30,22 +30,18 @@ gives magnitudes ``[batch, channels, bands, frames]``, whose ``linear_map(window
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
 from ..core.registry import Registry
-from ..core.settings import ComponentSettings, setting
+from ..schema.encoders import BandCodeConfig
 from . import delta, lif_population  # noqa: F401  (codes registered before CHOICES is built)
 from .base import ENCODERS, SpikeEncoder, build_encoder, register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .gwt import GaborScalogram, log_bands
-from .scalogram_latency import GWTConfig
 from .stft import STFTScalogram
 from .window_graphs import WindowEncoder
 
@@ -80,51 +76,6 @@ def stft_envelopes(fs_hz: float, freqs_hz: np.ndarray, hop: int, window: int) ->
 def envelope_codes() -> tuple[str, ...]:
     """Registered encoders that code analog channels (``codes_envelopes``)."""
     return tuple(n for n in ENCODERS.names() if ENCODERS.get(n).codes_envelopes)
-
-
-@dataclass(frozen=True)
-class BandCodeConfig(ComponentSettings):
-    # (the codes registered when this module is imported)
-    transform: str = setting(
-        "gwt", flag="bands_transform", choices=TRANSFORMS.names(),
-        help="filter bank whose band envelopes are coded (gwt, cgwt, stft)",
-    )  # fmt: skip
-    code: str = setting(
-        "lif", flag="bands_code", choices=envelope_codes(),
-        help="encoder of analog channels that codes the envelopes (lif, delta)",
-    )  # fmt: skip
-    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
-    f_hi_hz: float = setting(  # capped at 0.45 fs
-        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
-    )
-    n_bands: int = setting(8, help="number of log-spaced bands")
-    frames: int = setting(
-        100, flag="bands_frames",
-        help="envelope frames per window (the code's samples; at most one per sample)",
-    )  # fmt: skip
-
-    follows_data: ClassVar[bool] = True
-
-    @classmethod
-    def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
-        """The scalogram encoders' band range for the data (:meth:`GWTConfig.data_defaults`) in
-        at most ``n_bands`` bands, and at most one frame per sample."""
-        d = GWTConfig.data_defaults(fs_hz, window, median_hz)
-        return {"f_lo_hz": d["f_lo_hz"], "f_hi_hz": d["f_hi_hz"],
-                "n_bands": min(int(d["n_bands"]), cls.n_bands),
-                "frames": min(cls.frames, int(window))}  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_choice(self.transform, "transform", tuple(TRANSFORMS.names()))
-        check_choice(self.code, "code", envelope_codes())
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 128:
-            raise ValueError(f"n_bands must be <= 128, got {self.n_bands}")
-        check_int(self.frames, "frames", 2)
 
 
 class _BandCodeGraph(nn.Module):

@@ -14,8 +14,9 @@ An encoder is a ``torch.nn.Module`` built from its typed configuration (a frozen
 * :meth:`SpikeEncoder.onnx_module` returns the exported graph of this encoder (same input and
   output), owned by the encoder.
 
-Adding an encoder: one module with a config dataclass and a ``@register_encoder("name", Config)``
-class; nothing else in the package names it.
+Adding an encoder: its settings class and one ``ENCODERS.declare("name", Config, module)`` line
+in :mod:`tactilesnn.schema.encoders` (read without torch), and one module with a
+``@register_encoder("name", Config)`` class; nothing else in the package names it.
 """
 
 from __future__ import annotations
@@ -31,10 +32,8 @@ import torch
 from torch import Tensor, nn
 from tqdm.auto import tqdm
 
-from ..core.registry import Registry
 from ..core.stages import bar_disabled
-
-ENCODERS: Registry = Registry("encoder")
+from ..schema.encoders import ENCODERS
 
 
 def register_encoder(name: str, config: type) -> Callable[[type], type]:

@@ -13,22 +13,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_allocation, check_int
+from ..core.checks import check_allocation
 from ..core.data import evenly_spaced
-from ..core.settings import setting
+from ..schema.encoders import CausalGWTConfig
 from .base import check_recordings_and_starts, register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .latency import LatencyCode
 from .scalogram_latency import (
     ScalogramLatencyEncoder,
-    ScalogramLatencySettings,
     level_off,
     unit_peak,
 )
@@ -47,32 +45,6 @@ def auto_hop(fs_hz: float, f_hi_hz: float, window: int) -> int:
         return bound
     best = max(d for d in range(1, bound + 1) if (window // 2) % d == 0)
     return best if 2 * best >= bound else bound
-
-
-@dataclass(frozen=True)
-class CausalGWTConfig(ScalogramLatencySettings):
-    """Causal recursive Gabor bank -> latency code. ``hop``: a frame every ``hop`` samples
-    (0 = :func:`auto_hop`: from the highest band's envelope bandwidth); ``order``: poles per band."""
-
-    hop: int = setting(
-        0, flag="cgwt_hop",
-        help="frame every hop samples (0 = from the highest band's envelope bandwidth)",
-    )  # fmt: skip
-    order: int = setting(
-        4, flag="cgwt_order", help="poles per band of the causal Gabor bank (4: gammatone-like)"
-    )
-    level_off: bool = setting(
-        True, flat=False, saved_before=False,
-        help="each window less its first sample before the bank (runs saved before the level "
-        "was taken off load with it on: their spikes as they were)",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_int(self.hop, "hop", 0)
-        check_int(self.order, "order", 1)
-        if self.order > 16:
-            raise ValueError(f"order must be <= 16, got {self.order}")
 
 
 @register_encoder("cgwt", CausalGWTConfig)

@@ -11,32 +11,14 @@ the reference level and emits nothing, so a constant offset costs no spikes. ``d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int, check_positive
 from ..core.data import row_blocks
-from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times
+from ..schema.encoders import DeltaConfig
 from .base import SpikeEncoder, register_encoder
-
-
-@dataclass(frozen=True)
-class DeltaConfig(ComponentSettings):
-    threshold: float = setting(
-        1.0, flag="delta_threshold",
-        help="level step in multiples of the channel's RMS sample-to-sample change",
-    )  # fmt: skip
-    max_spikes: int = setting(
-        16, flag="delta_max_spikes", help="spike times kept per ON / OFF afferent"
-    )
-
-    def __post_init__(self) -> None:
-        check_positive(self.threshold, "threshold")
-        check_int(self.max_spikes, "max_spikes", 1)
 
 
 class _DeltaGraph(nn.Module):

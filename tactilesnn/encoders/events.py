@@ -20,36 +20,16 @@ Prescaling keeps the event at which the running count crosses each multiple of `
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int
 from ..core.data import evenly_spaced, row_blocks
-from ..core.settings import ComponentSettings, setting
 from ..core.spikes import first_spike_times, keep_every
+from ..schema.encoders import EventsConfig
 from .base import SpikeEncoder, register_encoder
-
-KEEPS = ("spread", "first")
-
-
-@dataclass(frozen=True)
-class EventsConfig(ComponentSettings):
-    max_spikes: int = setting(
-        16, flag="events_max_spikes", help="spike times kept per afferent (channel)"
-    )
-    keep: str = setting(
-        "spread", flag="events_keep", choices=KEEPS,
-        help="spread (default): every m-th event (m fitted per afferent) so the slots span the "
-        "trial; first: the first max_spikes",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_int(self.max_spikes, "max_spikes", 1)
-        check_choice(self.keep, "keep", KEEPS)
 
 
 class _EventsGraph(nn.Module):

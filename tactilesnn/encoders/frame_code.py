@@ -30,86 +30,24 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int, check_positive
 from ..core.data import evenly_spaced
-from ..core.settings import ComponentSettings, setting
 from ..models.functional import decay_factor, lif_step
 from ..models.snn import _LSTMWeights
+from ..schema.encoders import FrameCodeConfig
 from .base import SpikeEncoder, register_encoder
 from .causal_gabor import CausalGaborScalogram
 from .gwt import log_bands
-from .scalogram_latency import GWTConfig
 from .window_graphs import WindowEncoder
 
 log = logging.getLogger("tactilesnn")
 #: a row's level is at least this many float32 units of its channel's largest training value
 RESOLUTION_ULPS = 256
-
-
-@dataclass(frozen=True)
-class FrameCodeConfig(ComponentSettings):
-    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
-    f_hi_hz: float = setting(  # capped at 0.45 fs
-        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
-    )
-    n_bands: int = setting(8, help="number of log-spaced bands")
-    frame_ms: float = setting(
-        5.0, flag="frame_ms",
-        help="frame period (ms): the code's step, one hop of round(frame_ms x fs / 1000) samples "
-        "(at least one sample)",
-    )  # fmt: skip
-    neurons: int = setting(
-        5, flag="frame_neurons", help="LIF converters per band envelope (thresholds lo..hi)"
-    )
-    lo: float = setting(
-        0.25, flag="frame_lo", help="lowest converter threshold, in multiples of the row's level"
-    )
-    hi: float = setting(
-        4.0, flag="frame_hi", help="highest converter threshold, in multiples of the row's level"
-    )
-    # hook_loop, frames + stream, 15 epochs, seed 0: tau 4 / 2 / 1 frames 97.3 (40 epochs) /
-    # 98.6 / 98.6 %; with 5 converters from 0.25 to 4 x the level 99.1 % (3 from 0.5 to 8: 98.8)
-    tau_frames: float = setting(
-        1.0, flag="frame_tau", help="converter membrane time constant, in frames"
-    )
-    sustained: bool = setting(
-        True, flag="frame_sustained",
-        help="also code each channel's level against its training median (an ON and an OFF "
-        "row: what a held press keeps, which band envelopes drop)",
-    )  # fmt: skip
-
-    follows_data: ClassVar[bool] = True
-
-    @classmethod
-    def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
-        """The scalogram encoders' band range for the data (:meth:`GWTConfig.data_defaults`) in
-        at most ``n_bands`` bands."""
-        d = GWTConfig.data_defaults(fs_hz, window, median_hz)
-        return {"f_lo_hz": d["f_lo_hz"], "f_hi_hz": d["f_hi_hz"],
-                "n_bands": min(int(d["n_bands"]), cls.n_bands)}  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 128:
-            raise ValueError(f"n_bands must be <= 128, got {self.n_bands}")
-        check_positive(self.frame_ms, "frame_ms")
-        check_int(self.neurons, "neurons", 1)
-        check_positive(self.lo, "lo")
-        check_positive(self.hi, "hi")
-        if self.hi < self.lo:
-            raise ValueError(f"hi ({self.hi}) must be >= lo ({self.lo})")
-        check_positive(self.tau_frames, "tau_frames")
 
 
 def spike_times(spikes: Tensor, frame_ms: float) -> Tensor:

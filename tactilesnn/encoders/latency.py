@@ -27,9 +27,9 @@ import numpy as np
 import torch
 
 from ..core.checks import check_choice, check_positive
+from ..schema.encoders import LATENCY_STATS as STATS
+from ..schema.encoders import MAPPINGS
 
-MAPPINGS = ("log", "linear")
-STATS = ("mean", "std", "max")
 NORMALIZATIONS = ("window", "none")
 
 

@@ -45,13 +45,13 @@ import torch
 from torch import Tensor, nn
 
 from ..core.data import evenly_spaced
+from ..schema.encoders import LEVEL_SCALES as SCALES
 
 STATS = ("mean", "log_sd")
 #: with ``share``: the level's share of the window's total across channels (scale-free)
 SHARE_STATS = ("mean", "log_sd", "share")
 #: what the ON / OFF pair codes: the training rank, the linear position in the training range, or
 #: a pair of each (the readout weighs them)
-SCALES = ("rank", "linear", "rank+linear")
 #: a receptive field's response below this is no spike
 SILENT_BELOW = 0.1
 #: the log_sd floor, relative to the channel's scale (median training sd + median |level|): a flat

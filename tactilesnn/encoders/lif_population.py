@@ -26,22 +26,18 @@ carrying the potentials, the kept slots read after it, or a ``Loop`` from the ol
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive
 from ..core.data import evenly_spaced
-from ..core.settings import ComponentSettings, setting
 from ..core.spikes import keep_every
+from ..schema.encoders import LIFPopulationConfig
 from .base import SpikeEncoder, register_encoder
 from .spiking import lif_first_spikes, lif_first_spikes_op, lif_first_spikes_sparse
 
-NORMS = ("train", "window")
-KEEPS = ("spread", "first")
 log = logging.getLogger("tactilesnn")
 
 
@@ -49,41 +45,6 @@ log = logging.getLogger("tactilesnn")
 #: form holds ~14 eight-byte values per afferent and sample, the slow one the slots alone (a
 #: whole 60 s recording at 2 kHz on 12 channels x 8 converters would need 1.5 GB per window)
 GRAPH_HISTOGRAM_BYTES = 64 << 20
-
-
-@dataclass(frozen=True)
-class LIFPopulationConfig(ComponentSettings):
-    neurons: int = setting(
-        8, flag="lif_neurons", help="LIF converters per channel (thresholds graded from lo to hi)"
-    )
-    lo: float = setting(
-        0.25, flag="lif_lo", help="lowest threshold, in multiples of the reference level"
-    )
-    hi: float = setting(
-        4.0, flag="lif_hi", help="highest threshold, in multiples of the reference level"
-    )
-    tau_ms: float = setting(10.0, flag="lif_tau_ms", help="converter membrane time constant (ms)")
-    max_spikes: int = setting(8, flag="lif_max_spikes", help="spike times kept per converter")
-    norm: str = setting(
-        "train", flag="lif_norm", choices=NORMS,
-        help="reference level: train (channel RMS on training data) or window (peak |x|)",
-    )  # fmt: skip
-    keep: str = setting(
-        "spread", flag="lif_keep", choices=KEEPS,
-        help="spread (default): every m-th spike (m fitted) so the slots span the window; first: "
-        "the first max_spikes",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_int(self.neurons, "neurons", 1)
-        check_int(self.max_spikes, "max_spikes", 1)
-        check_positive(self.lo, "lo")
-        check_positive(self.hi, "hi")
-        check_positive(self.tau_ms, "tau_ms")
-        if self.hi < self.lo:
-            raise ValueError(f"hi ({self.hi}) must be >= lo ({self.lo})")
-        check_choice(self.norm, "norm", NORMS)
-        check_choice(self.keep, "keep", KEEPS)
 
 
 class _LIFPopulationGraph(nn.Module):

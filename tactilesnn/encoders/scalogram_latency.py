@@ -11,152 +11,20 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive
 from ..core.gate import active_channels, thresholds
-from ..core.settings import ComponentSettings, setting
+from ..schema.encoders import GWTConfig, STFTConfig
 from .base import SpikeEncoder, register_encoder
 from .gwt import GaborScalogram, log_bands
-from .latency import MAPPINGS, STATS, LatencyCode
+from .latency import LatencyCode
 from .passband import passband_mask
 from .stft import STFTScalogram
 from .window_graphs import FactoredGaborEncoder, GaborConvEncoder, WindowEncoder
-
-
-@dataclass(frozen=True)
-class ScalogramLatencySettings(ComponentSettings):
-    """Bands (Hz) and the latency code; shared by the GWT and STFT encoders."""
-
-    f_lo_hz: float = setting(3.0, help="lowest band centre (Hz)")
-    # capped at 0.45 fs (the Gabor bands' unit-sinusoid convention)
-    f_hi_hz: float = setting(
-        90.0, help="highest band centre (Hz; capped at 0.45 x the sampling rate)"
-    )
-    n_bands: int = setting(20, help="number of log-spaced bands")
-    stats: tuple[str, ...] = setting(
-        ("mean", "std"), choices=STATS,
-        help=f"per-band statistics, each one afferent ({', '.join(STATS)})",
-    )  # fmt: skip
-    mapping: str = setting(
-        "log", choices=MAPPINGS, help=f"amplitude -> latency mapping ({', '.join(MAPPINGS)})"
-    )
-    dynamic_range_db: float = setting(
-        30.0, help="log mapping: dB below the strongest band that still spike"
-    )
-    gate: float = setting(
-        0.0,
-        help="activity gate: a window's channel whose RMS about its mean is below gate x the "
-        "channel's median training RMS is not transformed and stays silent (0 = off)",
-    )
-    passband_lo_hz: float = setting(
-        0.0,
-        help="band restriction: bands centred below the sensor's lower passband edge (Hz) are "
-        "not transformed and stay silent (0 = none)",
-    )
-    passband_hi_hz: float = setting(
-        0.0,
-        help="band restriction: bands centred above the sensor's upper passband edge (Hz) are "
-        "not transformed and stay silent (0 = none)",
-    )
-
-    follows_data: ClassVar[bool] = True
-
-    @classmethod
-    def data_defaults(cls, fs_hz: float, window: int, median_hz: float | None = None) -> dict:
-        """Settings for windows of ``window`` samples at ``fs_hz`` whose training power has its
-        median at ``median_hz`` (used by ``train --data`` when it picks the encoder): bands up
-        to 0.45 fs (not the default task's 90 Hz), down to the median power frequency when that
-        lies below the default 3 Hz (never below one cycle per window), at the default density
-        (20 bands per 30x in frequency; 20 to 128 bands), and a 60 dB dynamic range instead of
-        30 dB, so slow and weak parts of the spectrum still spike. The synthetic TENG material
-        presses (3 s at 500 S/s, median power at 0.67 Hz) get 0.67-225 Hz in 34 bands; a window
-        whose power lies above 3 Hz keeps 3 Hz."""
-        f_lo = cls.f_lo_hz
-        if median_hz is not None and median_hz < f_lo:
-            f_lo = max(float(median_hz), float(fs_hz) / int(window))
-        f_hi = 0.45 * float(fs_hz)
-        density = cls.n_bands / math.log(cls.f_hi_hz / cls.f_lo_hz)  # bands per e-fold
-        n = max(cls.n_bands, round(density * math.log(f_hi / f_lo)))
-        return {"f_lo_hz": f_lo, "f_hi_hz": f_hi, "n_bands": int(min(n, 128)),
-                "dynamic_range_db": 60.0}  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 512:
-            raise ValueError(f"n_bands must be <= 512, got {self.n_bands}")
-        object.__setattr__(self, "stats", tuple(self.stats))
-        if not self.stats:
-            raise ValueError("stats must name at least one statistic")
-        for st in self.stats:
-            check_choice(st, "statistic", STATS)
-        check_choice(self.mapping, "mapping", MAPPINGS)
-        check_positive(self.dynamic_range_db, "dynamic_range_db")
-        if not (np.isfinite(self.gate) and self.gate >= 0):
-            raise ValueError(f"gate must be a finite number >= 0, got {self.gate}")
-        for name in ("passband_lo_hz", "passband_hi_hz"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number of Hz >= 0, got {v}")
-        if 0 < self.passband_hi_hz <= self.passband_lo_hz:
-            raise ValueError(
-                f"passband_hi_hz ({self.passband_hi_hz}) must be above passband_lo_hz "
-                f"({self.passband_lo_hz})"
-            )
-
-    @property
-    def passband_hz(self) -> tuple[float, float] | None:
-        """The sensor's passband ``(lo, hi)`` in Hz, None if no edge is set."""
-        if not (self.passband_lo_hz or self.passband_hi_hz):
-            return None
-        return (self.passband_lo_hz, self.passband_hi_hz or math.inf)
-
-
-@dataclass(frozen=True)
-class GWTConfig(ScalogramLatencySettings):
-    """Gabor (complex Morlet, cmor1.5-1.0) scalogram -> latency code; the statistics are taken
-    over the scalogram's frames, one every ``hop`` samples (exact decimation; 1 = every sample).
-    The exported graph's scalogram matrices shrink by ``hop`` (``bench pareto``, GWT + SNN on
-    1,000-sample windows of 12 taxels: 5.2 ms per window at hop 1, 0.58 ms at hop 10); the torch
-    training path still transforms at full rate and decimates."""
-
-    hop: int = setting(
-        1, flag="gwt_hop",
-        help="scalogram frame every hop samples (1 = every sample); the exported graph shrinks h "
-        "times",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_int(self.hop, "hop", 1)
-
-
-@dataclass(frozen=True)
-class STFTConfig(ScalogramLatencySettings):
-    """Hann STFT (frames of ``frame_samples``, 0 = the whole window) -> latency code."""
-
-    frame_samples: int = setting(
-        0, flag="stft_frame_samples",
-        help="STFT frame length in samples (0 = the whole window, seed 001)",
-    )  # fmt: skip
-    level_off: bool = setting(
-        True, flat=False, saved_before=False,
-        help="each window less its first sample before the STFT (runs saved before the level "
-        "was taken off load with it on: their spikes as they were)",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_int(self.frame_samples, "frame_samples", 0)
 
 
 class ScalogramLatencyEncoder(SpikeEncoder):

@@ -73,10 +73,13 @@ class PipelineEncoderGraph(nn.Module):
         self.with_clock = pipe.n_clock > 0
         self.clock_like_slice = pipe.encoder.n_afferents >= pipe.n_clock
         self.gain_norm = pipe.config.gain_norm
+        self.rest = pipe.rest_samples if pipe.config.rest_ms else 0
         self.tiny = float(np.finfo(np.float32).tiny)
 
     def forward(self, x: Tensor) -> Tensor:
         x = torch.index_select(x, 1, self.channel_idx) if self.select else x
+        if self.rest:  # as pipeline.rest_referenced: the mean in float64
+            x = x - x[..., : self.rest].double().mean(dim=-1, keepdim=True).float()
         if self.gain_norm:  # as pipeline.gain_normalised: the level in float64, so both agree
             level = x.double().abs().mean(dim=[1, 2], keepdim=True).float()
             x = x / torch.clamp(level, min=self.tiny)

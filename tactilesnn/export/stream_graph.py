@@ -39,9 +39,9 @@ class StreamEncoderGraph(PipelineEncoderGraph):
     this graph's ``encoder``."""
 
     def __init__(self, pipe: SpikePipeline, step: int | None = None) -> None:
-        if pipe.config.gain_norm:
-            raise ValueError("gain_norm divides a whole window by its level: the stream graph, "
-                             "which codes each sample once, cannot; export the window graph")  # fmt: skip
+        if pipe.window_stage():
+            raise ValueError(f"{pipe.window_stage()}: the stream graph, which codes each sample "
+                             "once, cannot; export the window graph")  # fmt: skip
         if not pipe.encoder.has_stream_form:
             pipe.encoder.stream_module()  # the error naming the encoder
         self.step = stream_step(pipe, step)

@@ -13,8 +13,9 @@ A model is a ``torch.nn.Module`` built from its typed configuration (a frozen da
 * :meth:`SpikeModel.onnx_module` returns the exported graph of the model, with its streaming
   state (:attr:`SpikeModel.state_names`, ``[batch, units]`` each) as graph inputs and outputs.
 
-Adding a model: one module with a config dataclass and a ``@register_model("name", Config)``
-class; nothing else in the package names it.
+Adding a model: its settings class and one ``MODELS.declare("name", Config, module)`` line in
+:mod:`tactilesnn.schema.models` (read without torch), and one module with a
+``@register_model("name", Config)`` class; nothing else in the package names it.
 """
 
 from __future__ import annotations
@@ -28,9 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.registry import Registry
-
-MODELS: Registry = Registry("model")
+from ..schema.models import MODELS
 
 
 @contextlib.contextmanager

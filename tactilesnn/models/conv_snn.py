@@ -20,95 +20,19 @@ positions; ``train --data`` does so for an event file with ``taxel_xy``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import ClassVar
 
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive, check_range
-from ..core.settings import ComponentSettings, setting
 from ..core.spikes import raster_steps, spike_raster
+from ..schema.models import ConvSNNConfig, parse_grid
 from .base import SpikeModel, register_model, seeded
 from .functional import decay_factor, li_scan, li_scan_op, lif_scan, lif_scan_op, reduce_readout
 from .snn import _LIFScan
 
-READOUTS = ("max", "mean")
-#: time steps per window of ``dt_ms = 0``
-AUTO_STEPS = 10
 #: afferents beyond an inferred grid (clock afferents) that ``grid = "auto"`` accepts
 MAX_EXTRA = 16
-
-
-@dataclass(frozen=True)
-class ConvSNNConfig(ComponentSettings):
-    grid: str = setting(
-        "auto", flag="csnn_grid",
-        help="taxel grid ROWSxCOLS (row-major taxels, polarities interleaved) or auto (square)",
-    )  # fmt: skip
-    channels: int = setting(
-        32, flag="csnn_channels",
-        help="feature maps of the first convolution (the second has twice as many)",
-    )  # fmt: skip
-    dt_ms: float = setting(
-        5.0, flag="csnn_dt_ms",
-        help=f"time step (ms); the window is rasterised at this step (0 = the window / "
-        f"{AUTO_STEPS})",
-    )  # fmt: skip
-    tau_ms: float = setting(
-        50.0, flag="csnn_tau_ms",
-        help="membrane time constant of every layer (ms; 0 = half the window)",
-    )  # fmt: skip
-    readout: str = setting(
-        "mean", flag="csnn_readout", choices=READOUTS,
-        help="class score: max or mean over time of the leaky-integrator output",
-    )  # fmt: skip
-    lr: float = setting(0.003, flag="csnn_lr", help="Adam learning rate")
-    shift: int = setting(
-        1, flag="csnn_shift",
-        help="training only: each sample's grid moved by up to this many taxels (0 = off)",
-    )  # fmt: skip
-    dropout: float = setting(
-        0.2, flag="csnn_dropout", help="training only: dropout on the second layer's spikes"
-    )
-    cells: tuple[int, ...] = setting(
-        (), flag="csnn_cells",
-        help="row-major grid cell of each taxel, in taxel order (empty: the taxels fill the grid "
-        "row by row)",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "cells", tuple(int(c) for c in self.cells))
-        if self.grid != "auto":
-            rows, cols = parse_grid(self.grid)
-            if self.cells and (min(self.cells) < 0 or max(self.cells) >= rows * cols
-                               or len(set(self.cells)) != len(self.cells)):  # fmt: skip
-                raise ValueError(f"cells must be distinct cells of the {self.grid} grid")
-        elif self.cells:
-            raise ValueError("cells need an explicit grid (ROWSxCOLS)")
-        check_int(self.channels, "channels", 1)
-        for name in ("dt_ms", "tau_ms"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number of ms >= 0 (0 = from the "
-                                 f"window), got {value}")  # fmt: skip
-
-    def times_ms(self, duration_ms: float) -> tuple[float, float]:
-        """``(dt_ms, tau_ms)`` for windows of ``duration_ms``: the set values, or for 0 the
-        window / :data:`AUTO_STEPS` and half the window (the same network on any time scale)."""
-        return (self.dt_ms or duration_ms / AUTO_STEPS, self.tau_ms or duration_ms / 2)
-        check_choice(self.readout, "readout", READOUTS)
-        check_positive(self.lr, "lr")
-        check_int(self.shift, "shift", 0)
-        check_range(self.dropout, "dropout", 0.0, 0.9)
-
-
-def parse_grid(text: str) -> tuple[int, int]:
-    """``"10x10"`` -> ``(10, 10)``; ValueError otherwise."""
-    parts = str(text).lower().split("x")
-    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
-        raise ValueError(f"grid must be ROWSxCOLS (e.g. 10x10) or auto, got {text!r}")
-    return int(parts[0]), int(parts[1])
 
 
 def grid_layout(n_afferents: int, grid: str, taxels: int = 0) -> tuple[int, int, int, int]:

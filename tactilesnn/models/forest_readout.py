@@ -26,14 +26,12 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int, check_positive
-from ..core.settings import ComponentSettings, setting
+from ..schema.models import ForestConfig
 from .base import register_model
 from .li_readout import TraceFeatures
 from .softmax_fit import soft_targets
@@ -49,30 +47,6 @@ FIT_BUDGET_BYTES = 256 << 20
 PRIOR_WINDOWS = (0.3, 1.0, 3.0, 10.0, 30.0)
 #: the prior's strength without recordings to choose it on
 DEFAULT_PRIOR_WINDOWS = 3.0
-
-
-@dataclass(frozen=True)
-class ForestConfig(ComponentSettings):
-    tau_ms: float = setting(  # 0: the window's duration
-        0.0, flag="forest_tau_ms",
-        help="leaky-integrator time constant of the forest's traces (ms; 0 = the window)",
-    )  # fmt: skip
-    n_times: int = setting(
-        16, flag="forest_times", help="instants across the window at which the traces are read"
-    )
-    trees: int = setting(200, flag="forest_trees", help="trees in the forest")
-    leaves: int = setting(64, flag="forest_leaves", help="most leaves per tree")
-    min_leaf: int = setting(
-        2, flag="forest_min_leaf", help="fewest training windows (weighted) in a leaf"
-    )
-
-    def __post_init__(self) -> None:
-        if self.tau_ms != 0:
-            check_positive(self.tau_ms, "tau_ms")
-        check_int(self.n_times, "n_times", 1)
-        check_int(self.trees, "trees", 1)
-        check_int(self.leaves, "leaves", 2)
-        check_int(self.min_leaf, "min_leaf", 1)
 
 
 @register_model("forest", ForestConfig)

@@ -40,17 +40,16 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive, check_range
 from ..core.device import seeded_normal
 from ..core.memory import release_memory
-from ..core.settings import ComponentSettings, setting
+from ..schema.models import ReadoutConfig
 from .base import SpikeModel, register_model, seeded
 from .softmax_fit import (
     CV_WINDOWS,
@@ -67,7 +66,6 @@ log = logging.getLogger("tactilesnn")
 
 #: training windows at which the penalty is ``weight_decay`` (see the module docstring)
 PRIOR_WINDOWS = 256
-SOLVERS = ("exact", "adam")
 #: the strongest penalty factor the cross-validation may choose (a pretraining's candidate)
 STRONGEST_FACTOR = max(PENALTY_FACTORS)
 #: the exact solver's float32 feature matrix may take this much (its working set adds the
@@ -81,46 +79,6 @@ EXACT_BUDGET_BYTES = 256 << 20
 #: exact fit on the 63 % a 256 MiB budget holds: 37.14 / 56.0 %, 1.3-1.4 GB (on 78 % at 320 MiB:
 #: 38.93 / 56.0 %, but 1.4-1.7 GB, over the 1.5 GB a file of 100 MB may take)
 EXACT_MIN_SHARE = 0.6
-
-
-@dataclass(frozen=True)
-class ReadoutConfig(ComponentSettings):
-    tau_ms: float = setting(  # 0: the window's duration
-        0.0, flag="readout_tau_ms",
-        help="leaky-integrator time constant of the readout traces (ms; 0 = the window)",
-    )  # fmt: skip
-    n_times: int = setting(
-        16, flag="readout_times", help="instants across the window at which the traces are read"
-    )
-    lr: float = setting(0.003, flag="readout_lr", help="Adam learning rate of the readout")
-    weight_decay: float = setting(
-        0.03, flag="readout_weight_decay",
-        help="L2 penalty on the readout weights (their inputs are standardised) at 256 training "
-        "windows, scaled by 256 / N for N",
-    )  # fmt: skip
-    # saved_before: what a saved configuration without these fields meant (runs written before
-    # them); while_selecting (:func:`~tactilesnn.selection.select_encoder`): one exact fit at the
-    # configured penalty, every instant (the ranking of encoders, at a third of the cost)
-    solver: str = setting(
-        "exact", flag="readout_solver", choices=SOLVERS, saved_before="adam",
-        help="exact: the convex loss minimised to its optimum (full-batch L-BFGS); adam: the "
-        "trainer's epochs of mini-batch Adam",
-    )  # fmt: skip
-    choose: bool = setting(
-        True, flag="readout_choose", saved_before=False, while_selecting=False,
-        help="exact solver: the penalty (x 1/3 to 30) and the read-out instants used (all, or "
-        "the last) chosen by 3-fold cross-validation over recordings",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        if self.tau_ms != 0:
-            check_positive(self.tau_ms, "tau_ms")
-        check_int(self.n_times, "n_times", 1)
-        check_positive(self.lr, "lr")
-        check_range(self.weight_decay, "weight_decay", 0.0, 1.0)
-        check_choice(self.solver, "solver", SOLVERS)
-        if not isinstance(self.choose, bool):
-            raise ValueError(f"choose must be true or false, got {self.choose!r}")
 
 
 #: a feature varies when its standard deviation exceeds this share of its magnitude (and

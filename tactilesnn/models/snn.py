@@ -21,15 +21,13 @@ Array contract: inputs ``[T, batch, features]`` float32 (time-major), spikes out
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_int, check_positive
-from ..core.settings import ComponentSettings, setting
 from ..core.spikes import raster_steps, spike_raster
+from ..schema.models import READOUTS, SNNConfig
 from .base import SpikeModel, register_model, seeded
 from .functional import (
     LIFState,
@@ -51,7 +49,6 @@ from .onnx_ops import lif_as_lstm, lif_lstm_buffers, raster_current
 
 SURROGATES = ("fast_sigmoid", "arctan")
 RESETS = ("subtract", "zero")
-READOUTS = ("count", "max", "mean")
 
 
 def surrogate_grad(x: torch.Tensor, kind: str, alpha: float) -> torch.Tensor:
@@ -296,54 +293,6 @@ class SNNClassifier(nn.Module):
 
 
 # ---------------------------------------------------------------------------------- component
-@dataclass(frozen=True)
-class SNNConfig(ComponentSettings):
-    """Two-layer surrogate-gradient SNN on the spike raster, trained with Adam on cross-entropy."""
-
-    hidden: int = setting(64, flag="snn_hidden", help="hidden LIF units")
-    dt_ms: float = setting(
-        5.0, flag="snn_dt_ms", help="SNN time step (ms); the window is rasterised at this step"
-    )
-    tau_ms: float = setting(
-        50.0, flag="snn_tau_ms", help="membrane time constant of every SNN layer (ms)"
-    )
-    readout: str = setting(
-        "max", flag="snn_readout", choices=READOUTS,
-        help=f"class score from the output layer ({', '.join(READOUTS)})",
-    )  # fmt: skip
-    recurrent: bool = setting(
-        False, flag="snn_recurrent",
-        help="recurrent hidden layer (W_rec s_{t-1} added to the input current)",
-    )  # fmt: skip
-    lr: float = setting(0.003, flag="snn_lr", help="Adam learning rate")
-    #: early decision: the margin is the smallest at which the early class is the full-window
-    #: class on at least this fraction of the training windows (1 = never earlier than needed
-    #: on any training window)
-    early_agreement: float = setting(
-        0.99, flag="snn_early_agreement",
-        help="early decision: fraction of training windows on which it must name the "
-        "full-window class (higher: later, safer decisions)",
-    )  # fmt: skip
-    # runs written before the component layer simulated ceil(D / dt) + 1 steps, so they load
-    # with 1 (legacy) and score exactly as they were trained
-    extra_steps: int = setting(
-        0,
-        flat=False,
-        legacy=1,
-        help="time steps simulated after the window end (1 in pre-0.2 runs)",
-    )
-
-    def __post_init__(self) -> None:
-        check_int(self.hidden, "hidden", 1)
-        check_positive(self.dt_ms, "dt_ms")
-        check_positive(self.tau_ms, "tau_ms")
-        check_choice(self.readout, "readout", READOUTS)
-        if not isinstance(self.recurrent, bool):
-            raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
-        check_positive(self.lr, "lr")
-        if not 0 < self.early_agreement <= 1:
-            raise ValueError(f"early_agreement must be in (0, 1], got {self.early_agreement}")
-        check_int(self.extra_steps, "extra_steps", 0)
 
 
 @register_model("snn", SNNConfig)

@@ -26,14 +26,12 @@ many frames.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_int, check_positive, check_range
-from ..core.settings import ComponentSettings, setting
+from ..schema.models import StreamSNNConfig
 from .base import SpikeModel, register_model, seeded
 from .functional import (
     StreamState,
@@ -45,61 +43,6 @@ from .functional import (
 )
 from .onnx_ops import raster_current
 from .snn import LIFLayer, _LSTMWeights, _SpikeFn
-
-
-@dataclass(frozen=True)
-class StreamSNNConfig(ComponentSettings):
-    """Stream SNN: LIF hidden layer and leaky readout read every frame (module docstring)."""
-
-    hidden: int = setting(64, flag="stream_hidden", help="hidden LIF units")
-    dt_ms: float = setting(
-        0.0, flag="stream_dt_ms",
-        help="time step (ms); 0: the encoder's frame (the window over its spike slots)",
-    )  # fmt: skip
-    tau_ms: float = setting(50.0, flag="stream_tau_ms", help="hidden membrane time constant (ms)")
-    # hook_loop (0.5 s windows), frames + stream, 15 epochs, seed 0: 30 / 100 / 300 / 1000 ms
-    # 92.5 / 97.8 / 98.6 / 98.8 %: evidence is held for about two windows
-    readout_tau_ms: float = setting(
-        0.0, flag="stream_readout_tau_ms",
-        help="readout membrane time constant (ms): how long evidence is held; 0: twice the "
-        "window",
-    )  # fmt: skip
-    burn_in: float = setting(
-        0.25, flag="stream_burn_in",
-        help="fraction of each training window's first frames left out of the loss",
-    )  # fmt: skip
-    quiet_ms: float = setting(
-        250.0, flag="stream_quiet_ms",
-        help="a stream's state returns to rest after this long without an input spike (ms; "
-        "0: never)",
-    )  # fmt: skip
-    recurrent: bool = setting(False, flag="stream_recurrent", help="recurrent hidden layer")
-    lr: float = setting(0.003, flag="stream_lr", help="Adam learning rate")
-    stream_epochs: int = setting(
-        10, flag="stream_epochs",
-        help="epochs of truncated back-propagation through time over the training recordings "
-        "(state carried from chunk to chunk), after the window epochs; 0: windows only",
-    )  # fmt: skip
-    early_agreement: float = setting(
-        0.95, flag="stream_agreement",
-        help="decision margin: fraction of training frames past the burn-in on which a "
-        "decided class must be the window's final class",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_int(self.hidden, "hidden", 1)
-        # 0 = derived (the code's frame; twice the window)
-        for name in ("dt_ms", "readout_tau_ms", "quiet_ms"):
-            check_range(getattr(self, name), name, 0.0, math.inf)
-        check_positive(self.tau_ms, "tau_ms")
-        if not 0 <= self.burn_in < 1:
-            raise ValueError(f"burn_in must be in [0, 1), got {self.burn_in}")
-        if not isinstance(self.recurrent, bool):
-            raise ValueError(f"recurrent must be true or false, got {self.recurrent!r}")
-        check_positive(self.lr, "lr")
-        check_int(self.stream_epochs, "stream_epochs", 0)
-        if not 0 < self.early_agreement <= 1:
-            raise ValueError(f"early_agreement must be in (0, 1], got {self.early_agreement}")
 
 
 def frame_raster(times: Tensor, dt_ms: float, steps: int) -> Tensor:

@@ -29,14 +29,12 @@ Array contract: ``spike_times`` ``[batch, inputs]`` (one spike per input) or
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 
-from ..core.checks import check_choice, check_positive, check_range
 from ..core.device import seeded_normal
-from ..core.settings import ComponentSettings, setting
+from ..schema.models import TempotronConfig
 from .base import SpikeModel, register_model
 
 
@@ -328,61 +326,6 @@ def maximum_bytes(slots: int) -> int:
 
 
 # ---------------------------------------------------------------------------------- component
-#: how the tempotron learns: seed 001's rule, or Adam on a V_max hinge
-LEARNING = ("rule", "gradient")
-
-
-@dataclass(frozen=True)
-class TempotronConfig(ComponentSettings):
-    """One exact tempotron per class, trained by seed 001's rule (or Adam on a V_max hinge)."""
-
-    # the flags of earlier versions (tau_ms, theta, lr, ...) are kept as aliases
-    tau_ms: float = setting(  # long membrane memory: integrates the whole 500 ms window
-        2000.0, flag="tempotron_tau_ms", aliases=("tau_ms",),
-        help="tempotron membrane time constant (ms)",
-    )  # fmt: skip
-    tau_s_ms: float = setting(
-        50.0, flag="tempotron_tau_s_ms", aliases=("tau_s_ms",),
-        help="tempotron synaptic time constant (ms, < tau)",
-    )  # fmt: skip
-    theta: float = setting(
-        1.0, flag="tempotron_theta", aliases=("theta",), help="tempotron firing threshold"
-    )
-    learning: str = setting(
-        "rule", flag="tempotron_train", choices=LEARNING,
-        help="rule (seed 001) or gradient (Adam on a V_max hinge)",
-    )  # fmt: skip
-    lr: float = setting(
-        0.005, flag="tempotron_lr", aliases=("lr",),
-        help="tempotron rule learning rate lambda (seed 001: 0.005)",
-    )  # fmt: skip
-    adam_lr: float = setting(
-        0.003, flag="tempotron_adam_lr", help="Adam learning rate when learning = gradient"
-    )
-    momentum: float = setting(
-        0.0, flag="tempotron_momentum", aliases=("momentum",),
-        help="tempotron rule momentum (0 = seed 001)",
-    )  # fmt: skip
-    margin: float = setting(
-        0.2, flag="tempotron_margin", aliases=("margin",),
-        help="rule margin kappa: also learn from near misses (0 = seed 001)",
-    )  # fmt: skip
-    lr_decay: float = setting(
-        0.05, flag="tempotron_lr_decay", aliases=("lr_decay",),
-        help="rule learning rate / (1 + lr_decay * epoch)",
-    )  # fmt: skip
-
-    def __post_init__(self) -> None:
-        check_positive(self.tau_s_ms, "tau_s_ms")
-        if not self.tau_ms > self.tau_s_ms:
-            raise ValueError(f"need tau_ms > tau_s_ms, got {self.tau_ms}, {self.tau_s_ms}")
-        check_positive(self.theta, "theta")
-        check_choice(self.learning, "learning", LEARNING)
-        check_positive(self.lr, "lr")
-        check_positive(self.adam_lr, "adam_lr")
-        check_range(self.momentum, "momentum", 0.0, 0.999)
-        check_range(self.margin, "margin", 0.0, 1e3)
-        check_range(self.lr_decay, "lr_decay", 0.0, 1e6)
 
 
 @register_model("tempotron", TempotronConfig)

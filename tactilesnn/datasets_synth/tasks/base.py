@@ -15,7 +15,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from ...core.data import WindowDataset
-from ...core.registry import Registry
+from ...schema.tasks import TASKS
 
 __all__ = ["TASKS", "ScanTask", "Task", "WindowDataset", "get_task", "register_task"]
 
@@ -62,17 +62,14 @@ class ScanTask(Task, Protocol):
         ...
 
 
-TASKS: Registry = Registry("task")
-
-
 def register_task(cls: type) -> type:
     """Class decorator: register a task under its ``name`` (names and ids must be unique)."""
     name, tid = cls.name, cls.task_id
-    if name in TASKS:
+    if TASKS.registered(name):
         raise ValueError(f"task {name!r} is already registered")
     if not isinstance(tid, int) or tid < 1:
         raise ValueError(f"task {name!r}: task_id must be an integer >= 1, got {tid!r}")
-    clash = [n for n, c in TASKS.items() if c.task_id == tid]
+    clash = [n for n, c in TASKS.registered_items() if c.task_id == tid]
     if clash:
         raise ValueError(f"task {name!r}: task_id {tid} is already used by {clash[0]!r}")
     return TASKS.register(name)(cls)
