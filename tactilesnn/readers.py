@@ -62,6 +62,8 @@ UNITS = {"s": 1.0, "sec": 1.0, "secs": 1.0, "seconds": 1.0, "ms": 1e-3, "msec": 
          "ns": 1e-9, "nsec": 1e-9, "nanoseconds": 1e-9}  # fmt: skip
 #: first-column names of a sample counter (dropped; it gives no rate)
 INDEX_NAMES = ("index", "idx", "sample", "samples", "sample_index", "frame", "n", "row", "#")
+#: how a rate was known from timestamps stepping by exactly one unit that no name states
+WHOLE_UNITS = "whole units"
 #: a stated rate (``--fs``) within this fraction of the data's own is the same rate
 RATE_TOLERANCE = 0.01
 #: recordings whose rates differ by more than this fraction are at different rates (less is
@@ -242,6 +244,9 @@ def _recording_files(folder: Path) -> tuple[list[Path], int]:
             if not p.exists():
                 raise ValueError(f"{p}: a symbolic link to nothing ({os.readlink(p)}); remove it "
                                  "or restore its target")  # fmt: skip
+            if not p.is_file():  # reading a FIFO blocks, a device never ends
+                raise ValueError(f"{p}: not a regular file (a FIFO, device or socket, or a link "
+                                 "to one); remove it from the recordings folder")  # fmt: skip
             links += p.is_symlink()
             files.append(p)
             if len(files) > MAX_FILES:
@@ -390,7 +395,7 @@ def _common_rate(recs: list[_Recording], files: list[Path], fs_hz: float | None,
     timed = [r for r in recs if r.fs_hz is not None]
     if fs_hz is not None:
         for p, r in zip(files, recs, strict=True):
-            known = r.fs_hz is not None and r.rate_from != "ticks"
+            known = r.fs_hz is not None and r.rate_from not in ("ticks", WHOLE_UNITS)
             if known and abs(r.fs_hz - fs_hz) > RATE_TOLERANCE * fs_hz:
                 raise ValueError(f"{p}: its timestamps ({r.rate_from}) say {r.fs_hz:.6g} Hz, "
                                  f"--fs says {fs_hz:g} Hz; drop --fs or correct it")  # fmt: skip
@@ -402,6 +407,11 @@ def _common_rate(recs: list[_Recording], files: list[Path], fs_hz: float | None,
         raise ValueError(f"{p}: no time column (a column named time / timestamp, with or without "
                          "a unit such as time_ms, or a first column of steadily increasing "
                          "values), so the sampling rate cannot be known: give it with --fs HZ")  # fmt: skip
+    ambiguous = next((i for i, r in enumerate(recs) if r.rate_from == WHOLE_UNITS), None)
+    if ambiguous is not None:
+        raise ValueError(f"{files[ambiguous]}: its time column steps by exactly 1 with no unit in "
+                         "its name: seconds (1 Hz) or milliseconds (1,000 Hz)? name the column "
+                         "time_s or time_ms, or give the rate with --fs HZ")  # fmt: skip
     rates = np.array([r.fs_hz for r in recs])
     keys = np.round(np.log(rates) / np.log1p(MIXED_RATES)).astype(np.int64)
     values, counts = np.unique(keys, return_counts=True)
@@ -442,7 +452,10 @@ def _read_one(p: Path) -> _Recording:
     names, values = table.names, table.values
     tcol, unit, how = _time_column(table)
     notes = list(table.notes)
-    chans = [i for i in range(len(names)) if i != tcol]
+    counter = _counter_column(table, tcol)
+    if counter is not None:
+        notes.append(f"column {names[counter]!r} holds row numbers (dropped)")
+    chans = [i for i in range(len(names)) if i not in (tcol, counter)]
     if not chans:
         raise ValueError(f"{p}: only a time column ({names[tcol]!r}); a recording needs at "
                          "least one channel column")  # fmt: skip
@@ -526,6 +539,19 @@ def _time_column(table: Table) -> tuple[int | None, float | None, str]:
     return 0, None, "by value"
 
 
+def _counter_column(table: Table, tcol: int | None) -> int | None:
+    """A first column beside a named time column that numbers the rows: named like a counter
+    (``sample``, ``index``...) or unnamed (pandas' row index) and counting up by 1; None if
+    there is none."""
+    if tcol in (None, 0) or not table.names:
+        return None
+    name = table.names[0].strip().lower()
+    if name not in INDEX_NAMES and name != "":
+        return None
+    c = table.values[:, 0]
+    return 0 if len(c) < 2 or bool((np.diff(c) == 1).all()) else None
+
+
 def _tick_unit(t: np.ndarray) -> tuple[float, str]:
     """Seconds per unit of timestamps whose unit no name states: fractional steps under 1 are
     seconds; epoch times are recognised by their size (s, ms, us, ns since 1970); other
@@ -538,6 +564,8 @@ def _tick_unit(t: np.ndarray) -> tuple[float, str]:
     for exponent, unit in ((9, 1.0), (12, 1e-3), (15, 1e-6), (18, 1e-9)):
         if 1.0 * 10**exponent <= t0 < 1e1 * 10**exponent:  # 2001-2286 in that unit
             return unit, "epoch time"
+    if step == 1.0:  # whole seconds of a 1 Hz logger, or a 1 kHz clock's ms: the name must say
+        return 1e-3, WHOLE_UNITS
     for unit in (1e-3, 1e-6, 1e-9):
         if step * unit <= 0.1:
             return unit, "ticks"

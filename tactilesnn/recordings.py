@@ -116,17 +116,57 @@ def check_npz_size(path: Path) -> None:
             if twice:  # which copy a reader takes is up to the reader: refuse, never guess
                 raise ValueError(f"{path}: the archive holds {twice[0]!r} {names.count(twice[0])} "
                                  "times; an .npz has each array once (rewrite it with np.savez)")  # fmt: skip
+            keys = [n.removesuffix(".npy") for n in names]  # numpy names "X.npy" and "X" alike
+            same = sorted({k for k in keys if keys.count(k) > 1})
+            if same:
+                both = [n for n in names if n.removesuffix(".npy") == same[0]]
+                raise ValueError(f"{path}: members {' and '.join(map(repr, both))} are both the "
+                                 f"array {same[0]!r}; keep one (rewrite the file with np.savez)")  # fmt: skip
+            shapes: dict[str, tuple[int, ...]] = {}
             for info in infos:
+                _check_member(info, path)
                 size = info.file_size  # the uncompressed size the directory declares
                 if info.filename.endswith(".npy"):
                     shape, dtype = _npy_header(z, info.filename)
+                    shapes[info.filename[:-4]] = tuple(shape)
                     size = max(size, int(np.prod(shape, dtype=np.float64)) * dtype.itemsize)
                 total += size
+            _check_lengths(shapes, path)
     except zipfile.BadZipFile as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
-    except (OSError, EOFError) as e:
+    except (OSError, EOFError, RuntimeError, NotImplementedError) as e:
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
     check_allocation(total, f"the arrays of {path} (as their headers declare them)")
+
+
+#: the zip compressions numpy's loader reads (stored, deflate, bzip2, lzma)
+ZIP_METHODS = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED, zipfile.ZIP_BZIP2, zipfile.ZIP_LZMA)
+#: arrays with one entry per window, whose length must be X's
+PER_WINDOW = ("y", "recording", "split", "scan")
+
+
+def _check_member(info: zipfile.ZipInfo, path: Path) -> None:
+    """A member numpy can read: not encrypted, compressed by a method it knows."""
+    if info.flag_bits & 0x1:
+        raise ValueError(f"{path}: member {info.filename!r} is encrypted; save the arrays "
+                         "without a password (np.savez)")  # fmt: skip
+    if info.compress_type not in ZIP_METHODS:
+        raise ValueError(f"{path}: member {info.filename!r} is compressed with zip method "
+                         f"{info.compress_type}, which numpy cannot read; rewrite the file with "
+                         "np.savez or np.savez_compressed")  # fmt: skip
+
+
+def _check_lengths(shapes: dict[str, tuple[int, ...]], path: Path) -> None:
+    """Per-window arrays (``y``, ``recording``, ``split``, ``group_*``) as long as ``X`` (from
+    the headers, before a byte of them is read)."""
+    if "X" not in shapes or not shapes["X"]:
+        return
+    n = shapes["X"][0]
+    for name, shape in shapes.items():
+        if name in PER_WINDOW or name.startswith(GROUP_PREFIX):
+            if len(shape) != 1 or shape[0] != n:
+                raise ValueError(f"{path}: {name!r} must hold one value per window of X ({n}), "
+                                 f"its header declares the shape {shape}")  # fmt: skip
 
 
 def _npy_header(z: zipfile.ZipFile, member: str) -> tuple[tuple[int, ...], np.dtype]:
@@ -171,8 +211,11 @@ def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.nda
         from .core.dataset_folder import read_dataset_folder
 
         return _check_stated_rate(read_dataset_folder(path), fs_hz, path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"data file {path} does not exist")
+    if not path.is_file():
+        raise ValueError(f"{path}: not a regular file (a device, FIFO or socket, or a link to "
+                         "one); give the .npz file or folder of recordings itself")  # fmt: skip
     if path.suffix.lower() in (".csv", ".tsv", ".npy", ".txt"):
         raise ValueError(f"{path}: one {path.suffix} file is one recording; --data takes a folder "
                          "of them (one recording per file, labelled by sub-folder or by the file "
@@ -181,7 +224,8 @@ def read_data_arrays(path: Path, fs_hz: float | None = None) -> dict[str, np.nda
     try:
         with np.load(path, allow_pickle=False) as f:
             arrays = {k: np.asarray(f[k]) for k in f.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+    except (OSError, ValueError, EOFError, RuntimeError, NotImplementedError,
+            zipfile.BadZipFile) as e:  # fmt: skip
         raise ValueError(f"{path}: not a readable .npz file ({e})") from e
     if needs_reading(path, set(arrays)):
         arrays, conv = read_recordings(path, arrays, fs_hz)
@@ -507,6 +551,8 @@ def auto_cut(samples: int, fs_hz: float, has_recording_ids: bool) -> tuple[float
 
 def auto_window(path: Path) -> tuple[float, float] | None:
     """:func:`auto_cut` for the analog ``.npz`` at ``path`` (reads only headers and ``fs``)."""
+    if not Path(path).is_file():  # a FIFO or device: the loader refuses it by name
+        return None
     try:
         with zipfile.ZipFile(path) as z:
             names = z.namelist()
@@ -518,7 +564,8 @@ def auto_window(path: Path) -> tuple[float, float] | None:
             else:  # timestamps instead of a rate (converted by the reader)
                 t = np.asarray(f["t"] if "t.npy" in names else f["timestamps"], np.float64)
                 fs, samples = 1.0 / float(np.median(np.diff(t, axis=-1))), t.shape[-1]
-    except (OSError, KeyError, ValueError, IndexError, zipfile.BadZipFile):
+    except (OSError, KeyError, ValueError, IndexError, RuntimeError, NotImplementedError,
+            zipfile.BadZipFile):  # fmt: skip
         return None  # the loader reports what is wrong with the file
     if len(shape) != 3 or not np.isfinite(fs) or fs <= 0:
         return None
@@ -534,6 +581,8 @@ def _npy_shape(path: Path, member: str) -> tuple[int, ...]:
 def event_layout(path: Path) -> tuple[str, tuple[int, ...]] | None:
     """``(grid "ROWSxCOLS", cells)`` of an event file's taxels (headers and the small arrays
     only; :func:`layout_of`), or None (not an event file, or no grid)."""
+    if not Path(path).is_file():
+        return None
     try:
         shape = _npy_shape(path, "X.npy")
         with zipfile.ZipFile(path) as z:
@@ -547,7 +596,8 @@ def event_layout(path: Path) -> tuple[str, tuple[int, ...]] | None:
             for key in ("taxel_xy", "grid"):
                 if f"{key}.npy" in names:
                     small[key] = f[key]
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+    except (OSError, KeyError, ValueError, RuntimeError, NotImplementedError,
+            zipfile.BadZipFile):  # fmt: skip
         return None  # the loader reports what is wrong with the file
     return layout_of(shape[1], small.get("taxel_xy"), small.get("grid"), path)
 

@@ -28,16 +28,19 @@ log = logging.getLogger("tactilesnn")
 
 def median_power_frequency(X: np.ndarray, fs_hz: float, n_max: int = 256) -> float:
     """Frequency (Hz) below which half the power of (up to ``n_max``) windows lies, each
-    channel's mean removed, summed over channels and windows."""
+    channel's mean removed, summed over channels and windows; one window at a time in float64
+    (a copy of the sample would double a file that fills the memory budget)."""
     idx = evenly_spaced(len(X), n_max)
-    x = np.asarray(X[idx], dtype=np.float64)
-    x = x - x.mean(-1, keepdims=True)
-    power = (np.abs(np.fft.rfft(x, axis=-1)) ** 2).sum(axis=(0, 1))
+    power = np.zeros(np.shape(X)[-1] // 2 + 1)
+    for i in idx:
+        x = np.asarray(X[i], dtype=np.float64)
+        x = x - x.mean(-1, keepdims=True)
+        power += (np.abs(np.fft.rfft(x, axis=-1)) ** 2).sum(axis=0)
     cum = np.cumsum(power)
     if not cum[-1] > 0:
         return float(fs_hz) / 4
     k = int(np.searchsorted(cum, 0.5 * cum[-1]))
-    return float(np.fft.rfftfreq(x.shape[-1], 1.0 / fs_hz)[k])
+    return float(np.fft.rfftfreq(np.shape(X)[-1], 1.0 / fs_hz)[k])
 
 
 #: windows the candidates are fitted on at least (small files: all of them); beyond, a share of the

@@ -11,6 +11,7 @@ refusal names the file, the line and the column, and what to do. Pure Python and
 
 from __future__ import annotations
 
+import csv
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -56,7 +57,10 @@ def decode(raw: bytes, path: Path) -> tuple[str, str | None]:
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
-    cells = [c.strip().strip('"').strip() for c in line.split(delimiter)]
+    if delimiter is not None and '"' in line:  # quoted cells may hold the delimiter ("1,25")
+        cells = [c.strip() for c in next(csv.reader([line], delimiter=delimiter))]
+    else:
+        cells = [c.strip().strip('"').strip() for c in line.split(delimiter)]
     while cells and cells[-1] == "":
         cells.pop()
     return cells
@@ -115,7 +119,10 @@ def read_table(path: Path) -> Table:
     delimiter = _choose_delimiter(sample)
     split_sample = [_split(line, delimiter) for line in sample]
     cells_sample = [c for cells in split_sample for c in cells if c]
-    decimal_comma = (delimiter != "," and any(_DECIMAL_COMMA.match(c) for c in cells_sample)
+    # a comma-separated file may still hold decimal commas inside quoted cells ("0,005")
+    quoted = delimiter == "," and any('"' in line for line in sample)
+    decimal_comma = ((delimiter != "," or quoted)
+                     and any(_DECIMAL_COMMA.match(c) for c in cells_sample)
                      and not any("." in c for c in cells_sample))  # fmt: skip
     counts = [len(cells) for cells in split_sample]
     start = _data_start(lines, delimiter, decimal_comma, max(sorted(set(counts)), key=counts.count))
@@ -140,7 +147,8 @@ def read_table(path: Path) -> Table:
     header = start > 0
     if header:
         names = _split(lines[start - 1], delimiter)
-        if len(names) < len(filled) or any(not names[j] for j in filled):
+        # pandas' to_csv leaves its row index's column unnamed (",time,a,b"): still a header
+        if len(names) < len(filled) or any(not names[j] for j in filled if j > 0):
             header = False  # a title line, or a header that does not name every data column
     titles = start - (1 if header else 0)
     if titles:
@@ -162,6 +170,8 @@ def _parse(lines: list[str], delimiter: str | None, decimal_comma: bool, cols: l
            line_numbers: np.ndarray, path: Path, names: list[str]) -> np.ndarray:  # fmt: skip
     """``lines`` -> float64 ``[rows, len(cols)]`` (NumPy's C parser; on failure, the first bad
     cell is found line by line and named)."""
+    if delimiter is not None and '"' in lines[0]:  # quoted cells: split by the csv module
+        return _parse_cells(lines, delimiter, decimal_comma, cols, line_numbers, path, names)
     if decimal_comma:
         lines = [line.replace(",", ".") for line in lines]
     clean = [line.replace('"', "") for line in lines] if '"' in lines[0] else lines
@@ -187,6 +197,30 @@ def _parse(lines: list[str], delimiter: str | None, decimal_comma: bool, cols: l
                          f"holds {values[r, c]} ({len(bad)} non-finite cell(s) in all); fill "
                          "or delete those rows")  # fmt: skip
     return values
+
+
+def _parse_cells(lines: list[str], delimiter: str, decimal_comma: bool, cols: list[int],
+                 line_numbers: np.ndarray, path: Path, names: list[str]) -> np.ndarray:  # fmt: skip
+    """Quoted ``lines`` -> float64 ``[rows, len(cols)]``, cell by cell (a quoted cell may hold
+    the delimiter or a decimal comma); the first bad cell is named."""
+    out = np.empty((len(lines), len(cols)), np.float64)
+    for k, row in enumerate(csv.reader(lines, delimiter=delimiter)):
+        for i, j in enumerate(cols):
+            cell = row[j].strip() if j < len(row) else ""
+            if decimal_comma:
+                cell = cell.replace(",", ".")
+            if not _is_number(cell, False):
+                what = "an empty cell" if not cell else f"{cell[:40]!r}"
+                raise ValueError(f"{path}: line {line_numbers[k]}, column {j + 1} "
+                                 f"({names[i]!r}) holds {what}, not a number; fill or delete "
+                                 "that row")  # fmt: skip
+            out[k, i] = float(cell)
+    bad = np.argwhere(~np.isfinite(out))
+    if len(bad):
+        r, c = bad[0]
+        raise ValueError(f"{path}: line {line_numbers[r]}, column {cols[c] + 1} ({names[c]!r}) "
+                         f"holds {out[r, c]}; fill or delete those rows")  # fmt: skip
+    return out
 
 
 def _check_empty(lines: list[str], delimiter: str | None, dropped: list[int],
