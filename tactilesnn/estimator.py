@@ -204,7 +204,7 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             X = WindowDataset(arr, np.zeros(len(arr), np.int64), np.arange(len(arr)), fs,
                               tuple(str(c) for c in self.classes_), names)  # fmt: skip
         if isinstance(X, WindowDataset):  # it says its rate and channels: checked, as the CLI does
-            X = self._matched(X)
+            X = self._matched(_stated(X, fs_hz, channel_names))
         arr = _windows(X, min_samples=1)  # (a wrong window length is reported below)
         if arr.ndim == 4:  # event counts, a channel per taxel and polarity (as in fit)
             arr = arr.reshape(len(arr), -1, arr.shape[-1])
@@ -228,6 +228,9 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
             raise ValueError(f"the windows are sampled at {float(data.fs_hz):g} Hz, the model at "
                              f"{self.fs_hz_:g} Hz: resample them first")  # fmt: skip
         have, want = tuple(data.channel_names), tuple(self.channel_names_)
+        if np.ndim(data.X) == 3 and np.shape(data.X)[1] != len(have):
+            raise ValueError(f"the dataset's windows have {np.shape(data.X)[1]} channels but "
+                             f"{len(have)} channel names {list(have)[:6]}; name every channel")  # fmt: skip
         if have == want:
             return data
         if sorted(have) != sorted(want):
@@ -281,6 +284,18 @@ def _rate(fs: Any) -> float:
     ):
         raise ValueError(f"fs_hz must be a positive finite number of Hz, got {fs!r}")
     return check_rate(fs, "fs_hz")
+
+
+def _stated(data: WindowDataset, fs_hz: Any, channel_names: Any) -> WindowDataset:
+    """``data``, whose own rate and channel names a keyword may only repeat (ValueError where
+    it says otherwise: which one is right is the user's call, not ours)."""
+    if fs_hz is not None and abs(_rate(fs_hz) - float(data.fs_hz)) > 1e-6 * float(data.fs_hz):
+        raise ValueError(f"fs_hz={fs_hz} but the dataset says {float(data.fs_hz):g} Hz; drop "
+                         "the keyword or fix the dataset's fs_hz")  # fmt: skip
+    if channel_names is not None and tuple(map(str, channel_names)) != tuple(data.channel_names):
+        raise ValueError(f"channel_names={list(channel_names)[:6]} but the dataset names "
+                         f"{list(data.channel_names)[:6]}; drop the keyword or fix the dataset")  # fmt: skip
+    return data
 
 
 def _windows(X: Any, min_samples: int = 2) -> np.ndarray:

@@ -121,3 +121,65 @@ def test_the_median_power_frequency_reads_one_window_at_a_time():
     t = np.arange(n) / fs
     X = (np.sin(2 * np.pi * 12.5 * t) + 0.01 * rng.normal(size=(30, 3, n))).astype(np.float32)
     assert median_power_frequency(X, fs) == pytest.approx(12.5, abs=fs / n)
+
+
+def test_predict_refuses_a_dataset_whose_names_or_rate_disagree():
+    from dataclasses import replace
+
+    from tactilesnn import SpikeClassifier
+    from tactilesnn.core.data import WindowDataset
+
+    rng = np.random.default_rng(0)
+    y = np.arange(40) % 2
+    X = (rng.normal(size=(40, 2, 64)) + 2.0 * y[:, None, None]).astype(np.float32)
+    clf = SpikeClassifier(model="readout", epochs=2).fit(X, y, fs_hz=200.0)
+    ds = WindowDataset(X, y, np.arange(40), 200.0, ("0", "1"), tuple(clf.channel_names_))
+    assert clf.predict(ds).shape == (40,)
+    three = replace(ds, X=np.concatenate([X, X[:, :1]], axis=1))
+    with pytest.raises(ValueError, match="3 channels but 2 channel names"):
+        clf.predict(three)
+    with pytest.raises(ValueError, match="fs_hz=400 but the dataset says 200 Hz"):
+        clf.predict(ds, fs_hz=400)
+
+
+def test_a_json_body_with_window_and_windows_is_refused():
+    from tactilesnn.service.app import HTTPError, _parse
+
+    body = b'{"window": [[1.0, 2.0]], "windows": [[[3.0, 4.0]]]}'
+    with pytest.raises(HTTPError, match="both 'window' and 'windows'") as e:
+        _parse(body, "application/json", "window")
+    assert e.value.status == 422
+
+
+def test_a_task_that_renders_scans_cannot_be_calibrated_or_compared(tmp_path):
+    from tactilesnn.app.calibrate import calibrate, compare
+
+    data = tmp_path / "r.npz"
+    with pytest.raises(ValueError, match="hook_loop task cannot be calibrated; tasks that can"):
+        calibrate(data, "hook_loop", tmp_path / "fit.json")
+    with pytest.raises(ValueError, match="hook_loop task cannot be compared"):
+        compare(data, "hook_loop", tmp_path / "fit.json")
+
+
+def test_a_damaged_config_json_is_named(tmp_path):
+    from tactilesnn.core.files import read_json
+
+    bad = tmp_path / "config.json"
+    bad.write_bytes(b"\xff\xfe\x00junk")
+    with pytest.raises(ValueError, match=r"config\.json: not a readable JSON file"):
+        read_json(bad)
+    bad.write_text("[1, 2]")
+    with pytest.raises(ValueError, match="a JSON object expected"):
+        read_json(bad)
+
+
+def test_an_export_never_replaces_the_run_s_own_files(tmp_path):
+    from tactilesnn.app.commands import export_run
+
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("weights.npz", "config.json"):
+        with pytest.raises(ValueError, match=f"the run's own {name}"):
+            export_run(run, run / name, overwrite=True)
+    with pytest.raises(ValueError, match=r"the run's own config\.json"):
+        export_run(run, run / "sub" / ".." / "config.json", overwrite=True)

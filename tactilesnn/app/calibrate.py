@@ -66,8 +66,7 @@ def calibrate(data: Path, task: str, out: Path, recordings: list[int] | None = N
         raise ValueError(f"--budget-s must be a positive number of seconds, got {budget_s}")
     if evaluations < 10:
         raise ValueError(f"--evaluations must be >= 10, got {evaluations}")
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}; available tasks: {', '.join(TASKS)}")
+    _trial_task(task, "calibrated")
     X, y, fs, names = load_recordings(data, fs_hz)
     if recordings is not None:
         idx = np.asarray(recordings, np.int64)
@@ -123,15 +122,14 @@ def compare(data: Path, task: str, out: Path, plot: Path | None = None, n: int =
     16-taxel finger through the ``texture`` task's capacitive stack), written as JSON (and the
     picture), with what the model cannot express."""
     from ..core.files import write_json_atomic
-    from ..datasets_synth import TASKS, get_task
+    from ..datasets_synth import get_task
     from ..datasets_synth.calibration import compare_statistics, plot_comparison, slide_statistics
 
     out = Path(out)
     for path in (out, plot):
         if path is not None and Path(path).exists() and not overwrite:
             raise FileExistsError(f"{path} exists; pass --overwrite to replace it")
-    if task not in TASKS:
-        raise ValueError(f"unknown task {task!r}; available tasks: {', '.join(TASKS)}")
+    _trial_task(task, "compared (its model renders scans, not trials)")
     X, y, fs, names = load_recordings(data, fs_hz)
     t = get_task(task, seed=seed)
     model_names = tuple(t.class_names)
@@ -157,3 +155,16 @@ def compare(data: Path, task: str, out: Path, plot: Path | None = None, n: int =
                         title=f"{Path(data).name} against the {task} task's sensor model")  # fmt: skip
         lines.append(f"wrote {plot}")
     return lines
+
+
+def _trial_task(task: str, what: str) -> type:
+    """The class of ``task`` if it renders trials (a sensor model that can be fitted and its
+    statistics compared), else a ValueError naming those that do."""
+    from ..datasets_synth import TASKS
+    from ..datasets_synth.tasks.trial import TrialTask
+
+    cls = TASKS.get(task)  # (unknown: the error lists the tasks)
+    if not issubclass(cls, TrialTask):
+        able = sorted(n for n in TASKS.names() if issubclass(TASKS.get(n), TrialTask))
+        raise ValueError(f"the {task} task cannot be {what}; tasks that can: {', '.join(able)}")
+    return cls

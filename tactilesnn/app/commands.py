@@ -20,6 +20,7 @@ from ..training import recording_accuracy, stream_metrics
 from .demo import demo_stream
 from .options import task_names
 from .run import evaluation_data, load_run, source_of
+from .runs import RUN_FILES
 
 __all__ = [
     "ExportError",
@@ -140,6 +141,19 @@ def condition_lines(m: dict, source: Any) -> list[str]:
 
 
 # ---------------------------------------------------------------- export
+#: the run folder's files an export may replace (its own exports)
+EXPORT_FILES = frozenset({"model.onnx", "model.int8.onnx", "model.nir"})
+
+
+def _refuse_run_file(run_dir: Path, out: Path) -> None:
+    """An export must not replace what the run itself needs (its weights, settings, metrics):
+    ``--overwrite`` replaces an earlier export, never the run."""
+    target = out.resolve()
+    if target.parent == run_dir.resolve() and target.name in RUN_FILES - EXPORT_FILES:
+        raise ValueError(f"--out {out} is the run's own {target.name}; export to another name "
+                         "(model.onnx, or a path outside the run folder)")  # fmt: skip
+
+
 def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False,
                stream_step: int | None = None, quantize: bool = False, overwrite: bool = False,
                progress: bool = True, frames: bool = False) -> list[str]:  # fmt: skip
@@ -155,6 +169,9 @@ def export_run(run_dir: Path, out: Path, fmt: str = "onnx", stream: bool = False
         raise ValueError(
             "--stream writes the float32 ONNX stream graph: drop --quantize / --format"
         )
+    int8 = Path(out).with_name(Path(out).stem + ".int8.onnx")  # (as export.quantize_int8)
+    for path in (Path(out), *([int8] if quantize else [])):
+        _refuse_run_file(Path(run_dir), path)
     pipe, cfg = load_run(Path(run_dir))
     if frames and pipe.frame_problem():
         raise ValueError(f"--frames: {pipe.frame_problem()}")

@@ -67,8 +67,25 @@ def load_arrays(path: Path) -> dict[str, np.ndarray]:
         raise ValueError(f"{path} is corrupt or not a weights file ({e})") from e
 
 
+#: the largest JSON file a run folder holds (config, metrics, checkpoint notes)
+MAX_JSON_BYTES = 64 << 20
+
+
 def read_json(path: Path) -> dict:
-    return json.loads(Path(path).read_text())
+    """The JSON object at ``path``; ValueError naming the file when it is not one (not UTF-8,
+    malformed, too large, not a regular file, or not an object)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"{path}: not a regular file")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise ValueError(f"{path}: {path.stat().st_size} bytes; at most {MAX_JSON_BYTES} expected")
+    try:
+        doc = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, RecursionError, ValueError) as e:
+        raise ValueError(f"{path}: not a readable JSON file ({str(e)[:120]})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: a JSON object expected, got {type(doc).__name__}")
+    return doc
 
 
 def jsonable(o: object) -> object:

@@ -219,6 +219,8 @@ def _parse(body: bytes, ctype: str, key: str) -> tuple[object, float | None]:
     keys = [k for k in (key, key + "s") if k in doc]
     if not keys:
         raise HTTPError(422, f"JSON body needs a {key!r} (or {key + 's'!r}) field")
+    if len(keys) > 1:  # which one the client meant is not ours to guess
+        raise HTTPError(422, f"JSON body has both {key!r} and {key + 's'!r}; send one")
     return doc[keys[0]], _rate(doc.get("fs_hz"))
 
 
