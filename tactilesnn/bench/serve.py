@@ -11,6 +11,7 @@ import argparse
 import http.client
 import io
 import json
+import math
 import socket
 import statistics
 import threading
@@ -129,6 +130,32 @@ def _half_open(port: int, n: int, stop: float, errors: list, closed: list) -> No
     sel.close()
 
 
+def _keep_alive(port: int, n: int, every_s: float, stop: float, errors: list) -> None:
+    """``n`` keep-alive clients that each poll ``/healthz`` every ``every_s`` seconds (``0``:
+    once, then stay idle) on one connection, reopened when the service closes it, until
+    ``stop``."""
+    conns: list[http.client.HTTPConnection | None] = [None] * n
+    due = [time.perf_counter()] * n
+    while time.perf_counter() < stop:
+        for i in range(n):
+            if time.perf_counter() < due[i]:
+                continue
+            try:
+                if conns[i] is None:
+                    conns[i] = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+                conns[i].request("GET", "/healthz")
+                conns[i].getresponse().read()
+            except (OSError, http.client.HTTPException) as e:
+                errors.append(type(e).__name__)
+                conns[i].close()
+                conns[i] = None
+            due[i] = time.perf_counter() + every_s if every_s else math.inf
+        time.sleep(0.01)
+    for c in conns:
+        if c is not None:
+            c.close()
+
+
 def _case(port: int, session, batch: int, clients: int, seconds: float, hostile: str) -> dict:
     """Normal clients' latency for ``seconds`` beside the ``hostile`` ones (see :func:`run`)."""
     x = np.random.default_rng(0).standard_normal((batch, len(session.channels), session.window))
@@ -154,6 +181,10 @@ def _case(port: int, session, batch: int, clients: int, seconds: float, hostile:
         np.save(big, np.repeat(x[:1], max(1, rows), 0).astype(np.float32), allow_pickle=False)
         bad = [threading.Thread(target=_big_client, args=(port, big.getvalue(), "application/x-npy",
                                                           stop, hostile_errors))]  # fmt: skip
+    elif hostile in ("idle-600", "polling-600"):
+        every = 3.0 if hostile.startswith("polling") else 0.0
+        bad = [threading.Thread(target=_keep_alive, args=(port, 150, every, stop, hostile_errors))
+               for _ in range(4)]  # fmt: skip
     elif hostile == "half-open-300":
         closed = [0]
         bad = [threading.Thread(target=_half_open, args=(port, 300, stop, hostile_errors,
@@ -203,6 +234,8 @@ CASES = (
     (1, "json-8MB"),
     (1, "npy-8MB"),
     (1, "half-open-300"),
+    (1, "idle-600"),
+    (1, "polling-600"),
 )
 
 

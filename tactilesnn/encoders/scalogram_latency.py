@@ -32,6 +32,8 @@ class ScalogramLatencyEncoder(SpikeEncoder):
 
     #: runs saved before the activity gate load with it off
     optional_state: ClassVar[tuple[str, ...]] = ("gate_rms",)
+    #: the transform in float64 in torch and in the exported graph (the STFT's setting)
+    float64_transform: ClassVar[bool] = False
 
     def __init__(self, config, fs_hz: float, window: int, n_channels: int) -> None:
         super().__init__(config, fs_hz, window, n_channels)
@@ -147,7 +149,8 @@ class ScalogramLatencyEncoder(SpikeEncoder):
         return out.reshape(n, c * per, 1)
 
     def onnx_module(self) -> nn.Module:
-        return self._gated(WindowEncoder(self.scalogram, self.code, self.window))
+        return self._gated(WindowEncoder(self.scalogram, self.code, self.window,
+                                         float64=self.float64_transform))  # fmt: skip
 
     def _gated(self, graph: nn.Module) -> nn.Module:
         """The exported encoder (``graph``: window -> codes of the transformed bands) with the
@@ -230,7 +233,15 @@ def level_off(x: Tensor) -> Tensor:
 
 @register_encoder("stft", STFTConfig)
 class STFTLatencyEncoder(ScalogramLatencyEncoder):
-    """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison)."""
+    """STFT scalogram pooled into the same bands -> latency code (seed 001's comparison). The
+    transform runs in float64, in torch and in the exported graph: a 60 dB code of a band
+    resolves what float32 products of a whole window cannot (FabricSlide, 141-sample windows,
+    test pressed harder than training: spike times 44 ms apart and one spike missing between
+    torch's FFT and the graph's float32 MatMuls; in float64 they agree)."""
+
+    @property
+    def float64_transform(self) -> bool:  # type: ignore[override]
+        return bool(self.config.float64)
 
     def scaled(self, x: Tensor) -> Tensor:
         """:func:`level_off` (the STFT removes each frame's mean: the spikes are the same, and
@@ -243,7 +254,7 @@ class STFTLatencyEncoder(ScalogramLatencyEncoder):
         frame = self.config.frame_samples or self.window
         if frame > self.window:
             raise ValueError(f"frame_samples ({frame}) exceeds the window ({self.window})")
-        return STFTScalogram(self.fs_hz, freqs_hz, nperseg=frame)
+        return STFTScalogram(self.fs_hz, freqs_hz, nperseg=frame, float64=self.float64_transform)
 
 
 class _GateMask(nn.Module):

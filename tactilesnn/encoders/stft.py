@@ -57,8 +57,10 @@ class STFTScalogram(nn.Module):
         bandwidth: float = 1.5,
         center: float = 1.0,
         detrend: bool = True,
+        float64: bool = False,
     ) -> None:
         super().__init__()
+        self.float64 = bool(float64)
         self.fs_hz = check_positive(fs_hz, "fs_hz")
         self.freqs_hz = check_bands(freqs_hz, self.fs_hz)
         if int(nperseg) < 4:
@@ -136,7 +138,10 @@ class STFTScalogram(nn.Module):
         return self._cast[key]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``[batch, channels, samples]`` -> band magnitudes ``[batch, channels, bands, frames]``."""
+        """``[batch, channels, samples]`` -> band magnitudes ``[batch, channels, bands, frames]``
+        (with ``float64``: computed in float64, returned in ``x``'s dtype)."""
+        if self.float64 and x.dtype != torch.float64:
+            return self(x.double()).to(x.dtype)
         spec = self.spectrum(x)
         # one-sided: x2 so that a unit sinusoid gives 1 at its bin; folded into the band weights
         return torch.matmul(self._tensors(x.dtype, x.device)[2], spec.abs())

@@ -162,6 +162,11 @@ class STFTConfig(ScalogramLatencySettings):
         help="each window less its first sample before the STFT (runs saved before the level "
         "was taken off load with it on: their spikes as they were)",
     )  # fmt: skip
+    float64: bool = setting(
+        True, flat=False, saved_before=False,
+        help="the transform in float64, in torch and in the exported graph (runs saved before "
+        "load with float32, as they were trained)",
+    )  # fmt: skip
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -153,3 +153,40 @@ def test_a_large_batch_is_sliced_and_shares_calls_in_turn():
     np.testing.assert_array_equal(ra[:, 0], np.arange(100))
     assert rb[0, 0] == -1.0
     assert max(len(c) for c in calls) <= 24 and sum(len(c) for c in calls) == 101
+
+
+def _idle_keep_alive(port: int) -> socket.socket:
+    """A connection that made one request, read its answer and stays open (keep-alive)."""
+    c = socket.create_connection(("127.0.0.1", port), timeout=10)
+    c.sendall(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    got = b""
+    while b"\r\n\r\n" not in got:
+        got += c.recv(4096)
+    head, _, body = got.partition(b"\r\n\r\n")
+    length = int(next(v for k, _, v in (h.partition(b":") for h in head.split(b"\r\n")[1:])
+                      if k.strip().lower() == b"content-length"))  # fmt: skip
+    while len(body) < length:
+        body += c.recv(4096)
+    return c
+
+
+@pytest.mark.slow
+def test_idle_keep_alive_connections_are_evicted_oldest_first(model, monkeypatch):
+    """Idle keep-alive connections (each answered once, nothing in flight) beyond the eviction
+    threshold: each new connection closes the longest idle one (8 open, 4 more idle ones evict
+    4, the first normal request one more), and normal requests are answered throughout."""
+    monkeypatch.setattr(GuardedH11Protocol, "header_timeout_s", 60.0)
+    monkeypatch.setattr(GuardedH11Protocol, "evict_above", 8)
+    before = connections.CLOSED["idle evicted"]
+    with running(create_app(model[0])) as port:
+        first = [_idle_keep_alive(port) for _ in range(8)]
+        later = [_idle_keep_alive(port) for _ in range(4)]
+        statuses = [_classify(port, model[1]) for _ in range(5)]
+        assert statuses == [200] * 5
+        # (checked within uvicorn's 5 s keep-alive timeout, which closes idle ones anyway)
+        assert not any(_closed_within(c, 0.1) for c in later)  # the newest kept
+        closed = [_closed_within(c, 0.2) for c in first]
+        assert closed == [True] * 5 + [False] * 3  # the longest idle went first
+        assert connections.CLOSED["idle evicted"] - before == 5
+        for c in first + later:
+            c.close()
