@@ -105,6 +105,9 @@ def test_generated_tables_are_the_ones_their_json_gives():
 
     j = json.loads((docs / "shift.json").read_text())
     assert (docs / "shift.md").read_text() == shift.page(j["rows"], j["command"], j["machine"])
+    serve = json.loads((docs / "serve.json").read_text())["table"]
+    rows = "\n".join(serve.splitlines()[1:])  # (its first line names the model file it ran)
+    assert rows in (docs / "service.md").read_text(), "docs/service.md's load table is stale"
 
 
 def _dotted_names(text: str) -> set[str]:
