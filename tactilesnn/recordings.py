@@ -413,6 +413,7 @@ def datasets_from_arrays(
         split = _split(arrays, y, groups, test_fraction, seed, path)
 
     signal = _class_signal(arrays, X.shape, path)
+    _check_split_memory(X, split, fs, window, path)
 
     def take(m: np.ndarray) -> WindowDataset:
         ds = WindowDataset(rows_as_float32(X, m), y[m], groups[m], fs, names, ch, facts=facts,
@@ -422,6 +423,21 @@ def datasets_from_arrays(
         return cut_windows(ds, *window, class_signal=None if signal is None else signal[m])
 
     return take(split == 0), take(split == 1)
+
+
+def _check_split_memory(X: np.ndarray, split: np.ndarray, fs: float,
+                        window: tuple[float, float] | None, path: Path | str) -> None:  # fmt: skip
+    """Refuse, before any copy, splits whose float32 rows and cut windows would not fit beside
+    the recordings already read (each part is checked alone later; together they may not)."""
+    _, c, s = X.shape
+    per_row = 4 * c * s
+    if window is not None:
+        n_win, hop = round(window[0] * fs), max(1, round((window[1] or window[0] / 2) * fs))
+        if 2 <= n_win <= s:
+            per_row += 4 * c * n_win * (1 + (s - n_win) // hop)
+    rows = max(int((split == 0).sum()), int((split == 1).sum()))
+    check_allocation(X.nbytes + rows * per_row, f"{path}: the recordings, a split's float32 copy "
+                     "and its cut windows together", fraction=0.9)  # fmt: skip
 
 
 def read_conditions(arrays: dict[str, np.ndarray], groups: np.ndarray,

@@ -183,3 +183,20 @@ def test_an_export_never_replaces_the_run_s_own_files(tmp_path):
             export_run(run, run / name, overwrite=True)
     with pytest.raises(ValueError, match=r"the run's own config\.json"):
         export_run(run, run / "sub" / ".." / "config.json", overwrite=True)
+
+
+def test_a_split_and_its_cut_windows_are_checked_together_before_any_copy(monkeypatch):
+    """An .npz that inflates to most of the memory: the split's float32 copy and its cut
+    windows beside the recordings already read are refused before any is made."""
+    from tactilesnn.core import checks
+    from tactilesnn.recordings import datasets_from_arrays
+
+    X = np.zeros((40, 4, 10_000), np.float32)  # 6.4 MB
+    X[:, :, :50] = 1.0
+    arrays = {"X": X, "y": np.arange(40) % 2, "fs": np.asarray(1000.0),
+              "class_names": np.array(["a", "b"])}  # fmt: skip
+    monkeypatch.setattr(checks, "memory_limit_bytes", lambda: 16 << 20)
+    with pytest.raises(ValueError, match="a split's float32 copy and its cut windows together"):
+        datasets_from_arrays(arrays, "big.npz", 0, window=(1.0, None))
+    train, _ = datasets_from_arrays(arrays, "big.npz", 0, window=None)  # no cut: it fits
+    assert train.X.dtype == np.float32

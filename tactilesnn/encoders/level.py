@@ -123,10 +123,18 @@ class LevelCode(nn.Module):
         """Knots from (up to ``n_max``, evenly spaced) training windows ``[N, C, W]``."""
         arr = np.asarray(X)
         idx = evenly_spaced(len(arr), n_max)
-        x = np.asarray(arr[idx], dtype=np.float64)
-        centre = np.median(x.mean(-1), axis=0)  # [C]
-        mean = x.mean(-1) - centre
-        sd = x.std(-1)
+        # per window, ~32 MB of float64 at a time (a copy of every window would double a large
+        # file): each chunk is read twice, for the floors and then for the statistics
+        step = max(1, (1 << 25) // max(1, 8 * int(np.prod(arr.shape[1:]))))
+
+        def chunks():
+            for i in range(0, len(idx), step):
+                yield np.asarray(arr[idx[i : i + step]], dtype=np.float64)
+
+        means, sd = (np.concatenate(v) for v in zip(*((c.mean(-1), c.std(-1)) for c in chunks()),
+                                                  strict=True))  # fmt: skip
+        centre = np.median(means, axis=0)  # [C]
+        mean = means - centre
         scale = np.median(sd, axis=0) + np.median(np.abs(mean), axis=0) + np.abs(centre)
         floor = np.where(scale > 0, SD_FLOOR * scale, 1e-30)
         # the share's floor: the channels' typical deviations summed (windows at rest, whose
@@ -135,9 +143,8 @@ class LevelCode(nn.Module):
         self.share_floor.fill_(typical if typical > 0 else 1e-30)
         self.sd_floor.copy_(torch.from_numpy(floor))
         self.centre.copy_(torch.from_numpy(centre))
-        step = max(1, (1 << 25) // max(1, x[0].nbytes))  # the statistics' deviations in chunks
-        stats = np.concatenate([self.stats_of(torch.from_numpy(x[i : i + step])).numpy()
-                                for i in range(0, len(x), step)])  # [n, C, stats]  # fmt: skip
+        stats = np.concatenate([self.stats_of(torch.from_numpy(c)).numpy()
+                                for c in chunks()])  # [n, C, stats]  # fmt: skip
         q = np.linspace(0.0, 1.0, self.knots.shape[-1])
         knots = np.quantile(stats, q, axis=0).transpose(1, 2, 0)  # [C, 2, K+1]
         # knots at least MIN_GAP of the range apart: where many windows share a value (silent
