@@ -162,6 +162,8 @@ def _check_lengths(shapes: dict[str, tuple[int, ...]], path: Path) -> None:
     if "X" not in shapes or not shapes["X"]:
         return
     n = shapes["X"][0]
+    if n == 0:
+        raise ValueError(f"{path}: X holds no data (0 windows, shape {shapes['X']})")
     for name, shape in shapes.items():
         if name in PER_WINDOW or name.startswith(GROUP_PREFIX):
             if len(shape) != 1 or shape[0] != n:
