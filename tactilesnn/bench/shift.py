@@ -31,13 +31,52 @@ AMPLITUDE = "logreg_amplitude"
 
 @dataclass(frozen=True)
 class Shift:
-    """One row: the file under the data root, the conditions added to it (none: its own), the
-    hold-out, and what differs between training and test."""
+    """One row of a real file: the file under the data root, the hold-out (None: the file's own
+    ``split``), what differs between training and test, and the conditions added to it (none:
+    its own)."""
 
     path: str
-    hold_out: Callable[[dict[str, np.ndarray]], str]
+    hold_out: Callable[[dict[str, np.ndarray]], str] | None
     what: str
     conditions: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+
+    def load(self, root: Path, seed: int) -> tuple[WindowDataset, WindowDataset, str]:
+        return load(root, self, seed)
+
+
+@dataclass(frozen=True)
+class SynthShift:
+    """One row made on purpose: a synthetic task rendered for training at each value of
+    ``train`` and for testing at ``test`` of its parameter ``name`` (the sensor models are the
+    lever: the scenes differ only there). The training values are its conditions, so the
+    selection leaves one out to choose."""
+
+    task: str
+    name: str
+    train: tuple[float, ...]
+    test: float
+    what: str
+    path: None = None
+    n_samples: int | None = None  # the task's own default when None
+
+    def load(self, root: Path, seed: int) -> tuple[WindowDataset, WindowDataset, str]:
+        from dataclasses import replace
+
+        from ..datasets_synth import get_task
+
+        size = {} if self.n_samples is None else {"n_samples": self.n_samples}
+        parts, values = [], {}
+        for k, v in enumerate(self.train):
+            part = get_task(self.task, seed=seed + 1000 * k, **{self.name: v}, **size).build()[0]
+            part = replace(part, scan=part.scan + 10**6 * k)  # one recording id space
+            values.update({int(s): v for s in np.unique(part.scan)})
+            parts.append(part)
+        train = parts[0]
+        for part in parts[1:]:
+            train = train.concat(part)
+        train = replace(train, conditions={self.name: values})
+        test = get_task(self.task, seed=seed + 999, **{self.name: self.test}, **size).build()[1]
+        return train, test, f"{self.name}={self.test:g}"
 
 
 def _abs_speed(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -60,7 +99,7 @@ def _last_run_per_class(a: dict[str, np.ndarray]) -> str:
     return "run=" + ",".join(map(str, held))
 
 
-ROWS: dict[str, Shift] = {
+ROWS: dict[str, Shift | SynthShift] = {
     "fabric_force": Shift("fabric_slide/fabric", lambda a: "F>=180",
                           "pressed harder (test F180-F250, train F120-F150)"),
     "fabric_speed": Shift("fabric_slide/fabric", lambda a: "speed>=100",
@@ -68,6 +107,11 @@ ROWS: dict[str, Shift] = {
     "icub_runs": Shift("braille_icub_abc/braille_abc_icub.npz", _last_run_per_class,
                        "recording runs no training slide came from (one per letter)",
                        _icub_runs),
+    "stmnist_source": Shift("st_mnist/st_mnist_events.npz", None,
+                            "the source's own split (its test writers' digits)"),
+    "synth_texture_speed": SynthShift("texture", "speed_mm_s", (40.0, 60.0), 100.0,
+                                      "synthetic texture scans, test slid at 100 mm/s, "
+                                      "train at 40 and 60"),
 }  # fmt: skip
 
 
@@ -80,10 +124,10 @@ def load(root: Path, shift: Shift, seed: int) -> tuple[WindowDataset, WindowData
     arrays = dict(read_data_arrays(path))
     if shift.conditions is not None:
         arrays.update({GROUP_PREFIX + k: v for k, v in shift.conditions(arrays).items()})
-    spec = shift.hold_out(arrays)
+    spec = None if shift.hold_out is None else shift.hold_out(arrays)
     cut = auto_window(path)
     train, test = datasets_from_arrays(arrays, path, seed, window=cut, hold_out=spec)
-    return train, test, spec
+    return train, test, spec or "the file's split"
 
 
 def run_defaults(train: WindowDataset, test: WindowDataset, leave_out: str | None,
@@ -116,15 +160,16 @@ def within(train: WindowDataset, seed: int) -> dict:
     return part
 
 
-def one_row(name: str, shift: Shift, root: Path, seed: int, with_within: bool) -> dict:
+def one_row(name: str, shift: Shift | SynthShift, root: Path, seed: int, with_within: bool) -> dict:
     """A row: the defaults, the references and the amplitude-only baseline on the identical
     split, the within-condition figure."""
     from ..recordings import HOLD_OUT
     from .real import references
 
     t0 = time.perf_counter()
-    train, test, spec = load(root, shift, seed)
-    leave_out = HOLD_OUT.match(spec).group("name")  # type: ignore[union-attr]
+    train, test, spec = shift.load(root, seed)
+    match = HOLD_OUT.match(spec)
+    leave_out = match.group("name") if match and train.conditions else None
     log.info("bench shift %s: %s, %d train / %d test windows", name, spec, train.y.size,
              test.y.size)  # fmt: skip
     defaults, pipe = run_defaults(train, test, leave_out, seed)
@@ -161,7 +206,8 @@ def run(out: Path, data_root: Path, rows: list[str] | None = None, seeds: int = 
         raise ValueError(f"unknown row(s) {unknown}; choose from {list(ROWS)}")
     result_rows = []
     for name in names:
-        if not (Path(data_root) / ROWS[name].path).exists():
+        path = ROWS[name].path
+        if path is not None and not (Path(data_root) / path).exists():
             log.warning("bench shift: %s not found under %s, skipped", ROWS[name].path,
                         data_root)  # fmt: skip
             continue
@@ -175,10 +221,12 @@ def run(out: Path, data_root: Path, rows: list[str] | None = None, seeds: int = 
 PAGE_HEAD = """# Trained at some conditions, tested at others (`tactilesnn bench shift`)
 
 Generated from `shift.json` by `{command}` ({machine}). Each row holds out whole conditions of
-a real file (`train --data FILE --hold-out SPEC`), runs the defaults as `train` runs them (the
-encoder compared by leaving whole condition values out) and, on the identical split, the
-scikit-learn references of `bench real` and the amplitude-only logistic regression (per-channel
-mean and sd). "Within" is the defaults on the training conditions alone, a fifth of their
+a real file (`train --data FILE --hold-out SPEC`; ST-MNIST: the source's own split), or renders
+a synthetic task's training scenes at some values of one parameter and its test scenes at
+another (`synth_*`: the sensor models make the shift on purpose), runs the defaults as `train`
+runs them (the encoder compared by leaving whole condition values out) and, on the identical
+split, the scikit-learn references of `bench real` and the amplitude-only logistic regression
+(per-channel mean and sd). "Within" is the defaults on the training conditions alone, a fifth of their
 recordings held out. Per window / per recording (scores summed over a recording's windows), %.
 The goal: the defaults at or above the best reference minus 2 points and above the amplitude-only
 baseline.
@@ -222,7 +270,7 @@ HELP = "shift: the defaults trained at some conditions and tested at others, bes
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from . import add_data_root
 
-    add_data_root(p, "fabric_slide/ and braille_icub_abc/")
+    add_data_root(p, "fabric_slide/, braille_icub_abc/ and st_mnist/")
     p.add_argument("--rows", nargs="+", choices=list(ROWS), help="rows to run (default: all)")
     p.add_argument("--seeds", type=int, default=1, help="seeds per row")
     p.add_argument("--no-within", action="store_true",

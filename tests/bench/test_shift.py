@@ -57,3 +57,20 @@ def test_the_icub_rows_hold_out_one_run_per_letter():
     a = {"y": np.repeat([0, 1, 2, 0, 1, 2, 0, 1, 2], 5), "recording": np.arange(45)}
     assert shift._last_run_per_class(a) == "run=6,7,8"
     assert shift._icub_runs(a)["run"].tolist()[:6] == [0, 0, 0, 0, 0, 1]
+
+
+def test_a_synthetic_row_renders_training_and_test_at_other_values():
+    """Training at each training value (the condition the selection leaves out), testing at
+    the held-out value, the rest of the scene as the task draws it."""
+    from pathlib import Path
+
+    row = shift.SynthShift("texture", "speed_mm_s", (40.0, 60.0), 100.0, "faster", n_samples=60)
+    train, test, spec = row.load(Path("."), 0)
+    assert spec == "speed_mm_s=100"
+    speeds = train.condition("speed_mm_s")
+    assert sorted(set(speeds.tolist())) == [40.0, 60.0]
+    assert np.unique(train.scan).size == train.y.size  # one id space across the two renders
+    assert test.fs_hz == train.fs_hz and test.channel_names == train.channel_names
+    from tactilesnn.recordings import HOLD_OUT
+
+    assert HOLD_OUT.match(spec).group("name") == "speed_mm_s"
