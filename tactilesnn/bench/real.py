@@ -272,6 +272,26 @@ def soft_target_rows(y: np.ndarray, confidence: np.ndarray,
     return rows, labels, q[rows, labels]
 
 
+#: what runs with no ``--pipelines``: what ``train --data`` trains with no flag on each kind of
+#: file (the README's and the page's rows), minutes a dataset; the others (the tempotron's
+#: selection and 40 epochs took ~12 min a seed on the 45-slide iCub file) by name, or ``all``
+DEFAULT_PIPELINES = ("default+readout", "events+csnn")
+
+
+def chosen_pipelines(names: list[str] | None) -> list[tuple]:
+    """The :data:`PIPELINES` entries named (None: :data:`DEFAULT_PIPELINES`; ``["all"]``: every
+    one); ValueError naming the choices for an unknown name."""
+    if names is None:
+        names = list(DEFAULT_PIPELINES)
+    elif list(names) == ["all"]:
+        names = [p[0] for p in PIPELINES]
+    chosen = [p for p in PIPELINES if p[0] in names]
+    if len(chosen) != len(set(names)):
+        raise ValueError(f"unknown pipeline(s) {sorted(set(names) - {p[0] for p in chosen})}; "
+                         f"choose from {[p[0] for p in PIPELINES]} or all")  # fmt: skip
+    return chosen
+
+
 # ---------------------------------------------------------------- the benchmark
 def run(
     out: Path,
@@ -289,9 +309,7 @@ def run(
     unknown = sorted(set(names) - set(known))
     if unknown:
         raise ValueError(f"unknown dataset(s) {unknown}; choose from {sorted(known)}")
-    chosen = [p for p in PIPELINES if pipelines is None or p[0] in pipelines]
-    if pipelines and len(chosen) != len(pipelines):
-        raise ValueError(f"unknown pipeline(s); choose from {[p[0] for p in PIPELINES]}")
+    chosen = chosen_pipelines(pipelines)
     for name in names:
         rel, loader, events = known[name]
         if rel is not None and not (data_root / rel).exists():
@@ -472,7 +490,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_data_root(p, "the real datasets")
     p.add_argument("--datasets", nargs="+", help="subset of datasets (default: the real ones "
                    "found); synth:<task> runs the same check on a synthetic task")  # fmt: skip
-    p.add_argument("--pipelines", nargs="+", help="subset of spike pipelines")
+    p.add_argument("--pipelines", nargs="+",
+                   help=f"spike pipelines by name, or all (default: {' '.join(DEFAULT_PIPELINES)}"
+                   ", what train --data trains with no flag; the others take longer)")  # fmt: skip
     p.add_argument("--seeds", type=int, default=3, help="dataset and training seeds")
     p.add_argument("--epochs", "--bench-epochs", type=int, default=None,
                    help="epochs (default: each model's own default, as train --data)")  # fmt: skip

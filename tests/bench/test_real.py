@@ -126,3 +126,12 @@ def test_soft_targets_become_weighted_rows_that_sum_to_each_window():
     assert labels.tolist() == [0, 0, 1, 2, 0, 1, 2]
     np.testing.assert_allclose(np.bincount(rows, weights=w), 1.0)
     np.testing.assert_allclose(w[4:], [0.2, 0.6, 0.2])
+
+
+def test_with_no_pipeline_named_bench_real_runs_what_train_runs():
+    """No flag: the no-flag ``train --data`` pipelines its page reports; slow ones by name."""
+    assert [p[0] for p in real.chosen_pipelines(None)] == ["default+readout", "events+csnn"]
+    assert len(real.chosen_pipelines(["all"])) == len(real.PIPELINES)
+    assert [p[0] for p in real.chosen_pipelines(["default+tempotron"])] == ["default+tempotron"]
+    with pytest.raises(ValueError, match="unknown pipeline"):
+        real.chosen_pipelines(["default+tempotorn"])
