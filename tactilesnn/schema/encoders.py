@@ -38,6 +38,17 @@ ENVELOPE_CODES = ("delta", "lif")
 LEVEL_SCALES = ("rank", "linear", "rank+linear")
 
 
+def check_bands(f_lo_hz: float, f_hi_hz: float, n_bands: int, most: int) -> None:
+    """A band range (Hz, ``0 < f_lo_hz < f_hi_hz``) of ``1..most`` bands, else ValueError."""
+    check_positive(f_lo_hz, "f_lo_hz")
+    check_positive(f_hi_hz, "f_hi_hz")
+    if not f_lo_hz < f_hi_hz:
+        raise ValueError(f"f_lo_hz ({f_lo_hz}) must be below f_hi_hz ({f_hi_hz})")
+    check_int(n_bands, "n_bands", 1)
+    if n_bands > most:
+        raise ValueError(f"n_bands must be <= {most}, got {n_bands}")
+
+
 @dataclass(frozen=True)
 class ScalogramLatencySettings(ComponentSettings):
     """Bands (Hz) and the latency code; shared by the GWT and STFT encoders."""
@@ -96,13 +107,7 @@ class ScalogramLatencySettings(ComponentSettings):
                 "dynamic_range_db": 60.0}  # fmt: skip
 
     def __post_init__(self) -> None:
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 512:
-            raise ValueError(f"n_bands must be <= 512, got {self.n_bands}")
+        check_bands(self.f_lo_hz, self.f_hi_hz, self.n_bands, 512)
         object.__setattr__(self, "stats", tuple(self.stats))
         if not self.stats:
             raise ValueError("stats must name at least one statistic")
@@ -233,13 +238,7 @@ class BandCodeConfig(ComponentSettings):
     def __post_init__(self) -> None:
         check_choice(self.transform, "transform", TRANSFORM_NAMES)
         check_choice(self.code, "code", ENVELOPE_CODES)
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 128:
-            raise ValueError(f"n_bands must be <= 128, got {self.n_bands}")
+        check_bands(self.f_lo_hz, self.f_hi_hz, self.n_bands, 128)
         check_int(self.frames, "frames", 2)
 
 
@@ -317,13 +316,7 @@ class FrameCodeConfig(ComponentSettings):
                 "n_bands": min(int(d["n_bands"]), cls.n_bands)}  # fmt: skip
 
     def __post_init__(self) -> None:
-        check_positive(self.f_lo_hz, "f_lo_hz")
-        check_positive(self.f_hi_hz, "f_hi_hz")
-        if not self.f_lo_hz < self.f_hi_hz:
-            raise ValueError(f"f_lo_hz ({self.f_lo_hz}) must be below f_hi_hz ({self.f_hi_hz})")
-        check_int(self.n_bands, "n_bands", 1)
-        if self.n_bands > 128:
-            raise ValueError(f"n_bands must be <= 128, got {self.n_bands}")
+        check_bands(self.f_lo_hz, self.f_hi_hz, self.n_bands, 128)
         check_positive(self.frame_ms, "frame_ms")
         check_int(self.neurons, "neurons", 1)
         check_positive(self.lo, "lo")
