@@ -100,13 +100,14 @@ def candidate_configs(
 ) -> dict[str, PipelineConfig]:
     """``config`` with each candidate encoder at its defaults for the data's rate, window and
     spectrum (``data_defaults`` of its config); with ``shift`` (test conditions unseen in
-    training) each also as ``<name>+gain`` (:data:`SHIFT_VARIANT`)."""
+    training) each also as ``<name>+gain`` (:data:`SHIFT_VARIANT`). A candidate that would not
+    fit in memory for these windows is left out (:func:`_that_fit`)."""
     median = median_power_frequency(train.X, train.fs_hz)
     out = {name: fit_encoder_to_data(config.replace(encoder=ENCODERS.config_class(name)()),
                                      train, median_hz=median) for name in candidates}  # fmt: skip
     if shift:
         out |= {f"{name}+gain": cfg.replace(**SHIFT_VARIANT) for name, cfg in list(out.items())}
-    return out
+    return _that_fit(out, train)
 
 
 #: what a candidate also tries where the test conditions are unseen (``--hold-out``): each
@@ -395,6 +396,28 @@ def condition_groups(train: WindowDataset, leave_out: str | None) -> tuple[np.nd
                  "recordings instead", leave_out)  # fmt: skip
         return None, "recordings"
     return values, f"whole values of condition {leave_out} (unseen as the test's are)"
+
+
+def _that_fit(configs: dict[str, PipelineConfig], train: WindowDataset
+              ) -> dict[str, PipelineConfig]:  # fmt: skip
+    """The candidates whose pipeline fits in memory for ``train``'s windows (each one's sizes
+    checked before any is fitted: one that would not is left out, said in the log, rather than
+    failing the run after the others' fits); ValueError if none does."""
+    kept, refused = {}, {}
+    for name, cfg in configs.items():
+        try:
+            SpikePipeline(cfg, train.fs_hz, train.X.shape[-1], train.channel_names,
+                          train.class_names)  # fmt: skip
+        except ValueError as e:
+            if "would need" not in str(e):
+                raise
+            refused[name] = str(e)
+            log.info("encoder selection: %s left out: %s", name, e)
+            continue
+        kept[name] = cfg
+    if not kept:
+        raise ValueError(next(iter(refused.values())))
+    return kept
 
 
 def _scored(name: str, config: PipelineConfig, fit: WindowDataset,

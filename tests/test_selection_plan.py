@@ -40,3 +40,24 @@ def test_the_probe_measures_a_training_step_and_keeps_the_random_state():
     assert torch.equal(torch.get_rng_state(), before)
     assert not p.solves and p.epochs == 3 and p.step_seconds_per_window > 0
     assert p.fit_seconds(40, 10) > 3 * p.step_seconds_per_window * 40
+
+
+def test_a_candidate_that_would_not_fit_in_memory_is_left_out_before_any_fit(monkeypatch):
+    """Long windows: the STFT candidate's one window would exceed the budget, the others fit;
+    it is left out of the candidates (said in the log) instead of failing the run after the
+    others' fits; none fitting is the first refusal."""
+    import numpy as np
+
+    from tactilesnn.config import PipelineConfig
+    from tactilesnn.core import checks
+    from tactilesnn.core.data import WindowDataset
+    from tactilesnn.selection import candidate_configs
+
+    X = np.random.default_rng(0).normal(size=(8, 2, 20000)).astype(np.float32)
+    ds = WindowDataset(X, np.arange(8) % 2, np.arange(8), 1000.0, ("a", "b"), ("c0", "c1"))
+    base = PipelineConfig.from_flat(model="readout", channels=("all",))
+    monkeypatch.setattr(checks, "memory_limit_bytes", lambda: 200 << 20)  # budget 100 MiB
+    assert list(candidate_configs(base, ds, ("cgwt", "stft", "lif"))) == ["cgwt", "lif"]
+    monkeypatch.setattr(checks, "memory_limit_bytes", lambda: 200 << 10)
+    with pytest.raises(ValueError, match="would need"):
+        candidate_configs(base, ds, ("cgwt", "stft"))

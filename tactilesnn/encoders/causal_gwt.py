@@ -233,8 +233,11 @@ def stream_gains(X: np.ndarray, n_max: int = 4096) -> np.ndarray:
     twice because the gain data near 1e-40 needs, 2 ** 133, is beyond float32's largest value;
     each factor a power of two, so both products are exact."""
     arr = np.asarray(X)
-    x = np.asarray(arr[evenly_spaced(len(arr), n_max)], np.float64)
-    r = np.median(x.max(-1) - x.min(-1), axis=0)  # [C]
+    # one window at a time (a float64 copy of thousands of long windows would not fit); the
+    # extremes are exact in the input's type, so the ranges are those of a float64 copy
+    ranges = [np.asarray(arr[i].max(-1), np.float64) - np.asarray(arr[i].min(-1), np.float64)
+              for i in evenly_spaced(len(arr), n_max)]  # fmt: skip
+    r = np.median(np.stack(ranges), axis=0)  # [C]
     ok = np.isfinite(r) & (r > 0)
     e = np.where(ok, -np.round(np.log2(np.where(ok, r, 1.0)) / 2), 0.0)
     return np.exp2(np.clip(e, -126, 126)).astype(np.float32)
