@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.data import GROUP_PREFIX, WindowDataset
+from ..core.data import GROUP_PREFIX, DataFacts, WindowDataset
 
 log = logging.getLogger("tactilesnn")
 
@@ -74,9 +74,12 @@ class SynthShift:
         train = parts[0]
         for part in parts[1:]:
             train = train.concat(part)
-        train = replace(train, conditions={self.name: values})
+        # the windows as a file of them would be read (train --data's policy, not the task's
+        # own pipeline): analog, cut already
+        facts = DataFacts(events=False)
+        train = replace(train, conditions={self.name: values}, facts=facts)
         test = get_task(self.task, seed=seed + 999, **{self.name: self.test}, **size).build()[1]
-        return train, test, f"{self.name}={self.test:g}"
+        return train, replace(test, facts=facts), f"{self.name}={self.test:g}"
 
 
 def _abs_speed(a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

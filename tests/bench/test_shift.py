@@ -71,6 +71,7 @@ def test_a_synthetic_row_renders_training_and_test_at_other_values():
     assert sorted(set(speeds.tolist())) == [40.0, 60.0]
     assert np.unique(train.scan).size == train.y.size  # one id space across the two renders
     assert test.fs_hz == train.fs_hz and test.channel_names == train.channel_names
+    assert train.facts is not None and not train.facts.events  # read as a file of windows
     from tactilesnn.recordings import HOLD_OUT
 
     assert HOLD_OUT.match(spec).group("name") == "speed_mm_s"
