@@ -262,8 +262,8 @@ class SpikePipeline:
                     "needs a stream model (--model stream)")  # fmt: skip
         if self.level is not None or self.n_clock:  # (a stream model gets neither)
             return "the level code and clock afferents are window codes"
-        if self.window_stage():
-            return f"{self.window_stage()}: a window code"
+        if stage := self.window_stage():
+            return f"{stage}: a window code"
         f_enc, f_model = enc.frame_period_ms, model.frame_period_ms
         if f_enc is None or f_model is None or abs(f_enc - f_model) > 1e-6 * f_enc:
             return (f"the model steps every {f_model} ms but the code's frame is {f_enc} ms: "

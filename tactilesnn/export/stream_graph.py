@@ -39,8 +39,8 @@ class StreamEncoderGraph(PipelineEncoderGraph):
     this graph's ``encoder``."""
 
     def __init__(self, pipe: SpikePipeline, step: int | None = None) -> None:
-        if pipe.window_stage():
-            raise ValueError(f"{pipe.window_stage()}: the stream graph, which codes each sample "
+        if stage := pipe.window_stage():
+            raise ValueError(f"{stage}: the stream graph, which codes each sample "
                              "once, cannot; export the window graph")  # fmt: skip
         if not pipe.encoder.has_stream_form:
             pipe.encoder.stream_module()  # the error naming the encoder
