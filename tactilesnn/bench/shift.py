@@ -172,7 +172,7 @@ def one_row(name: str, shift: Shift | SynthShift, root: Path, seed: int, with_wi
     t0 = time.perf_counter()
     train, test, spec = shift.load(root, seed)
     match = HOLD_OUT.match(spec)
-    leave_out = match.group("name") if match and train.conditions else None
+    leave_out = spec if match and train.conditions else None
     log.info("bench shift %s: %s, %d train / %d test windows", name, spec, train.y.size,
              test.y.size)  # fmt: skip
     defaults, pipe = run_defaults(train, test, leave_out, seed)

@@ -15,7 +15,13 @@ it back, for any encoder, calibrated on the training windows so it follows the d
   (``quantiles`` knots, piecewise linear between them): ``u`` in [0, 1], the value's rank among
   the training windows. Ranks make the code independent of units and offsets; a value outside the
   training range clamps to 0 or 1. ``scale = "linear"`` codes the value's linear position between
-  the training minimum and maximum instead, ``"rank+linear"`` both (a second ON / OFF pair);
+  the training minimum and maximum instead, ``"rank+linear"`` both (a second ON / OFF pair),
+  ``"wide"`` the linear position in the training range widened by its own span on each side
+  (:data:`WIDEN`): where test conditions lie beyond the training ones (a harder press raises
+  every level), the value still codes instead of clamping. FabricSlide, trained at F120-F150 and
+  tested at F180-F250, a logistic regression on each channel's mean: 88.0 % per window as it
+  is, 40.0 % clamped to the training range, 88.0 % clamped to the widened range (85 % of the
+  test windows lie above the training maximum on some channel);
 * ``u`` into ``neurons`` latency neurons: an ON / OFF pair, ``t = duration * (1 - u)`` and
   ``t = duration * u`` ms (the higher the value the earlier ON fires, the later OFF; both always
   fire, so a linear readout of their traces can weigh channels' levels against each other), and
@@ -52,6 +58,8 @@ STATS = ("mean", "log_sd")
 SHARE_STATS = ("mean", "log_sd", "share")
 #: what the ON / OFF pair codes: the training rank, the linear position in the training range, or
 #: a pair of each (the readout weighs them)
+#: ``scale = "wide"``: the training range widened by this many spans on each side
+WIDEN = 1.0
 #: a receptive field's response below this is no spike
 SILENT_BELOW = 0.1
 #: the log_sd floor, relative to the channel's scale (median training sd + median |level|): a flat
@@ -97,6 +105,8 @@ class LevelCode(nn.Module):
         self.stats = SHARE_STATS if self.share else STATS
         #: ON / OFF pairs per statistic: the rank's, the linear position's, or both
         self.pairs = 2 if scale == "rank+linear" else 1
+        #: spans the linear position's range is widened by on each side
+        self.widen = WIDEN if scale == "wide" else 0.0
         self.duration_ms = float(duration_ms)
         # float64 state and arithmetic: a window at a value many training windows share (a silent
         # channel at the sd floor) sits on a steep stretch of the rank function, where float32
@@ -174,6 +184,7 @@ class LevelCode(nn.Module):
         (float64): proportional to the value, so a linear readout can form weighted sums of
         levels (a centroid, a total force) that ranks distort."""
         lo, hi = self.knots[..., 0], self.knots[..., -1]
+        lo, hi = lo - self.widen * (hi - lo), hi + self.widen * (hi - lo)
         return ((v - lo) / (hi - lo)).clamp(0.0, 1.0)
 
     def ranks(self, x: Tensor) -> Tensor:
@@ -183,7 +194,7 @@ class LevelCode(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         """Window ``[B, C, W]`` -> spike times ``[B, n_afferents]`` (ms, inf = silent)."""
         v = self.stats_of(x.double())
-        first = self.position_of(v) if self.scale == "linear" else self.rank_of(v)
+        first = self.rank_of(v) if self.scale.startswith("rank") else self.position_of(v)
         u = first.unsqueeze(-1)  # [B, C, S, 1]
         t = torch.cat([self.duration_ms * (1.0 - u), self.duration_ms * u], -1)  # ON, OFF
         if self.pairs == 2:

@@ -35,7 +35,7 @@ TRANSFORM_NAMES = ("cgwt", "gwt", "stft")
 #: encoders of analog channels that code band envelopes (``codes_envelopes``; a test keeps them)
 ENVELOPE_CODES = ("delta", "lif")
 #: the level code's scales (:mod:`tactilesnn.encoders.level`)
-LEVEL_SCALES = ("rank", "linear", "rank+linear")
+LEVEL_SCALES = ("rank", "linear", "rank+linear", "wide")
 
 
 def check_bands(f_lo_hz: float, f_hi_hz: float, n_bands: int, most: int) -> None:

@@ -120,8 +120,9 @@ def test_pipeline_appends_the_level_afferents_between_encoder_and_clock():
 
 @pytest.mark.parametrize(
     "encoder, scale, share",
-    [("gwt", "rank", False), ("lif", "rank", False), ("gwt", "rank+linear", True)],
-)  # traced and scripted encoder graphs; the data defaults' pairs and share
+    [("gwt", "rank", False), ("lif", "rank", False), ("gwt", "rank+linear", True),
+     ("cgwt", "wide", False)],
+)  # traced and scripted encoder graphs; the data defaults' pairs and share; unseen conditions'  # fmt: skip
 @pytest.mark.slow
 def test_level_code_is_saved_with_the_run_and_exported(tmp_path, encoder, scale, share):
     params = {"seed": 0, "n_planar": 8, "n_concave": 4, "n_convex": 4, "n_test": 3}
@@ -182,6 +183,30 @@ def test_linear_pair_and_share_match_a_float64_reference():
     u = only.position_of(only.stats_of(torch.from_numpy(test).double())).numpy()
     t = only(torch.from_numpy(test)).numpy().reshape(80, 3, 2, 3)
     np.testing.assert_allclose(t[..., 1], 250.0 * u, atol=1e-3)
+
+
+def test_wide_scale_codes_levels_beyond_the_training_range_linearly():
+    """``scale="wide"`` (unseen conditions): the position in the training range widened by its
+    span each side, against float64 NumPy; a level up to one span above the training maximum
+    (a harder press) still moves the spike, where the linear and rank pairs clamp."""
+    train = _windows(seed=0)
+    wide = LevelCode(3, 2, 300.0, scale="wide").fit(train)
+    lin = LevelCode(3, 2, 300.0, scale="linear").fit(train)
+    x = np.asarray(train, np.float64)
+    mean = x.mean(-1) - np.median(x.mean(-1), axis=0)
+    lo, hi = mean.min(0), mean.max(0)
+    span = hi - lo
+    press = np.repeat(train[:1], 7, 0).astype(np.float64)
+    shift = np.linspace(-0.5, 1.5, 7)[:, None] * span[None, :]  # levels from inside to beyond
+    press += (shift + hi - press.mean(-1) + np.median(x.mean(-1), axis=0))[..., None]
+    level = press.mean(-1) - np.median(x.mean(-1), axis=0)
+    want = np.clip((level - (lo - span)) / (3 * span), 0.0, 1.0)
+    t = wide(torch.from_numpy(press.astype(np.float32))).numpy().reshape(7, 3, 2, 2)
+    # channels 0 and 1 (channel 2's levels differ by thousandths at 20,000: below float32)
+    np.testing.assert_allclose(t[:, :2, 0, 1], 300.0 * want[:, :2], atol=0.05)  # OFF = D u, ms
+    assert np.all(np.diff(t[:, :2, 0, 1], axis=0)[:5] > 0)  # beyond the maximum: still moving
+    clamped = lin(torch.from_numpy(press.astype(np.float32))).numpy().reshape(7, 3, 2, 2)
+    assert np.allclose(clamped[2:, :2, 0, 1], 300.0, atol=1e-3)  # the linear pair has clamped
 
 
 def test_share_is_scale_free_and_finite_at_rest():
