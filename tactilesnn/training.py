@@ -23,6 +23,7 @@ from .core.data import WindowDataset, condition_text, confidence_summary
 from .core.device import resolve_device
 from .core.files import load_arrays
 from .models.base import seeded
+from .models.softmax_fit import group_folds
 from .pipeline import SpikePipeline, accuracy_ci95, recording_accuracy
 from .stream_training import fit_streams, stream_evaluation
 from .trainer import Trainer
@@ -107,6 +108,69 @@ class Fitted:
     in_recordings: tuple[np.ndarray, torch.Tensor] | None
     encode_seconds: float
     fit_seconds: float
+
+
+#: folds of whole condition values the unseen-condition estimate re-fits the read-out in (a
+#: bounded cost: FabricSlide's 10 speeds and 5 forces, one refit each, added ~70 s to a 65 s run)
+UNSEEN_FOLDS = 3
+
+
+def unseen_condition_accuracy(fitted: Fitted) -> dict[str, dict] | None:
+    """How the fitted model does on condition values it never saw, where the data states
+    conditions and the test holds none out (``train --data`` with no ``--hold-out``): for each
+    condition with two or more values among the fitted windows, its values in (at most
+    :data:`UNSEEN_FOLDS`) folds of whole values, each fold left out of a copy of the model
+    re-solved on the others' spikes (the windows as the run coded them) and scored on it.
+    ``{name: {"accuracy", "accuracy_per_recording", "per_value": {value: accuracy}}}`` (over
+    every fitted window, each scored by the fit that left its value out),
+    or None where the model trains by epochs (a refit of each value would multiply the run) or
+    nothing can be left out."""
+    pipe, fit_set = fitted.pipeline, fitted.fit_set
+    if not fit_set.conditions or not type(pipe.model).solves_in_one_go(pipe.config.model):
+        return None
+    n = fit_set.y.size  # the windows coded alone (those coded with their past follow them)
+    spikes, y = fitted.train_spikes[:n], fit_set.y
+    out: dict[str, dict] = {}
+    for name in sorted(fit_set.conditions):
+        values = fit_set.condition(name)
+        if np.unique(values).size < 2:
+            continue
+        scores = np.zeros((n, len(pipe.class_names)))
+        for held in group_folds(values, UNSEEN_FOLDS):
+            got = _left_out_scores(pipe.model, spikes, y, fit_set.scan, held)
+            if got is None:
+                return None
+            scores[held] = got
+        right = scores.argmax(1) == y
+        per_value = {condition_text(v): float(right[values == v].mean())
+                     for v in np.unique(values)}  # fmt: skip
+        rec = recording_accuracy(scores, y, fit_set.scan) or {}
+        out[name] = {"accuracy": float((scores.argmax(1) == y).mean()),
+                     "accuracy_per_recording": rec.get("test_accuracy_per_recording"),
+                     "per_value": per_value}  # fmt: skip
+    return out or None
+
+
+def _left_out_scores(model: torch.nn.Module, spikes: torch.Tensor, y: np.ndarray,
+                     groups: np.ndarray, held: np.ndarray) -> np.ndarray | None:  # fmt: skip
+    """Scores of the ``held`` windows by a copy of ``model`` prepared and solved on the others
+    in one exact fit at the capacity the model's own solve chose (read-out instants, penalty
+    relative to the prior; no cross-validation again: the cost of one final fit per value),
+    or None where the solve falls back to epochs."""
+    import copy
+
+    m = copy.deepcopy(model)
+    if getattr(model, "chosen_capacity", None) is not None:  # no cross-validation again
+        m.refit_capacity = model.chosen_capacity
+    keep = torch.from_numpy(~held)
+    fit = spikes[keep]
+    m.prepare(fit)
+    yt = torch.as_tensor(y[~held], dtype=torch.int64)
+    solved = m.solve(fit, yt, groups[~held])
+    if solved is None or solved.get("train_epochs"):
+        return None
+    m.eval()
+    return m.batched_scores(spikes[torch.from_numpy(held)]).numpy()
 
 
 def fit_pipeline(
@@ -295,15 +359,23 @@ def fit_and_evaluate(
     resume: dict | None = None,
     require_export: bool = False,
     with_past: bool = True,
+    unseen_conditions: bool = False,
 ) -> TrainResult:
     """Fit ``config`` on ``train`` (:func:`fit_pipeline`) and test it on ``test``: accuracy per
     window (with its interval), per recording, in a stream, early decisions, the confusion
-    matrix. Random draws from torch's global generator (augmentation, dropout) start from
-    ``config.seed``; the caller's generator is left as it was."""
+    matrix; with ``unseen_conditions``, each stated condition's values left out in turn
+    (:func:`unseen_condition_accuracy`). Random draws from torch's global generator
+    (augmentation, dropout) start from ``config.seed``; the caller's generator is left as it
+    was."""
     with seeded(config.seed):
         fitted = fit_pipeline(config, train, progress, val_fraction, checkpoint, resume,
                               require_export, with_past)  # fmt: skip
-        return _evaluate(fitted, test, progress, with_past)
+        result = _evaluate(fitted, test, progress, with_past)
+    if unseen_conditions:  # the test holds no condition out: how an unseen one would go
+        unseen = unseen_condition_accuracy(fitted)
+        if unseen is not None:
+            result.metrics["unseen_conditions"] = unseen
+    return result
 
 
 def _evaluate(fitted: Fitted, test: WindowDataset, progress: bool, with_past: bool) -> TrainResult:

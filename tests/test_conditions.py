@@ -106,7 +106,7 @@ def test_a_held_out_run_reports_unseen_conditions_and_the_selection_never_sees_t
     out = tmp_path / "run"
     assert main(["train", "--data", str(path), "--hold-out", "force>=3", "--out", str(out),
                  "--quiet", "--no-export"]) == 0  # fmt: skip
-    assert seen == [({1, 2}, "force")]
+    assert seen == [({1, 2}, "force>=3")]
     import json
 
     m = json.loads((out / "metrics.json").read_text())
@@ -131,8 +131,44 @@ def test_a_file_without_conditions_runs_as_before(tmp_path, monkeypatch):
     spec = run_spec({"data": str(path), "epochs": 1}, tmp_path / "r", progress=False)
     assert spec.source.hold_out is None and spec.source.condition_left_out is None
     res = app_run.train_run(spec)
-    assert "by_condition" not in res.metrics
+    assert "by_condition" not in res.metrics and "unseen_conditions" not in res.metrics
     assert res.metrics["encoder_selection"]["validation"] == "recordings"
+
+
+@pytest.mark.slow
+def test_a_file_with_conditions_and_no_flag_reports_unseen_condition_accuracy(
+    tmp_path, monkeypatch, capsys
+):
+    """No ``--hold-out``: the run still says how an unseen condition value would go, each value
+    left out of a re-fitted read-out in turn, never fitted on the windows it scores."""
+    import json
+
+    import tactilesnn.training as training
+    from tactilesnn.cli import main
+
+    calls = []
+    real = training._left_out_scores
+
+    def spy(model, spikes, y, groups, held):
+        calls.append((held.copy(), np.unique(groups[~held]), np.unique(groups[held])))
+        return real(model, spikes, y, groups, held)
+
+    monkeypatch.setattr(training, "_left_out_scores", spy)
+    path = _file(tmp_path / "f.npz")
+    out = tmp_path / "run"
+    assert main(["train", "--data", str(path), "--out", str(out), "--quiet",
+                 "--no-export"]) == 0  # fmt: skip
+    m = json.loads((out / "metrics.json").read_text())
+    un = m["unseen_conditions"]
+    assert set(un) == {"day", "force"} and set(un["force"]["per_value"]) == {"1", "2", "3"}
+    assert len(calls) == 2 + 3  # day: mon, tue; force: 1, 2, 3 (up to 3 folds of values)
+    for held, fitted_on, scored in calls:  # whole recordings: none both fitted on and scored
+        assert held.any() and (~held).any() and not set(fitted_on) & set(scored)
+    text = capsys.readouterr().out
+    assert (
+        "unseen values of force (training windows, each scored by a read-out re-fitted "
+        f"without its value): {100 * un['force']['accuracy']:.1f} %"
+    ) in text
 
 
 def test_convert_dry_run_lists_the_conditions_and_needs_no_class_names(tmp_path):

@@ -137,6 +137,13 @@ def condition_lines(m: dict, source: Any) -> list[str]:
             else f"by condition {name}"
         )
         lines.append(f"{head}: " + "; ".join(parts))
+    for name, r in (m.get("unseen_conditions") or {}).items():
+        rec = r.get("accuracy_per_recording")
+        per = f", {100 * rec:.1f} % per recording" if rec is not None else ""
+        lines.append(f"unseen values of {name} (training windows, each scored by a read-out "
+                     f"re-fitted without its value): {100 * r['accuracy']:.1f} %{per} ("
+                     + "; ".join(f"{name}={v}: {100 * a:.1f} %" for v, a in r["per_value"].items())
+                     + f"); to test on one: --hold-out '{name}=VALUE'")  # fmt: skip
     return lines
 
 

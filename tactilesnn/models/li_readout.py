@@ -228,6 +228,10 @@ class LIReadout(TraceFeatures):
         # which features train (solve() may leave instants out); not saved: zero weights are
         self.register_buffer("instant_mask", torch.ones(n_in), persistent=False)
         self._prepared: tuple[Tensor, Tensor] | None = None  # prepare()'s traces, for solve()
+        #: ``(instants, penalty factor)`` a solve takes instead of cross-validating (None: it
+        #: chooses as configured); :attr:`chosen_capacity` is what the last solve used
+        self.refit_capacity: tuple[list[int], float] | None = None
+        self.chosen_capacity: tuple[list[int], float] | None = None
 
     @classmethod
     def solves_in_one_go(cls, config: object) -> bool:
@@ -344,7 +348,14 @@ class LIReadout(TraceFeatures):
         cols = torch.arange(d).view(-1, cfg.n_times)  # [afferents, instants]
         whole = 4 * n * d <= EXACT_BUDGET_BYTES
         feats = self._training_features(spikes, None) if whole else None
-        subset, lam, table, cv = self._cross_validate(spikes, y, groups, confidence, feats, cols)
+        if self.refit_capacity is None:
+            subset, lam, table, cv = self._cross_validate(spikes, y, groups, confidence, feats,
+                                                          cols)  # fmt: skip
+        else:  # a refit at a capacity chosen before (training.unseen_condition_accuracy)
+            subset, factor = self.refit_capacity
+            lam, table, cv = factor * self.penalty, [], np.arange(0)
+        #: the instants and the penalty as a factor of the prior, for a refit on other windows
+        self.chosen_capacity = (list(subset), float(lam / self.penalty) if self.penalty else 1.0)
         used = cols[:, subset].reshape(-1)
         weight = torch.zeros(self.n_classes, d, dtype=torch.float64)
         report = {"penalty": lam, "instants": len(subset),
@@ -384,7 +395,8 @@ class LIReadout(TraceFeatures):
         log.info("readout: %s, penalty %.3g (%.3g x the prior), %d read-out instant(s)%s "
                  "(%.1f s)", report["solver"], lam, lam / self.penalty if self.penalty else 1.0,
                  len(subset),
-                 " chosen by cross-validation over recordings" if cfg.choose else "",
+                 " refitted at the capacity chosen before" if self.refit_capacity is not None
+                 else " chosen by cross-validation over recordings" if cfg.choose else "",
                  report["seconds"])  # fmt: skip
         self.penalty = lam
         return report
