@@ -361,11 +361,7 @@ def select_encoder(
     t0 = time.perf_counter()
     by, validation, side = condition_groups(train, leave_out)
     configs = configs or candidate_configs(config, train, candidates, shift=by is not None)
-    if side is not None and np.unique(by).size < TREND_VALUES:
-        configs = _shift_variants(configs)
-        validation += (f"; among the variants for unseen conditions only: the test lies beyond "
-                       f"{np.unique(by).size} training values, too few for a held-out one to "
-                       "measure extrapolation")  # fmt: skip
+    configs, validation = _for_the_trend(configs, by, side, validation)
     fit_set, val_set = split_validation(train, fraction, config.seed + 1, by=by, side=side)
     assert val_set is not None
     cap = max(SELECT_MIN_WINDOWS, train.y.size // max(1, len(candidates)))  # (per encoder)
@@ -374,12 +370,6 @@ def select_encoder(
     val_set = selection_subset(val_set, cap, config.seed + 1)
     val_share = val_set.y.size / max(1, fit_set.y.size)
     rounds = planned_rounds(len(candidates), fit_set.y.size, val_share, budget)
-    # the model as a component asks to be fitted while encoders are compared (e.g. without its
-    # own cross-validation); the chosen config keeps the model as configured
-    quick = {
-        name: replace(c.model, **while_selecting(type(c.model))) for name, c in configs.items()
-    }
-
     scores: dict[str, dict[str, Any]] = {name: {"rounds": []} for name in candidates}
     keys: dict[str, tuple[float, float]] = {}
     report_rounds = []
@@ -395,7 +385,7 @@ def select_encoder(
         )
         t_round = time.perf_counter()
         for name in alive:
-            acc, per_rec = _scored(name, configs[name].replace(model=quick[name]), fit, val)
+            acc, per_rec = _scored(name, configs[name], fit, val)
             scores[name]["rounds"].append(acc)
             scores[name]["per_window"] = acc
             if per_rec is not None:
@@ -444,9 +434,18 @@ def _beyond(spec_values: str, train_values: np.ndarray) -> str | None:
 TREND_VALUES = 3
 
 
-def _shift_variants(configs: dict[str, PipelineConfig]) -> dict[str, PipelineConfig]:
-    """The candidates' variants for unseen conditions (all of them where there are none)."""
-    return {k: c for k, c in configs.items() if k.endswith(SHIFT_SUFFIX)} or configs
+def _for_the_trend(configs: dict[str, PipelineConfig], by: np.ndarray | None, side: str | None,
+                   validation: str) -> tuple[dict[str, PipelineConfig], str]:  # fmt: skip
+    """The candidates and the validation's description where the test lies beyond fewer than
+    :data:`TREND_VALUES` training values (``side`` set): only the variants for unseen
+    conditions (all candidates where there are none), and why; else both as they are."""
+    n = 0 if by is None else np.unique(by).size
+    variants = {k: c for k, c in configs.items() if k.endswith(SHIFT_SUFFIX)}
+    if side is None or n >= TREND_VALUES or not variants:
+        return configs, validation
+    return variants, (f"{validation}; among the variants for unseen conditions only: the test "
+                      f"lies beyond {n} training values, too few for a held-out one to measure "
+                      "extrapolation")  # fmt: skip
 
 
 def condition_groups(
@@ -503,7 +502,9 @@ def _that_fit(configs: dict[str, PipelineConfig], train: WindowDataset
 def _scored(name: str, config: PipelineConfig, fit: WindowDataset,
             val: WindowDataset) -> tuple[float, float | None]:  # fmt: skip
     """Candidate ``name`` fitted on ``fit`` and scored on ``val``: ``(per window, per recording
-    or None)``."""
+    or None)``. Its model as the component asks to be fitted while encoders are compared (e.g.
+    without its own cross-validation); the chosen config keeps the model as configured."""
+    config = config.replace(model=replace(config.model, **while_selecting(type(config.model))))
     m = fit_and_evaluate(config, fit, val, progress=False, with_past=False).metrics
     release_memory()  # a candidate's arrays are not the next one's resident memory
     per_rec = m.get("test_accuracy_per_recording")
