@@ -20,6 +20,10 @@ def test_stand_ins_have_the_stated_shapes(tmp_path) -> None:
     folder = standins.slide_csv(tmp_path / "slides", n=8)
     files = sorted(folder.glob("*.csv"))
     assert len(files) == 8 and files[0].read_text().startswith("timestamp,ch1,")
+    gl = np.load(standins.glove(tmp_path / "gl.npz"))
+    assert gl["X"].shape == (560, 5, 50) and float(gl["fs"]) == 10.0
+    assert np.unique(gl["y"]).size == 28 and np.bincount(gl["y"]).min() == 20
+    assert gl["X"].max() < 10.5 and np.isfinite(gl["X"]).all()  # a resistor saturates below 10
     # deterministic from the seed
     again = np.load(standins.events(tmp_path / "ev2.npz", n=40))
     assert np.array_equal(again["X"], ev["X"])
