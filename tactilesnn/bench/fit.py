@@ -3,11 +3,11 @@
 Every visible real set found under ``--data-root`` (read in place) and the generated stand-ins of
 common shapes (:mod:`.standins`: 1,000 x 22 x 600 @ 100 Hz electrode-like drift, 1,000 x 1 x
 13,200 @ 2.2 kHz vibration, a folder of 800 16-taxel CSVs at 357 Hz, 300 x 39 x 2 x 325 event
-bins, 560 x 5 x 50 @ 10 Hz glove grasps of 28 objects
-) go through ``tactilesnn train --data FILE --quiet`` with no other flag, each in a fresh
-process as a user runs it (fit and verified export): its wall time, peak resident memory (of that
-process alone), the stages' seconds from its ``metrics.json`` and its accuracy per window and per
-recording. On the identical split, scikit-learn references are fitted and timed (logistic
+bins, 560 x 5 x 50 @ 10 Hz glove grasps of 28 objects) go through ``tactilesnn train --data
+FILE --quiet`` with no other flag, each in a fresh process as a user runs it (fit and verified
+export): its wall time, peak resident memory (of that process alone), the stages' seconds from
+its ``metrics.json`` and its accuracy per window and per recording. On the identical split,
+scikit-learn references are fitted and timed (logistic
 regression on log band powers, random forests on summary statistics and on counts in ten time
 slices); each row prints the best reference's accuracy and the ratio of the run's time to that
 reference's. ``--busy`` runs each set a second time beside one CPU-bound process and prints the
