@@ -115,6 +115,9 @@ ROWS: dict[str, Shift | SynthShift] = {
     "synth_texture_speed": SynthShift("texture", "speed_mm_s", (40.0, 60.0), 100.0,
                                       "synthetic texture scans, test slid at 100 mm/s, "
                                       "train at 40 and 60"),
+    "synth_texture_force": SynthShift("texture", "pressure_kpa", (0.5, 1.0), 3.0,
+                                      "synthetic texture scans, test pressed at 3 kPa, "
+                                      "train at 0.5 and 1 kPa"),
 }  # fmt: skip
 
 

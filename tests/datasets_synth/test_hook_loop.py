@@ -73,3 +73,22 @@ def test_bad_names_and_arguments():
         HookLoopTask(difficulty=-1)
     with pytest.raises(IndexError):
         HookLoopTask().surface(500)
+
+
+def test_the_set_point_centre_scales_the_load_and_is_checked():
+    """``set_point_Pa`` (the texture task's ``pressure_kpa``) moves every scan's load set point
+    by the same factor, the same draws otherwise (the default: 1 kPa, as before); a pressure
+    that is not a finite positive number is refused by name."""
+    from tactilesnn.datasets_synth import get_task
+
+    light = SlidingScanScene().render(np.random.default_rng(3))
+    hard = SlidingScanScene(set_point_Pa=3000.0).render(np.random.default_rng(3))
+    assert hard[2]["pressure_set_Pa"] == pytest.approx(3 * light[2]["pressure_set_Pa"])
+    assert np.array_equal(light[1], hard[1])  # the same scan, pressed harder
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="set_point_Pa"):
+            SlidingScanScene(set_point_Pa=bad)
+    default = get_task("texture", seed=0, n_samples=24).build()[0]
+    same = get_task("texture", seed=0, n_samples=24, pressure_kpa=1.0).build()[0]
+    harder = get_task("texture", seed=0, n_samples=24, pressure_kpa=3.0).build()[0]
+    assert np.array_equal(default.X, same.X) and not np.array_equal(default.X, harder.X)

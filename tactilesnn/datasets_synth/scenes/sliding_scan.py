@@ -47,7 +47,7 @@ class ScanVariability:
     """Scan-to-scan and within-scan variability.
 
     Amplitude nuisances (what defeats an amplitude-only classifier; scaled by the task's
-    ``amplitude_spread``): ``pressure_log_range``: set point = 1 kPa * exp(U(-r, r)), held per scan
+    ``amplitude_spread``): ``pressure_log_range``: set point = centre * exp(U(-r, r)) (1 kPa), held per scan
     by the closed loop; ``gain_log_sd``: sd of the log coupling gain (mounting, curvature, wear).
 
     Spectral nuisances (scaled by the task's ``difficulty``): ``speed_sd``: stride-to-stride speed
@@ -86,8 +86,13 @@ class SlidingScanScene:
     protocol: ScanProtocol = field(default_factory=ScanProtocol)
     variability: ScanVariability = field(default_factory=ScanVariability)
     base_dynamic_Pa: float = 40.0  # asperity pressure of a unit texture profile at 1 kPa load
+    #: the load set point's centre (Pa); each scan's set point varies about it
+    #: (``ScanVariability.pressure_log_range``)
+    set_point_Pa: float = 1000.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.set_point_Pa) and self.set_point_Pa > 0):
+            raise ValueError(f"set_point_Pa must be a finite pressure > 0, got {self.set_point_Pa}")
         if self.surface not in SURFACES:
             raise ValueError(f"unknown surface {self.surface!r}; choose one of: {SURFACES}")
         for t in self.textures:
@@ -116,7 +121,7 @@ class SlidingScanScene:
         pr, var = self.protocol, self.variability
         fs = pr.fs_sim_hz
         order = tuple(range(len(self.textures))) if order is None else order
-        p_set = 1000.0 * np.exp(rng.uniform(-1, 1) * var.pressure_log_range)
+        p_set = self.set_point_Pa * np.exp(rng.uniform(-1, 1) * var.pressure_log_range)
         ripple = var.ripple_planar if self.surface == "planar" else var.ripple_curved
         # contact length (rows of ridges touching): a concave surface wraps the fingertip
         base_rows = {"planar": 4, "concave": 5, "convex": 3}[self.surface]

@@ -35,6 +35,8 @@ class TextureTask(TrialTask):
     n_samples: int = 2400
     speed_mm_s: float = 60.0
     window_samples: int = 200  # 1 s: a few cycles of the coarsest (4 mm) grating
+    #: the centre of the scans' normal-load set points (kPa; each scan's varies about it)
+    pressure_kpa: float = 1.0
 
     name: ClassVar[str] = "texture"
     task_id: ClassVar[int] = 2
@@ -59,6 +61,7 @@ class TextureTask(TrialTask):
             surface="planar",
             protocol=protocol,
             variability=ScanVariability().scaled(self.difficulty, self.amplitude_spread),
+            set_point_Pa=1000.0 * self.pressure_kpa,
         )
         pressure, labels_sim, info = scene.render(rng, (0,))
         sensor = self.sensor
