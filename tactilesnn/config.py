@@ -115,8 +115,9 @@ class PipelineConfig:
         "rank",
         choices=LEVEL_SCALES,
         help="what the level code's ON/OFF pair codes: 'rank' (the value's rank among the "
-        "training windows), 'linear' (its position in the training range) or 'rank+linear' (a "
-        "pair of each; the model weighs them)",
+        "training windows), 'linear' (its position in the training range), 'rank+linear' (a "
+        "pair of each; the model weighs them) or 'wide' (its position in the training range "
+        "widened by its span each side: levels beyond the training ones still code)",
     )
     level_share: bool = setting(
         False,

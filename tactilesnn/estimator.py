@@ -57,8 +57,8 @@ class SpikeClassifier(ClassifierMixin, BaseEstimator):
     level_neurons : receptive fields of the calibrated level code appended to the encoder's
         spikes (:mod:`tactilesnn.encoders.level`; 0 = off, needed by models that map every
         afferent onto a taxel grid, such as ``csnn``; None: as ``train --data``).
-    level_scale, level_share : what the level code's pairs code (``"rank"``, ``"linear"`` or
-        ``"rank+linear"``) and whether each channel's share of the window's total level is a
+    level_scale, level_share : what the level code's pairs code (``"rank"``, ``"linear"``,
+        ``"rank+linear"`` or ``"wide"``) and whether each channel's share of the window's total level is a
         third statistic (None: as ``train --data`` for the data: ``rank+linear`` and the share
         for analog windows, the rank pair alone for event counts).
     val_fraction : windows (whole groups) held out of training for best-weight selection and
