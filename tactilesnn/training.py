@@ -142,11 +142,10 @@ def unseen_condition_accuracy(fitted: Fitted) -> dict[str, dict] | None:
             if got is None:
                 return None
             scores[held] = got
-        right = scores.argmax(1) == y
-        per_value = {condition_text(v): float(right[values == v].mean())
-                     for v in np.unique(values)}  # fmt: skip
+        rows = condition_accuracy(scores, fit_set)[name]
         rec = recording_accuracy(scores, y, fit_set.scan) or {}
-        out[name] = {"accuracy": float(right.mean()),
+        per_value = {value: r["accuracy"] for value, r in rows.items()}
+        out[name] = {"accuracy": float((scores.argmax(1) == y).mean()),
                      "accuracy_per_recording": rec.get("test_accuracy_per_recording"),
                      "per_value": per_value}  # fmt: skip
     return out or None

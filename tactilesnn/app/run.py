@@ -251,7 +251,7 @@ def _train_run(spec: RunSpec, out: Path) -> RunResult:
                 config, train, test, progress=spec.progress, val_fraction=spec.val_fraction,
                 checkpoint=lambda epoch, st: save_checkpoint(partial, st), resume=state,
                 require_export=spec.export,
-                unseen_conditions=getattr(spec.source, "hold_out", None) is None,
+                unseen_conditions=spec.source.hold_out is None,
             )  # fmt: skip
             res.metrics["trivial_amplitude_baseline_accuracy"] = linear_amplitude_baseline(
                 train.X, train.y, test.X, test.y
